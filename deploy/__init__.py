@@ -1,0 +1,1 @@
+"""Deployment: the umbrella CLI, corridor files, router configs and compose generation."""

@@ -1,0 +1,466 @@
+"""Corridor files (DESIGN.md "Corridor file"): load and validate a TOML file into typed objects.
+
+A corridor has an origin (lat/lon of the local east/north frame), a road (reference line made of
+straight and arc segments, lanes to its left, a shoulder to its right), RSUs with their cameras and
+calibration pairs, the autonomous vehicles, and transport settings.
+
+Road frame: the reference line is the right edge of lane 0 (the curb line), in the direction of
+travel; ``s`` is the distance along it and ``d`` the signed offset, positive to the left. Lane ``i``
+spans ``d`` in [i*w, (i+1)*w] (lane 0 = rightmost); the shoulder is d in [-shoulder, 0].
+
+Cameras: position (x, y, height) and orientation (yaw: viewing direction from +x, counter-clockwise;
+pitch: downward tilt; roll about the optical axis), pinhole intrinsics. ``CameraConfig`` gives K, R
+(world -> camera, OpenCV axes: x right, y down, z forward) and the centre C, so p_cam = R (p_world - C).
+
+A bad file fails with ``CorridorError`` naming the file, the field and what was expected.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+EARTH_RADIUS_M = 6_378_137.0
+DEFAULT_CORRIDOR = Path(__file__).resolve().parent.parent / "deploy" / "corridors" / "rellis.toml"
+
+
+class CorridorError(ValueError):
+    """A corridor file that cannot be used; the message says where and why."""
+
+
+# ----------------------------------------------------------------------------- reading helpers
+class _Reader:
+    def __init__(self, source: str, data: dict[str, Any], path: str = "") -> None:
+        self.source, self.data, self.path = source, data, path
+
+    def _where(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def fail(self, key: str, expected: str, got: Any = None) -> CorridorError:
+        got_s = "" if got is None else f", got {got!r}"
+        return CorridorError(f"{self.source}: field '{self._where(key)}': expected {expected}{got_s}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def num(self, key: str, default: float | None = None, *, lo: float | None = None,
+            hi: float | None = None, positive: bool = False) -> float:
+        if key not in self.data:
+            if default is None:
+                raise self.fail(key, "a number (missing)")
+            return float(default)
+        v = self.data[key]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise self.fail(key, "a finite number", v)
+        if positive and not v > 0:
+            raise self.fail(key, "a number > 0", v)
+        if lo is not None and v < lo or hi is not None and v > hi:
+            raise self.fail(key, f"a number in [{lo}, {hi}]", v)
+        return float(v)
+
+    def integer(self, key: str, default: int | None = None, *, lo: int = 0, hi: int = 10**9) -> int:
+        if key not in self.data:
+            if default is None:
+                raise self.fail(key, "an integer (missing)")
+            return default
+        v = self.data[key]
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise self.fail(key, f"an integer in [{lo}, {hi}]", v)
+        return v
+
+    def text(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
+             ident: bool = False) -> str:
+        if key not in self.data:
+            if default is None:
+                raise self.fail(key, "a string (missing)")
+            return default
+        v = self.data[key]
+        if not isinstance(v, str) or not v:
+            raise self.fail(key, "a non-empty string", v)
+        if choices is not None and v not in choices:
+            raise self.fail(key, f"one of {list(choices)}", v)
+        if ident and not all(c.isalnum() or c in "_-." for c in v):
+            raise self.fail(key, "an id of letters, digits, '_', '-', '.'", v)
+        return v
+
+    def table(self, key: str, required: bool = True) -> _Reader:
+        if key not in self.data:
+            if required:
+                raise self.fail(key, "a table (missing)")
+            return _Reader(self.source, {}, self._where(key))
+        v = self.data[key]
+        if not isinstance(v, dict):
+            raise self.fail(key, "a table", type(v).__name__)
+        return _Reader(self.source, v, self._where(key))
+
+    def tables(self, key: str, required: bool = True) -> list[_Reader]:
+        if key not in self.data:
+            if required:
+                raise self.fail(key, "an array of tables (missing)")
+            return []
+        v = self.data[key]
+        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+            raise self.fail(key, "an array of tables ([[...]])", type(v).__name__)
+        return [_Reader(self.source, x, f"{self._where(key)}[{i}]") for i, x in enumerate(v)]
+
+    def str_list(self, key: str) -> list[str]:
+        v = self.data.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise self.fail(key, "a list of strings", v)
+        return list(v)
+
+
+# ----------------------------------------------------------------------------- road geometry
+@dataclass(frozen=True)
+class Segment:
+    kind: str  # "straight" | "arc"
+    length_m: float
+    radius_m: float | None = None
+    """Arc radius; positive turns left (counter-clockwise), negative turns right."""
+
+
+@dataclass(frozen=True)
+class Road:
+    start_x_m: float
+    start_y_m: float
+    start_heading_rad: float
+    segments: tuple[Segment, ...]
+    lanes: int = 2
+    lane_width_m: float = 3.7
+    shoulder_width_m: float = 2.5
+    opposite_lanes: int = 0
+    speed_limit_mps: float = 13.4
+    sample_step_m: float = 0.25
+
+    @property
+    def length_m(self) -> float:
+        return sum(s.length_m for s in self.segments)
+
+    @property
+    def width_m(self) -> float:
+        return self.lanes * self.lane_width_m
+
+    @cached_property
+    def _samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Reference line sampled every ``sample_step_m``: s, x, y, heading (exact per segment)."""
+        ss, xs, ys, hs = [0.0], [self.start_x_m], [self.start_y_m], [self.start_heading_rad]
+        s0, x0, y0, h0 = 0.0, self.start_x_m, self.start_y_m, self.start_heading_rad
+        for seg in self.segments:
+            n = max(1, int(math.ceil(seg.length_m / self.sample_step_m)))
+            u = np.linspace(0.0, seg.length_m, n + 1)[1:]
+            if seg.kind == "straight":
+                x = x0 + u * math.cos(h0)
+                y = y0 + u * math.sin(h0)
+                h = np.full_like(u, h0)
+            else:
+                k = 1.0 / seg.radius_m  # type: ignore[operator]
+                h = h0 + k * u
+                x = x0 + (np.sin(h) - math.sin(h0)) / k
+                y = y0 - (np.cos(h) - math.cos(h0)) / k
+            ss.extend(s0 + u), xs.extend(x), ys.extend(y), hs.extend(h)
+            s0, x0, y0, h0 = s0 + seg.length_m, float(x[-1]), float(y[-1]), float(h[-1])
+        return np.array(ss), np.array(xs), np.array(ys), np.array(hs)
+
+    def pose_at(self, s_m: float | np.ndarray, d_m: float | np.ndarray = 0.0):
+        """World (x, y, heading) of the road point at distance s and lateral offset d (left +)."""
+        s_arr, x_arr, y_arr, h_arr = self._samples
+        s = np.clip(np.asarray(s_m, dtype=float), s_arr[0], s_arr[-1])
+        i = np.clip(np.searchsorted(s_arr, s, side="right") - 1, 0, len(s_arr) - 2)
+        # exact within a sample interval: the heading is linear in s on lines and arcs
+        ds = s - s_arr[i]
+        h0, h1 = h_arr[i], h_arr[i + 1]
+        seg_len = s_arr[i + 1] - s_arr[i]
+        dh = h1 - h0
+        k = np.where(seg_len > 0, dh / np.where(seg_len > 0, seg_len, 1.0), 0.0)
+        h = h0 + k * ds
+        small = np.abs(k) < 1e-12
+        kk = np.where(small, 1.0, k)
+        x = np.where(small, x_arr[i] + ds * np.cos(h0), x_arr[i] + (np.sin(h) - np.sin(h0)) / kk)
+        y = np.where(small, y_arr[i] + ds * np.sin(h0), y_arr[i] - (np.cos(h) - np.cos(h0)) / kk)
+        d = np.asarray(d_m, dtype=float)
+        x = x - d * np.sin(h)
+        y = y + d * np.cos(h)
+        if np.ndim(x) == 0:
+            return float(x), float(y), float(h)
+        return x, y, h
+
+    def curvature_at(self, s_m: float) -> float:
+        s = 0.0
+        for seg in self.segments:
+            if s_m <= s + seg.length_m:
+                return 0.0 if seg.kind == "straight" else 1.0 / seg.radius_m  # type: ignore[operator]
+            s += seg.length_m
+        return 0.0
+
+    def to_frenet(self, x_m: float | np.ndarray, y_m: float | np.ndarray):
+        """(s, d) of world points: nearest point on the reference line, d positive to the left."""
+        s_arr, x_arr, y_arr, h_arr = self._samples
+        px = np.atleast_1d(np.asarray(x_m, dtype=float))
+        py = np.atleast_1d(np.asarray(y_m, dtype=float))
+        # project onto each polyline piece, keep the nearest (vectorised over points x pieces)
+        ax, ay = x_arr[:-1], y_arr[:-1]
+        bx, by = x_arr[1:] - ax, y_arr[1:] - ay
+        seg_len2 = bx * bx + by * by
+        out_s = np.empty_like(px)
+        out_d = np.empty_like(px)
+        for j in range(len(px)):  # pieces are vectorised; points are few per call
+            t = np.clip(((px[j] - ax) * bx + (py[j] - ay) * by) / seg_len2, 0.0, 1.0)
+            qx, qy = ax + t * bx, ay + t * by
+            dist2 = (px[j] - qx) ** 2 + (py[j] - qy) ** 2
+            i = int(np.argmin(dist2))
+            cross = bx[i] * (py[j] - ay[i]) - by[i] * (px[j] - ax[i])
+            out_s[j] = s_arr[i] + t[i] * (s_arr[i + 1] - s_arr[i])
+            out_d[j] = math.copysign(math.sqrt(dist2[i]), cross) if dist2[i] > 0 else 0.0
+        if np.ndim(x_m) == 0:
+            return float(out_s[0]), float(out_d[0])
+        return out_s, out_d
+
+    def lane_centre_offset_m(self, lane: int) -> float:
+        if not 0 <= lane < self.lanes:
+            raise ValueError(f"lane {lane} does not exist (the road has lanes 0..{self.lanes - 1})")
+        return (lane + 0.5) * self.lane_width_m
+
+    def lane_of_offset(self, d_m: float) -> int | None:
+        """Lane index at lateral offset d, None on the shoulder or off the road."""
+        if d_m < 0 or d_m >= self.lanes * self.lane_width_m:
+            return None
+        return int(d_m // self.lane_width_m)
+
+    def lane_at(self, x_m: float, y_m: float) -> int | None:
+        return self.lane_of_offset(self.to_frenet(x_m, y_m)[1])
+
+
+# ----------------------------------------------------------------------------- cameras and RSUs
+@dataclass(frozen=True)
+class CameraConfig:
+    x_m: float
+    y_m: float
+    height_m: float
+    yaw_rad: float
+    pitch_rad: float
+    roll_rad: float
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    fps: float = 15.0
+
+    @property
+    def intrinsic_matrix(self) -> np.ndarray:
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+
+    @property
+    def centre_world(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m, self.height_m])
+
+    @property
+    def rotation_world_to_camera(self) -> np.ndarray:
+        cy, sy = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        cp, sp = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
+        forward = np.array([cp * cy, cp * sy, -sp])
+        right = np.array([sy, -cy, 0.0])
+        down = np.cross(forward, right)
+        r = np.stack([right, down, forward])
+        if self.roll_rad:
+            c, s = math.cos(self.roll_rad), math.sin(self.roll_rad)
+            r = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ r
+        return r
+
+    @property
+    def projection_matrix(self) -> np.ndarray:
+        """P = K [R | -R C] (3x4)."""
+        r = self.rotation_world_to_camera
+        return self.intrinsic_matrix @ np.hstack([r, (-r @ self.centre_world)[:, None]])
+
+
+@dataclass(frozen=True)
+class RsuConfig:
+    rsu_id: str
+    camera: CameraConfig
+    calibration: tuple[tuple[float, float, float, float], ...] = ()
+    """Surveyed pairs (u_px, v_px, x_m, y_m): pixel -> road-plane world position (thesis App. B)."""
+
+    @property
+    def position(self) -> tuple[float, float]:
+        return (self.camera.x_m, self.camera.y_m)
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    vehicle_id: str
+    start_s_m: float = 0.0
+    start_lane: int = 1
+    cruise_speed_mps: float = 13.4
+    length_m: float = 4.9
+    width_m: float = 1.9
+
+
+@dataclass(frozen=True)
+class TransportConfig:
+    connect: tuple[str, ...] = ()
+    dsrc_latency_s: float = 0.003
+    dsrc_jitter_s: float = 0.001
+    dsrc_loss: float = 0.01
+    dsrc_range_m: float = 300.0
+
+
+@dataclass(frozen=True)
+class Corridor:
+    corridor_id: str
+    name: str
+    origin_lat_deg: float
+    origin_lon_deg: float
+    road: Road
+    rsus: tuple[RsuConfig, ...]
+    vehicles: tuple[VehicleConfig, ...] = ()
+    transport: TransportConfig = field(default_factory=TransportConfig)
+    source: str = ""
+
+    def rsu(self, rsu_id: str) -> RsuConfig:
+        for r in self.rsus:
+            if r.rsu_id == rsu_id:
+                return r
+        raise KeyError(f"corridor {self.corridor_id!r} has no RSU {rsu_id!r}; it has {[r.rsu_id for r in self.rsus]}")
+
+    def vehicle(self, vehicle_id: str) -> VehicleConfig:
+        for v in self.vehicles:
+            if v.vehicle_id == vehicle_id:
+                return v
+        raise KeyError(f"corridor {self.corridor_id!r} has no vehicle {vehicle_id!r}")
+
+    def to_latlon(self, x_m: float, y_m: float) -> tuple[float, float]:
+        """Local east/north metres -> WGS-84 degrees (local tangent plane; < 1 cm error over km)."""
+        lat = self.origin_lat_deg + math.degrees(y_m / EARTH_RADIUS_M)
+        lon = self.origin_lon_deg + math.degrees(x_m / (EARTH_RADIUS_M * math.cos(math.radians(self.origin_lat_deg))))
+        return lat, lon
+
+    def from_latlon(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        y = math.radians(lat_deg - self.origin_lat_deg) * EARTH_RADIUS_M
+        x = math.radians(lon_deg - self.origin_lon_deg) * EARTH_RADIUS_M * math.cos(math.radians(self.origin_lat_deg))
+        return x, y
+
+
+# ----------------------------------------------------------------------------- loading
+def _load_road(r: _Reader) -> Road:
+    segs = []
+    for sr in r.tables("segments"):
+        kind = sr.text("kind", choices=("straight", "arc"))
+        length = sr.num("length_m", positive=True)
+        radius = None
+        if kind == "arc":
+            radius = sr.num("radius_m")
+            if abs(radius) < 5.0:
+                raise sr.fail("radius_m", "an arc radius with |R| >= 5 m (sign: + left, - right)", radius)
+        segs.append(Segment(kind, length, radius))
+    if not segs:
+        raise r.fail("segments", "at least one segment")
+    return Road(
+        start_x_m=r.num("start_x_m", 0.0),
+        start_y_m=r.num("start_y_m", 0.0),
+        start_heading_rad=r.num("start_heading_rad", 0.0, lo=-math.pi, hi=math.pi),
+        segments=tuple(segs),
+        lanes=r.integer("lanes", 2, lo=1, hi=8),
+        lane_width_m=r.num("lane_width_m", 3.7, lo=2.5, hi=5.0),
+        shoulder_width_m=r.num("shoulder_width_m", 2.5, lo=0.0, hi=6.0),
+        opposite_lanes=r.integer("opposite_lanes", 0, lo=0, hi=8),
+        speed_limit_mps=r.num("speed_limit_mps", 13.4, lo=1.0, hi=45.0),
+    )
+
+
+def _load_camera(c: _Reader, x: float, y: float) -> CameraConfig:
+    width = c.integer("width_px", 1280, lo=64, hi=8192)
+    height = c.integer("height_px", 720, lo=48, hi=8192)
+    fx = c.num("fx_px", positive=True)
+    return CameraConfig(
+        x_m=x,
+        y_m=y,
+        height_m=c.num("height_m", 10.7, lo=1.0, hi=50.0),
+        yaw_rad=c.num("yaw_rad", lo=-2 * math.pi, hi=2 * math.pi),
+        pitch_rad=c.num("pitch_rad", lo=0.0, hi=math.pi / 2),
+        roll_rad=c.num("roll_rad", 0.0, lo=-0.5, hi=0.5),
+        width_px=width,
+        height_px=height,
+        fx_px=fx,
+        fy_px=c.num("fy_px", fx, positive=True),
+        cx_px=c.num("cx_px", width / 2.0, lo=0.0, hi=float(width)),
+        cy_px=c.num("cy_px", height / 2.0, lo=0.0, hi=float(height)),
+        fps=c.num("fps", 15.0, lo=1.0, hi=120.0),
+    )
+
+
+def _load_calibration(r: _Reader) -> tuple[tuple[float, float, float, float], ...]:
+    pts = r.data.get("calibration", [])
+    if not isinstance(pts, list):
+        raise r.fail("calibration", "a list of [u_px, v_px, x_m, y_m]", type(pts).__name__)
+    out = []
+    for i, p in enumerate(pts):
+        if (not isinstance(p, list) or len(p) != 4
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in p)):
+            raise r.fail(f"calibration[{i}]", "[u_px, v_px, x_m, y_m] of 4 finite numbers", p)
+        out.append(tuple(float(v) for v in p))
+    return tuple(out)  # type: ignore[return-value]
+
+
+def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor:
+    top = _Reader(source, data)
+    c = top.table("corridor")
+    corridor_id = c.text("id", ident=True)
+    road = _load_road(top.table("road"))
+    rsus = []
+    for rr in top.tables("rsu"):
+        rid = rr.text("id", ident=True)
+        x, y = rr.num("x_m"), rr.num("y_m")
+        rsus.append(RsuConfig(rid, _load_camera(rr.table("camera"), x, y), _load_calibration(rr)))
+    ids = [r.rsu_id for r in rsus]
+    if len(set(ids)) != len(ids):
+        raise top.fail("rsu", "unique RSU ids", ids)
+    vehicles = []
+    for vr in top.tables("vehicle", required=False):
+        v = VehicleConfig(
+            vehicle_id=vr.text("id", ident=True),
+            start_s_m=vr.num("start_s_m", 0.0, lo=0.0, hi=road.length_m),
+            start_lane=vr.integer("start_lane", road.lanes - 1, lo=0, hi=road.lanes - 1),
+            cruise_speed_mps=vr.num("cruise_speed_mps", 13.4, lo=0.0, hi=45.0),
+            length_m=vr.num("length_m", 4.9, lo=1.0, hi=20.0),
+            width_m=vr.num("width_m", 1.9, lo=0.5, hi=3.0),
+        )
+        vehicles.append(v)
+    t = top.table("transport", required=False)
+    transport = TransportConfig(
+        connect=tuple(t.str_list("connect")),
+        dsrc_latency_s=t.num("dsrc_latency_s", 0.003, lo=0.0, hi=5.0),
+        dsrc_jitter_s=t.num("dsrc_jitter_s", 0.001, lo=0.0, hi=5.0),
+        dsrc_loss=t.num("dsrc_loss", 0.01, lo=0.0, hi=1.0),
+        dsrc_range_m=t.num("dsrc_range_m", 300.0, positive=True),
+    )
+    return Corridor(
+        corridor_id=corridor_id,
+        name=c.text("name", corridor_id),
+        origin_lat_deg=c.num("origin_lat_deg", lo=-90.0, hi=90.0),
+        origin_lon_deg=c.num("origin_lon_deg", lo=-180.0, hi=180.0),
+        road=road,
+        rsus=tuple(rsus),
+        vehicles=tuple(vehicles),
+        transport=transport,
+        source=source,
+    )
+
+
+def load_corridor(path: str | Path | None = None) -> Corridor:
+    """Load a corridor TOML file (default: ``deploy/corridors/rellis.toml``)."""
+    p = Path(path) if path is not None else DEFAULT_CORRIDOR
+    if not p.is_file():
+        raise CorridorError(f"{p}: corridor file not found (give a path to a .toml file, e.g. {DEFAULT_CORRIDOR})")
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CorridorError(f"{p}: not valid TOML: {exc}") from None
+    return parse_corridor(data, str(p))

@@ -1,0 +1,430 @@
+"""Message models shared by every service (DESIGN.md "Messages").
+
+Every message carries the common envelope ``v`` (schema version), ``src`` (publisher id), ``seq``
+(per publisher and key) and ``stamp`` (seconds on the publisher's clock). All quantities are SI
+(metres, seconds, radians, metres per second); where a unit is not obvious it is in the field name.
+Field names follow the SAE V2X messages RSU software already speaks:
+
+- ``ObjectList`` / ``DetectedObject`` after SAE J3224 Sensor Data Sharing Message (SDSM):
+  ``object_id`` (objectID), ``obj_type`` / ``obj_type_cfd`` (objType / objTypeCfd),
+  ``measurement_time`` (measurementTime), position offsets, ``speed_mps``, ``heading_rad``, size.
+- ``EvAlert`` after SAE J2735 EmergencyVehicleAlert: ``alert_id``, ``response_type``, ``state``,
+  position, ``confidence`` and the vision ``evidence``.
+
+Models validate on construction and on decoding: finite numbers only, lanes >= 0, probabilities in
+[0, 1], bounded lists and strings. A service therefore cannot publish, nor accept, a message that is
+out of range.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import StrEnum
+from typing import Annotated, ClassVar, Literal
+
+from pydantic.dataclasses import dataclass as _pydantic_dataclass
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictInt,
+    StrictStr,
+    field_validator,
+    model_validator,
+)
+
+SCHEMA_VERSION = 1
+"""Version carried in ``v``; a decoder refuses any other."""
+
+MAX_OBJECTS = 256
+MAX_WAYPOINTS = 512
+MAX_ACTORS = 1024
+MAX_HEALTH_ENTRIES = 64
+MAX_TEXT = 256
+
+# ---------------------------------------------------------------- scalar types
+Float = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+"""A finite float (ints are accepted, NaN and +-inf are not)."""
+NonNegFloat = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0)]
+Probability = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=1.0)]
+Angle = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-4 * math.pi, le=4 * math.pi)]
+Latitude = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-90.0, le=90.0)]
+Longitude = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-180.0, le=180.0)]
+Lane = Annotated[int, Field(strict=True, ge=0, le=15)]
+Count = Annotated[int, Field(strict=True, ge=0, le=2**53)]
+Ident = Annotated[str, Field(strict=True, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")]
+Text = Annotated[str, Field(strict=True, max_length=MAX_TEXT)]
+Point2 = tuple[Float, Float]
+
+
+_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, validate_default=False)
+
+
+class _Model(BaseModel):
+    model_config = _CONFIG
+
+
+record = _pydantic_dataclass(config=_CONFIG)
+"""Nested value records (one per object/actor) are pydantic dataclasses: the codec sends them as
+positional arrays in field order and validates them in one pass (see protocol/codec.py)."""
+
+
+class Envelope(_Model):
+    """Common header: schema version, publisher id, per-key sequence number, publisher stamp (s)."""
+
+    KIND: ClassVar[str] = ""
+
+    v: StrictInt = SCHEMA_VERSION
+    src: Ident
+    seq: Count = 0
+    stamp: NonNegFloat
+
+    @field_validator("v")
+    @classmethod
+    def _known_version(cls, value: int) -> int:
+        if value != SCHEMA_VERSION:
+            raise ValueError(f"unknown schema version {value}; this build speaks v{SCHEMA_VERSION}")
+        return value
+
+
+# ---------------------------------------------------------------- enums
+class ObjectType(StrEnum):
+    """SDSM ObjectType, extended with the emergency-vehicle and hazard classes this system needs."""
+
+    UNKNOWN = "unknown"
+    VEHICLE = "vehicle"
+    EV = "ev"
+    VRU = "vru"
+    ANIMAL = "animal"
+    DEBRIS = "debris"
+
+
+class LightState(StrEnum):
+    """Emergency light bar state as seen by the camera."""
+
+    UNKNOWN = "unknown"
+    OFF = "off"
+    FLASHING = "flashing"
+
+
+class EvState(StrEnum):
+    NONE = "none"
+    CANDIDATE = "candidate"
+    CONFIRMED = "confirmed"
+    CLEARED = "cleared"
+
+
+class AlertState(StrEnum):
+    ACTIVE = "active"
+    CLEARED = "cleared"
+
+
+class HazardState(StrEnum):
+    APPEAR = "appear"
+    PERSIST = "persist"
+    CLEAR = "clear"
+
+
+class Manoeuvre(StrEnum):
+    PULL_OVER = "pull_over"  # move to the rightmost lane and stop at the curb (Texas 545.156)
+    LANE_CHANGE = "lane_change"  # change to the target lane and keep driving
+    SLOW_IN_LANE = "slow_in_lane"  # too late to change safely: slow down in the current lane
+    STOP_IN_LANE = "stop_in_lane"  # stop before a point in the current lane
+    RESUME = "resume"  # back to normal driving
+
+
+class AckStatus(StrEnum):
+    ACCEPTED = "accepted"
+    REJECTED = "rejected"
+    COMPLETED = "completed"
+
+
+class VehicleMode(StrEnum):
+    DRIVING = "driving"  # normal lane keeping at cruise speed
+    MANOEUVRE = "manoeuvre"  # following a commanded path
+    STOPPED = "stopped"  # stopped where a command asked
+    MINIMAL_RISK = "minimal_risk"  # fail-safe stop in lane
+
+
+class Role(StrEnum):
+    RSU = "rsu"
+    DDM = "ddm"
+    VEHICLE = "vehicle"
+    SIM = "sim"
+    ROUTER = "router"
+
+
+class HealthStatus(StrEnum):
+    OK = "ok"
+    DEGRADED = "degraded"
+    ERROR = "error"
+
+
+class ActorKind(StrEnum):
+    CAR = "car"
+    VAN = "van"
+    TRUCK = "truck"
+    BUS = "bus"
+    EV = "ev"
+    AV = "av"
+    DEBRIS = "debris"
+
+
+class Lighting(StrEnum):
+    DAY = "day"
+    DUSK = "dusk"
+    NIGHT = "night"
+
+
+# ---------------------------------------------------------------- RSU -> DDM
+@record
+class DetectedObject:
+    """One tracked object (SDSM DetectedObjectCommonData + size), corridor frame."""
+
+    object_id: Count
+    pos_x_m: Float
+    pos_y_m: Float
+    lat_deg: Latitude
+    lon_deg: Longitude
+    bbox_px: tuple[Float, Float, Float, Float]
+    """Image box (x1, y1, x2, y2) in pixels."""
+    obj_type: ObjectType = ObjectType.VEHICLE
+    obj_type_cfd: Probability = 1.0
+    ev_score: Probability = 0.0
+    ev_state: EvState = EvState.NONE
+    light_state: LightState = LightState.UNKNOWN
+    vel_x_mps: Float = 0.0
+    vel_y_mps: Float = 0.0
+    speed_mps: NonNegFloat = 0.0
+    heading_rad: Angle = 0.0
+    length_m: NonNegFloat = 0.0
+    width_m: NonNegFloat = 0.0
+    height_m: NonNegFloat = 0.0
+    pos_cov_m2: tuple[NonNegFloat, Float, NonNegFloat] = (1.0, 0.0, 1.0)
+    """Position covariance (xx, xy, yy) in m^2."""
+    lane: Lane | None = None
+    """Lane index, 0 = rightmost; None when off the road or unknown."""
+    age_s: NonNegFloat = 0.0
+    hits: Count = 0
+
+    @field_validator("bbox_px")
+    @classmethod
+    def _ordered_box(cls, box: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        if box[2] < box[0] or box[3] < box[1]:
+            raise ValueError("bbox_px must be (x1, y1, x2, y2) with x2 >= x1 and y2 >= y1")
+        return box
+
+
+class ObjectList(Envelope):
+    """Every processed frame of one RSU (after SAE J3224 SDSM)."""
+
+    KIND: ClassVar[str] = "ObjectList"
+
+    rsu_id: Ident
+    frame: Count
+    measurement_time: NonNegFloat
+    """Capture time of the frame (s, RSU clock)."""
+    objects: list[DetectedObject] = Field(default_factory=list, max_length=MAX_OBJECTS)
+
+
+@record
+class EvEvidence:
+    frames: Count = 0
+    flash_hz: NonNegFloat | None = None
+    mean_score: Probability = 0.0
+
+
+class EvAlert(Envelope):
+    """Emergency vehicle alert (after SAE J2735 EmergencyVehicleAlert); on change and at 2 Hz."""
+
+    KIND: ClassVar[str] = "EvAlert"
+
+    alert_id: Ident
+    state: AlertState
+    rsu_id: Ident
+    object_id: Count
+    response_type: Literal["emergency"] = "emergency"
+    pos_x_m: Float
+    pos_y_m: Float
+    lat_deg: Latitude
+    lon_deg: Longitude
+    vel_x_mps: Float = 0.0
+    vel_y_mps: Float = 0.0
+    speed_mps: NonNegFloat = 0.0
+    heading_rad: Angle = 0.0
+    lane: Lane | None = None
+    confidence: Probability
+    first_seen: NonNegFloat
+    evidence: EvEvidence = Field(default_factory=lambda: EvEvidence())
+
+
+class HazardAlert(Envelope):
+    """A static object in a lane (debris, a stopped object)."""
+
+    KIND: ClassVar[str] = "HazardAlert"
+
+    hazard_id: Ident
+    state: HazardState
+    rsu_id: Ident
+    pos_x_m: Float
+    pos_y_m: Float
+    lat_deg: Latitude
+    lon_deg: Longitude
+    lane: Lane | None = None
+    length_m: NonNegFloat = 0.0
+    width_m: NonNegFloat = 0.0
+    confidence: Probability
+    first_seen: NonNegFloat
+
+
+# ---------------------------------------------------------------- DDM <-> vehicle
+class PathSwitchCommand(Envelope):
+    """A driving command from the DDM to one vehicle: a new reference path and speed profile."""
+
+    KIND: ClassVar[str] = "PathSwitchCommand"
+
+    command_id: Ident
+    command_seq: Count
+    """Per-vehicle command order: a vehicle never lets a lower value override a higher one."""
+    vehicle_id: Ident
+    manoeuvre: Manoeuvre
+    reason: Text
+    target_lane: Lane
+    waypoints: list[Point2] = Field(max_length=MAX_WAYPOINTS)
+    """Reference path (x, y) in the corridor frame, m, in driving order."""
+    speed_profile_mps: list[NonNegFloat] = Field(default_factory=list, max_length=MAX_WAYPOINTS)
+    """Target speed at each waypoint (empty: keep ``target_speed_mps``)."""
+    target_speed_mps: NonNegFloat
+    stop_point: Point2 | None = None
+    issued_at: NonNegFloat
+    valid_until: NonNegFloat
+    supersedes: Ident | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PathSwitchCommand:
+        if self.valid_until <= self.issued_at:
+            raise ValueError("valid_until must be later than issued_at")
+        if self.manoeuvre != Manoeuvre.RESUME and len(self.waypoints) < 2:
+            raise ValueError(f"a {self.manoeuvre.value} command needs at least 2 waypoints")
+        if self.speed_profile_mps and len(self.speed_profile_mps) != len(self.waypoints):
+            raise ValueError("speed_profile_mps must be empty or have one entry per waypoint")
+        return self
+
+
+class CommandAck(Envelope):
+    KIND: ClassVar[str] = "CommandAck"
+
+    command_id: Ident
+    vehicle_id: Ident
+    status: AckStatus
+    reason: Text = ""
+
+
+class VehicleState(Envelope):
+    """Vehicle pose and controller state at 20 Hz."""
+
+    KIND: ClassVar[str] = "VehicleState"
+
+    vehicle_id: Ident
+    pos_x_m: Float
+    pos_y_m: Float
+    lat_deg: Latitude
+    lon_deg: Longitude
+    heading_rad: Angle
+    speed_mps: NonNegFloat
+    yaw_rate_rps: Float = 0.0
+    accel_mps2: Float = 0.0
+    steer_rad: Float = 0.0
+    length_m: NonNegFloat = 4.9
+    width_m: NonNegFloat = 1.9
+    lane: Lane | None = None
+    mode: VehicleMode
+    active_command_id: Ident | None = None
+    lateral_error_m: Float = 0.0
+    yaw_error_rad: Float = 0.0
+    yaw_rate_error_rps: Float = 0.0
+    localisation_age_s: NonNegFloat = 0.0
+    detail: Text = ""
+
+
+# ---------------------------------------------------------------- every service
+class Health(Envelope):
+    """Liveness and load of one service at 1 Hz."""
+
+    KIND: ClassVar[str] = "Health"
+
+    role: Role
+    status: HealthStatus = HealthStatus.OK
+    uptime_s: NonNegFloat = 0.0
+    rates_hz: dict[Ident, NonNegFloat] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    latency_ms: dict[Ident, NonNegFloat] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    """Per-stage latency (mean over the last period)."""
+    drops: dict[Ident, Count] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    rejected: dict[Ident, Count] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    """Inputs refused at the boundary, by reason."""
+    stale: list[Ident] = Field(default_factory=list, max_length=MAX_HEALTH_ENTRIES)
+    """Peers this service no longer hears from (e.g. RSUs at the DDM)."""
+    detail: Text = ""
+
+
+# ---------------------------------------------------------------- simulator only
+@record
+class LightBar:
+    on: StrictBool = False
+    pattern: Literal["alternating", "strobe"] = "alternating"
+    frequency_hz: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=20.0)] = 2.0
+    phase_s: Float = 0.0
+
+
+@record
+class Actor:
+    """Ground truth of one actor; x, y is the centre of its footprint on the road."""
+
+    actor_id: Ident
+    kind: ActorKind
+    pos_x_m: Float
+    pos_y_m: Float
+    heading_rad: Angle
+    length_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=30.0)]
+    width_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=5.0)]
+    height_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=6.0)]
+    speed_mps: NonNegFloat = 0.0
+    lane: Lane | None = None
+    colour_bgr: tuple[StrictInt, StrictInt, StrictInt] = (128, 128, 128)
+    brake_on: StrictBool = False
+    light_bar: LightBar | None = None
+    style: Count = 0
+    """Seed of the actor's appearance (body shape details, livery)."""
+
+    @field_validator("colour_bgr")
+    @classmethod
+    def _byte_colour(cls, colour: tuple[int, int, int]) -> tuple[int, int, int]:
+        if not all(0 <= c <= 255 for c in colour):
+            raise ValueError("colour_bgr channels must be in 0..255")
+        return colour
+
+
+class WorldSnapshot(Envelope):
+    """Simulator ground truth. Only the simulated camera and evaluation code may read it."""
+
+    KIND: ClassVar[str] = "WorldSnapshot"
+
+    scenario: Ident
+    sim_time_s: NonNegFloat
+    lighting: Lighting = Lighting.DAY
+    seed: Count = 0
+    actors: list[Actor] = Field(default_factory=list, max_length=MAX_ACTORS)
+
+
+MESSAGE_TYPES: tuple[type[Envelope], ...] = (
+    ObjectList,
+    EvAlert,
+    HazardAlert,
+    PathSwitchCommand,
+    CommandAck,
+    VehicleState,
+    Health,
+    WorldSnapshot,
+)
+MESSAGE_BY_KIND: dict[str, type[Envelope]] = {m.KIND: m for m in MESSAGE_TYPES}
