@@ -1,0 +1,114 @@
+"""`iea`: the umbrella command. Each service also has its own command (iea-rsu, iea-ddm, ...).
+
+    iea schema [--check]        write (or check) the message JSON Schemas in protocol/schema/
+    iea router ...              start a Zenoh router (same as iea-router)
+    iea corridor [FILE]         validate a corridor file and print a summary
+    iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
+    iea demo                    run the main scenario end to end (what `make demo` runs)
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+SERVICES = {
+    "rsu": ("rsu.cli", "roadside unit: frames -> detections -> tracks -> ObjectList / EvAlert"),
+    "ddm": ("ddm.cli", "driving-decision service: corridor picture -> path-switch commands"),
+    "vehicle": ("vehicle.cli", "autonomous vehicle: command handling, lateral/longitudinal control"),
+    "sim": ("sim.cli", "corridor simulator: world, traffic, EV, camera renders, dataset export"),
+}
+
+
+def _run_service(name: str, argv: list[str]) -> int:
+    module_name, _ = SERVICES[name]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and (exc.name == module_name or module_name.startswith(exc.name + ".")):
+            print(f"error: the {name} service is not part of this build ({module_name} is missing)", file=sys.stderr)
+            return 2
+        raise
+    return int(module.main(argv) or 0)
+
+
+def _schema(argv: list[str]) -> int:
+    from protocol.schema_export import SCHEMA_DIR, stale_schemas, write_schemas
+
+    ap = argparse.ArgumentParser(prog="iea schema", description="Write the JSON Schema of every message "
+                                 f"model to {SCHEMA_DIR} (or check that the committed files match the code).")
+    ap.add_argument("--check", action="store_true", help="exit 1 if a committed schema differs from the code")
+    args = ap.parse_args(argv)
+    if args.check:
+        stale = stale_schemas()
+        if stale:
+            print(f"schemas out of date: {', '.join(stale)}; run `iea schema` and commit", file=sys.stderr)
+            return 1
+        print("schemas match the code")
+        return 0
+    for path in write_schemas():
+        print(f"wrote {path}")
+    return 0
+
+
+def _corridor(argv: list[str]) -> int:
+    from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
+
+    ap = argparse.ArgumentParser(prog="iea corridor", description="Validate a corridor TOML file and summarise it.")
+    ap.add_argument("file", nargs="?", default=str(DEFAULT_CORRIDOR), help=f"corridor file (default {DEFAULT_CORRIDOR})")
+    args = ap.parse_args(argv)
+    try:
+        c = load_corridor(args.file)
+    except CorridorError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    road = c.road
+    print(f"corridor {c.corridor_id!r} ({c.name}) origin {c.origin_lat_deg:.6f}, {c.origin_lon_deg:.6f}")
+    print(f"road: {road.length_m:.0f} m in {len(road.segments)} segment(s), {road.lanes} lane(s) of "
+          f"{road.lane_width_m} m, shoulder {road.shoulder_width_m} m, limit {road.speed_limit_mps} m/s")
+    for r in c.rsus:
+        cam = r.camera
+        print(f"  {r.rsu_id}: at ({cam.x_m:.1f}, {cam.y_m:.1f}) h={cam.height_m} m, {cam.width_px}x{cam.height_px} "
+              f"@ {cam.fps:g} fps, {len(r.calibration)} calibration pairs")
+    for v in c.vehicles:
+        print(f"  vehicle {v.vehicle_id}: lane {v.start_lane} from s={v.start_s_m} m at {v.cruise_speed_mps} m/s")
+    return 0
+
+
+def _demo(argv: list[str]) -> int:
+    from deploy import demo
+
+    return demo.main(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    commands = {
+        "schema": ("write or check the message JSON Schemas", _schema),
+        "router": ("start a Zenoh router (iea-router)", None),
+        "corridor": ("validate and summarise a corridor file", _corridor),
+        "demo": ("run the main scenario end to end (make demo)", _demo),
+    }
+    if not argv or argv[0] in ("-h", "--help"):
+        lines = [__doc__.strip(), "", "commands:"]
+        lines += [f"  {k:<10} {v[0]}" for k, v in commands.items()]
+        lines += [f"  {k:<10} {v[1]}" for k, v in SERVICES.items()]
+        lines += ["", "Run `iea COMMAND --help` for the options of a command."]
+        print("\n".join(lines))
+        return 0 if argv else 2
+    cmd, rest = argv[0], argv[1:]
+    if cmd in SERVICES:
+        return _run_service(cmd, rest)
+    if cmd == "router":
+        from protocol.router import main as router_main
+
+        return router_main(rest, prog="iea router")
+    if cmd in commands:
+        return commands[cmd][1](rest)
+    print(f"error: unknown command {cmd!r}; run `iea --help`", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
