@@ -71,7 +71,7 @@ class RateTimer:
             return True
         if now_s + 1e-9 >= self._next:
             # skip missed periods instead of bursting to catch up
-            missed = int((now_s - self._next) // self.period_s)
+            missed = max(0, int((now_s - self._next) // self.period_s))
             self._next += (missed + 1) * self.period_s
             return True
         return False

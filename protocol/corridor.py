@@ -214,9 +214,15 @@ class Road:
             qx, qy = ax + t * bx, ay + t * by
             dist2 = (px[j] - qx) ** 2 + (py[j] - qy) ** 2
             i = int(np.argmin(dist2))
-            cross = bx[i] * (py[j] - ay[i]) - by[i] * (px[j] - ax[i])
-            out_s[j] = s_arr[i] + t[i] * (s_arr[i + 1] - s_arr[i])
-            out_d[j] = math.copysign(math.sqrt(dist2[i]), cross) if dist2[i] > 0 else 0.0
+            s_j = s_arr[i] + t[i] * (s_arr[i + 1] - s_arr[i])
+            # refine on the exact curve: move s along the tangent until the offset is normal to it
+            for _ in range(2):
+                rx, ry, rh = self.pose_at(s_j)
+                s_j = float(np.clip(s_j + (px[j] - rx) * math.cos(rh) + (py[j] - ry) * math.sin(rh),
+                                    s_arr[0], s_arr[-1]))
+            rx, ry, rh = self.pose_at(s_j)
+            out_s[j] = s_j
+            out_d[j] = -(px[j] - rx) * math.sin(rh) + (py[j] - ry) * math.cos(rh)
         if np.ndim(x_m) == 0:
             return float(out_s[0]), float(out_d[0])
         return out_s, out_d

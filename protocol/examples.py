@@ -43,7 +43,7 @@ def example_messages(corridor: str = "rellis", stamp: float = 1.0, seq: int = 0)
         (keys.rsu_key(c, "rsu1", "ev"), EvAlert(
             src="rsu1", seq=seq, stamp=stamp, alert_id="rsu1-ev-7", state="active", rsu_id="rsu1", object_id=7,
             pos_x_m=40.0, pos_y_m=5.5, lat_deg=30.6335, lon_deg=-96.4785, vel_x_mps=19.0, speed_mps=19.0,
-            lane=1, confidence=0.97, first_seen=stamp - 0.4, evidence=EvEvidence(frames=6, flash_hz=2.0, mean_score=0.9))),
+            lane=1, confidence=0.97, first_seen=max(0.0, stamp - 0.4), evidence=EvEvidence(frames=6, flash_hz=2.0, mean_score=0.9))),
         (keys.rsu_key(c, "rsu2", "hazard"), HazardAlert(
             src="rsu2", seq=seq, stamp=stamp, hazard_id="rsu2-hz-1", state="appear", rsu_id="rsu2", pos_x_m=120.0,
             pos_y_m=1.8, lat_deg=30.6332, lon_deg=-96.4777, lane=0, length_m=0.8, width_m=0.6, confidence=0.8,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 
 from protocol.messages import (
     CommandAck,
@@ -147,7 +147,7 @@ def key_matches(expr: str, key: str) -> bool:
     """True when concrete ``key`` is in the set defined by key expression ``expr`` (Zenoh rules)."""
     pat, ks = expr.split("/"), key.split("/")
 
-    @lru_cache(maxsize=None)
+    @cache
     def match(i: int, j: int) -> bool:
         if i == len(pat):
             return j == len(ks)

@@ -22,17 +22,16 @@ import math
 from enum import StrEnum
 from typing import Annotated, ClassVar, Literal
 
-from pydantic.dataclasses import dataclass as _pydantic_dataclass
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
     StrictBool,
     StrictInt,
-    StrictStr,
     field_validator,
     model_validator,
 )
+from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
 SCHEMA_VERSION = 1
 """Version carried in ``v``; a decoder refuses any other."""
