@@ -1,0 +1,49 @@
+# Two commands do everything on a fresh machine: `make demo` and `make test`.
+# Both create .venv if missing and install the project (and its dev tools) into it.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test test-fast bench lint schema models clean help
+
+help:
+	@echo "make demo    set up and run the main scenario (rellis_ev_yield) end to end"
+	@echo "make test    set up and run the whole test suite"
+	@echo "make bench   run every benchmark in bench/ and print its figures"
+	@echo "make lint    ruff"
+	@echo "make schema  regenerate protocol/schema/*.json from the message models"
+	@echo "make models  train the project's models (needs the optional 'train' extra)"
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+
+$(STAMP): pyproject.toml | $(PY)
+	$(PY) -m pip install --quiet -e '.[dev]' --config-settings editable_mode=compat
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/iea demo
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow"
+
+bench: $(STAMP)
+	@for b in bench/*_bench.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+schema: $(STAMP)
+	$(VENV)/bin/iea schema
+
+models: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[dev,train]' --config-settings editable_mode=compat
+	$(PY) -m models.train_all
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis runs
