@@ -3,6 +3,7 @@
     iea schema [--check]        write (or check) the message JSON Schemas in protocol/schema/
     iea router ...              start a Zenoh router (same as iea-router)
     iea corridor [FILE]         validate a corridor file and print a summary
+    iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
     iea demo                    run the main scenario end to end (what `make demo` runs)
 """
@@ -76,6 +77,43 @@ def _corridor(argv: list[str]) -> int:
     return 0
 
 
+def _keys(argv: list[str]) -> int:
+    import os
+    from pathlib import Path
+
+    from protocol.security import new_key_pair
+
+    ap = argparse.ArgumentParser(prog="iea keys", description="Manage the Ed25519 keys that sign commands and alerts.")
+    sub = ap.add_subparsers(dest="action", required=True)
+    new = sub.add_parser("new", help="create a key pair: KEY_ID.pem (private, mode 0600) and print its [[trust]] entry")
+    new.add_argument("key_id", help="key id, e.g. ddm-1 or rsu1-key")
+    new.add_argument("--role", choices=["ddm", "rsu"], required=True, help="what the key may sign")
+    new.add_argument("--rsu-id", help="for an RSU key: the RSU it speaks for")
+    new.add_argument("--vehicles", default="*", help="for a DDM key: comma-separated vehicle ids it may command")
+    new.add_argument("--out", default=".", help="directory for the private key (default: current)")
+    args = ap.parse_args(argv)
+    if args.role == "rsu" and not args.rsu_id:
+        ap.error("--rsu-id is required for an RSU key")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{args.key_id}.pem"
+    if path.exists():
+        print(f"error: {path} exists; refusing to overwrite a private key", file=sys.stderr)
+        return 1
+    pem, pub = new_key_pair()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(pem)
+    print(f"# private key written to {path}; add this to the corridor file:")
+    print("[[trust]]")
+    print(f'key_id = "{args.key_id}"\nrole = "{args.role}"\npublic_key = "{pub}"')
+    if args.role == "rsu":
+        print(f'rsu_id = "{args.rsu_id}"')
+    else:
+        print("vehicles = [" + ", ".join(f'"{v.strip()}"' for v in args.vehicles.split(",")) + "]")
+    return 0
+
+
 def _demo(argv: list[str]) -> int:
     from deploy import demo
 
@@ -88,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         "schema": ("write or check the message JSON Schemas", _schema),
         "router": ("start a Zenoh router (iea-router)", None),
         "corridor": ("validate and summarise a corridor file", _corridor),
+        "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
         "demo": ("run the main scenario end to end (make demo)", _demo),
     }
     if not argv or argv[0] in ("-h", "--help"):

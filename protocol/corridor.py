@@ -328,6 +328,8 @@ class Corridor:
     rsus: tuple[RsuConfig, ...]
     vehicles: tuple[VehicleConfig, ...] = ()
     transport: TransportConfig = field(default_factory=TransportConfig)
+    trust: tuple[dict[str, Any], ...] = ()
+    """``[[trust]]`` entries (key_id, role, public_key, vehicles / rsu_id): see protocol/security.py."""
     source: str = ""
 
     def rsu(self, rsu_id: str) -> RsuConfig:
@@ -447,6 +449,17 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
         dsrc_loss=t.num("dsrc_loss", 0.01, lo=0.0, hi=1.0),
         dsrc_range_m=t.num("dsrc_range_m", 300.0, positive=True),
     )
+    trust = []
+    for tr in top.tables("trust", required=False):
+        entry = {"key_id": tr.text("key_id", ident=True), "role": tr.text("role", choices=("ddm", "rsu")),
+                 "public_key": tr.text("public_key")}
+        if tr.has("vehicles"):
+            entry["vehicles"] = tr.str_list("vehicles")
+        if tr.has("rsu_id"):
+            entry["rsu_id"] = tr.text("rsu_id", ident=True)
+        elif entry["role"] == "rsu":
+            raise tr.fail("rsu_id", "the RSU id this key speaks for (role = 'rsu')")
+        trust.append(entry)
     return Corridor(
         corridor_id=corridor_id,
         name=c.text("name", corridor_id),
@@ -456,6 +469,7 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
         rsus=tuple(rsus),
         vehicles=tuple(vehicles),
         transport=transport,
+        trust=tuple(trust),
         source=source,
     )
 

@@ -176,6 +176,18 @@ class Lighting(StrEnum):
     NIGHT = "night"
 
 
+# ---------------------------------------------------------------- authentication
+@record
+class Signature:
+    """Ed25519 signature over the message's canonical encoding and its key (protocol/security.py),
+    after IEEE 1609.2: the signer's key id and a validity window on the signer's clock."""
+
+    key_id: Ident
+    not_before: NonNegFloat
+    not_after: NonNegFloat
+    sig: Annotated[bytes, Field(strict=True, min_length=64, max_length=64)]
+
+
 # ---------------------------------------------------------------- RSU -> DDM
 @record
 class DetectedObject:
@@ -256,6 +268,7 @@ class EvAlert(Envelope):
     confidence: Probability
     first_seen: NonNegFloat
     evidence: EvEvidence = Field(default_factory=lambda: EvEvidence())
+    auth: Signature | None = None
 
 
 class HazardAlert(Envelope):
@@ -275,6 +288,7 @@ class HazardAlert(Envelope):
     width_m: NonNegFloat = 0.0
     confidence: Probability
     first_seen: NonNegFloat
+    auth: Signature | None = None
 
 
 # ---------------------------------------------------------------- DDM <-> vehicle
@@ -299,6 +313,7 @@ class PathSwitchCommand(Envelope):
     issued_at: NonNegFloat
     valid_until: NonNegFloat
     supersedes: Ident | None = None
+    auth: Signature | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> PathSwitchCommand:
