@@ -114,6 +114,35 @@ def _keys(argv: list[str]) -> int:
     return 0
 
 
+def _deploy(argv: list[str]) -> int:
+    from pathlib import Path
+
+    from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
+
+    ap = argparse.ArgumentParser(prog="iea deploy", description="Generate deployment files for a corridor.")
+    sub = ap.add_subparsers(dest="action", required=True)
+    acl = sub.add_parser("acl", help="Zenoh router config with per-service ACL, password dictionary and credentials")
+    acl.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
+    acl.add_argument("--out", required=True, help="output directory (keep it out of git: it holds passwords)")
+    acl.add_argument("--listen", action="append", default=None, help="router endpoint(s) (default tcp/0.0.0.0:7447)")
+    acl.add_argument("--dictionary-path", default=None,
+                     help="path of users.txt as the router will see it (e.g. inside a container)")
+    args = ap.parse_args(argv)
+    try:
+        corridor = load_corridor(args.corridor)
+    except CorridorError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    from deploy.acl import write_acl_bundle
+
+    written = write_acl_bundle(corridor, Path(args.out), args.listen, args.dictionary_path)
+    for name, path in written.items():
+        print(f"{name:<10} {path}")
+    print("start the router with `iea router --config ROUTER` and each service with "
+          "`--connect tcp/HOST:7447 --zenoh-config <its credentials file>`")
+    return 0
+
+
 def _demo(argv: list[str]) -> int:
     from deploy import demo
 
@@ -127,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         "router": ("start a Zenoh router (iea-router)", None),
         "corridor": ("validate and summarise a corridor file", _corridor),
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
+        "deploy": ("generate deployment files (iea deploy acl ...)", _deploy),
         "demo": ("run the main scenario end to end (make demo)", _demo),
     }
     if not argv or argv[0] in ("-h", "--help"):

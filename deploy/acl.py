@@ -1,0 +1,94 @@
+"""Zenoh router access control for a corridor: who may publish what.
+
+Every service authenticates to the router with its own user name (Zenoh user/password
+authentication; over TLS in deployment) and the router's ACL (Zenoh 1.x ``access_control``) lets it
+publish only under its own keys, denying everything else by default:
+
+| user            | may publish (ingress ``put``)                                   |
+|-----------------|-----------------------------------------------------------------|
+| ``ddm``         | ``iea/{c}/vehicle/*/cmd``, ``iea/{c}/ddm/health``                 |
+| ``{rsu_id}``    | ``iea/{c}/rsu/{rsu_id}/**``                                       |
+| ``{vehicle_id}``| ``iea/{c}/vehicle/{vehicle_id}/state|ack|health``                 |
+| ``sim``         | ``iea/{c}/sim/**``                                                |
+
+Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) everything it admitted.
+Only the DDM may therefore send a ``PathSwitchCommand``; vehicles also verify its signature
+(protocol/security.py).
+
+    iea deploy acl [--corridor FILE] --out DIR   # router-acl.json5, users.txt, one credentials file per service
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+from pathlib import Path
+from typing import Any
+
+from protocol.corridor import Corridor
+
+
+def service_publish_keys(corridor: Corridor) -> dict[str, list[str]]:
+    """User name -> the key expressions it may publish."""
+    c = corridor.corridor_id
+    out: dict[str, list[str]] = {
+        "ddm": [f"iea/{c}/vehicle/*/cmd", f"iea/{c}/ddm/health"],
+        "sim": [f"iea/{c}/sim/**"],
+    }
+    for rsu in corridor.rsus:
+        out[rsu.rsu_id] = [f"iea/{c}/rsu/{rsu.rsu_id}/**"]
+    for v in corridor.vehicles:
+        out[v.vehicle_id] = [f"iea/{c}/vehicle/{v.vehicle_id}/{t}" for t in ("state", "ack", "health")]
+    return out
+
+
+def router_config(corridor: Corridor, dictionary_file: str, listen: list[str] | None = None,
+                  tls: dict[str, str] | None = None) -> dict[str, Any]:
+    """A Zenoh router config (JSON-compatible dict) enforcing the table in the module docstring."""
+    c = corridor.corridor_id
+    publish = service_publish_keys(corridor)
+    rules: list[dict[str, Any]] = [
+        {"id": "subscribe", "permission": "allow", "flows": ["ingress"], "messages": ["declare_subscriber"],
+         "key_exprs": [f"iea/{c}/**"]},
+        {"id": "deliver", "permission": "allow", "flows": ["egress"], "messages": ["put", "declare_subscriber"],
+         "key_exprs": [f"iea/{c}/**"]},
+    ]
+    subjects: list[dict[str, Any]] = [{"id": "everyone"}]
+    policies: list[dict[str, Any]] = [{"id": "everyone", "rules": ["subscribe", "deliver"], "subjects": ["everyone"]}]
+    for user, key_exprs in publish.items():
+        rules.append({"id": f"publish-{user}", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
+                      "key_exprs": key_exprs})
+        subjects.append({"id": f"user-{user}", "usernames": [user]})
+        policies.append({"id": f"policy-{user}", "rules": [f"publish-{user}"], "subjects": [f"user-{user}"]})
+    config: dict[str, Any] = {
+        "mode": "router",
+        "listen": {"endpoints": listen or ["tcp/0.0.0.0:7447"]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": dictionary_file}}},
+        "access_control": {"enabled": True, "default_permission": "deny", "rules": rules,
+                           "subjects": subjects, "policies": policies},
+    }
+    if tls:
+        config["transport"]["link"] = {"tls": tls}
+    return config
+
+
+def write_acl_bundle(corridor: Corridor, out_dir: Path, listen: list[str] | None = None,
+                     dictionary_path_in_router: str | None = None) -> dict[str, Path]:
+    """Router config, password dictionary (mode 0600) and a credentials file per service."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    users = {u: secrets.token_urlsafe(18) for u in service_publish_keys(corridor)}
+    dictionary = out_dir / "users.txt"
+    dictionary.write_text("".join(f"{u}:{p}\n" for u, p in users.items()), encoding="utf-8")
+    dictionary.chmod(0o600)
+    cfg = router_config(corridor, dictionary_path_in_router or str(dictionary.resolve()), listen)
+    router = out_dir / "router-acl.json5"
+    router.write_text(json.dumps(cfg, indent=2) + "\n", encoding="utf-8")
+    written = {"router": router, "users": dictionary}
+    for user, password in users.items():
+        cred = out_dir / f"{user}.json5"
+        cred.write_text(json.dumps({"transport": {"auth": {"usrpwd": {"user": user, "password": password}}}},
+                                   indent=2) + "\n", encoding="utf-8")
+        cred.chmod(0o600)
+        written[user] = cred
+    return written
