@@ -1,0 +1,122 @@
+"""Temporal EV evidence on synthetic lamp signals at 15 fps: flashing confirms fast, lookalikes never do."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocol.messages import EvState, LightState
+from rsu.classify.temporal import LampMeasurement, TrackEvidence, blink_transitions, measure_lamps
+
+FPS = 15.0
+ON = 0.03  # a lit lamp covers ~3% of the top band
+
+
+def run(signal, duration_s=8.0, crop_score=None):
+    """signal(t) -> (red, blue); returns the evidence and the list of (t, state)."""
+    ev = TrackEvidence()
+    states = []
+    for i in range(int(duration_s * FPS)):
+        t = i / FPS
+        red, blue = signal(t)
+        states.append((t, ev.update(t, LampMeasurement(red, blue), crop_score)))
+    return ev, states
+
+
+def first_time(states, state):
+    return next((t for t, s in states if s == state), None)
+
+
+def alternating(freq_hz, on_at=1.0, off_at=None):
+    def sig(t):
+        if t < on_at or (off_at is not None and t >= off_at):
+            return 0.0, 0.0
+        phase = ((t - on_at) * freq_hz) % 1.0
+        return (ON, 0.0) if phase < 0.5 else (0.0, ON)
+    return sig
+
+
+def strobe(freq_hz, on_at=1.0):
+    def sig(t):
+        if t < on_at:
+            return 0.0, 0.0
+        lit = ((t - on_at) * freq_hz) % 1.0 < 0.5
+        return (ON, ON) if lit else (0.0, 0.0)
+    return sig
+
+
+@pytest.mark.parametrize("freq", [1.0, 1.5, 2.0, 3.0, 4.0])
+def test_alternating_light_bar_confirms_within_a_fraction_of_a_second(freq):
+    ev, states = run(alternating(freq))
+    t = first_time(states, EvState.CONFIRMED)
+    assert t is not None and t >= 1.0
+    # a blink is seen after half a period; confirmation takes one more frame (+ one of sampling)
+    assert t - 1.0 <= 1.0 / (2 * freq) + 2.0 / FPS + 1e-6
+    assert states[-1][1] == EvState.CONFIRMED and ev.light_state == LightState.FLASHING
+
+
+@pytest.mark.parametrize("freq", [1.0, 2.5, 4.0])
+def test_strobe_confirms(freq):
+    _, states = run(strobe(freq))
+    t = first_time(states, EvState.CONFIRMED)
+    assert t is not None and t - 1.0 <= 0.7
+
+
+def test_lights_already_on_when_the_track_appears():
+    _, states = run(alternating(2.0, on_at=0.0))
+    assert first_time(states, EvState.CONFIRMED) <= 0.6
+
+
+@pytest.mark.parametrize("name,signal", [
+    ("brake light on and held", lambda t: (ON if t >= 1.0 else 0.0, 0.0)),
+    ("red car paint", lambda t: (0.05, 0.0)),
+    ("blue car paint", lambda t: (0.0, 0.06)),
+    ("stop-and-go brake pumping every 3 s", lambda t: (ON if (t % 6.0) < 3.0 else 0.0, 0.0)),
+    ("dark", lambda t: (0.0, 0.0)),
+    ("one glitch frame", lambda t: (ON, ON) if abs(t - 2.0) < 0.03 else (0.0, 0.0)),
+])
+def test_lookalikes_never_confirm(name, signal):
+    _, states = run(signal, duration_s=12.0)
+    assert first_time(states, EvState.CONFIRMED) is None, name
+
+
+def test_a_crop_classifier_alone_cannot_confirm_without_flashing():
+    _, states = run(lambda t: (0.05, 0.0), crop_score=0.99)
+    assert first_time(states, EvState.CONFIRMED) is None
+    assert first_time(states, EvState.CANDIDATE) is not None  # but it is watched
+
+
+def test_lights_off_clears_after_the_hold_time_and_one_dropout_does_not():
+    def sig(t):
+        if abs(t - 3.0) < 0.03:
+            return 0.0, 0.0  # one missed detection of the lamp
+        return alternating(2.0, on_at=1.0, off_at=5.0)(t)
+
+    _, states = run(sig, duration_s=10.0)
+    confirmed = first_time(states, EvState.CONFIRMED)
+    cleared = first_time(states, EvState.CLEARED)
+    assert confirmed is not None and confirmed < 1.6
+    assert all(s == EvState.CONFIRMED for t, s in states if confirmed <= t < 5.5)
+    assert cleared is not None and 6.0 <= cleared <= 7.5  # 2 s without a lit lamp
+
+
+def test_flash_rate_is_estimated():
+    ev, _ = run(alternating(2.0), duration_s=5.0)
+    assert ev.flash_hz == pytest.approx(2.0, rel=0.3)
+
+
+def test_blink_transitions_with_hysteresis():
+    x = np.array([0, 0, 1, 1, 0.5, 1, 0, 0, 1])
+    assert blink_transitions(x, on_level=0.8, off_level=0.2) == 3
+
+
+def test_measure_lamps_reads_the_top_band_only():
+    crop = np.full((100, 80, 3), 60, np.uint8)
+    crop[5:15, 10:30] = (0, 0, 255)  # red lamp on the roof
+    crop[5:15, 50:70] = (255, 40, 0)  # blue lamp
+    crop[80:90, 5:20] = (0, 0, 255)  # tail light low on the body
+    m = measure_lamps(crop)
+    assert m.red == pytest.approx(200 / (40 * 80)) and m.blue == pytest.approx(200 / (40 * 80))
+    dull = np.full((100, 80, 3), 60, np.uint8)
+    dull[:30] = (30, 30, 140)  # dark red paint: saturated but not lamp-bright
+    assert measure_lamps(dull).red == 0.0
