@@ -4,7 +4,7 @@ Sources (``FixSourceConfig``): the car's own low-grade GNSS (default: sigma 0.2 
 latency) or the RSU's track of the car (``RSU_TRACK``: sigma 0.3 m, 15 Hz, 200 ms latency). A fix is
 (measurement time, x, y) and arrives ``latency_s`` later.
 
-``PoseEstimator`` is an extended Kalman filter on (x, y, yaw, gyro bias) driven by the car's odometry (wheel
+``PoseEstimator`` is an extended Kalman filter on (x, y, yaw, gyro bias, wheel-speed scale) driven by the car's odometry (wheel
 speed and yaw-rate gyro, dead reckoning at the control rate). A fix stamped in the past is applied
 at its measurement time in a short history of states and the odometry since then is replayed, so
 the estimate is the delayed fix propagated to now with the vehicle's own speed and yaw rate.
@@ -93,15 +93,17 @@ class Odometry:
 
 
 class PoseEstimator:
-    """EKF on (x, y, yaw, gyro bias): odometry prediction at the control rate, delayed position updates."""
+    """EKF on (x, y, yaw, gyro bias, speed scale): odometry prediction at the control rate, delayed position updates."""
 
     def __init__(self, history_s: float = 1.5, speed_sigma_mps: float = 0.05, gyro_sigma_rps: float = 0.002,
                  heading_walk_rps: float = 0.0, position_walk_mps: float = 0.01,
-                 bias_walk_rps2: float = 2e-6, bias_sigma_rps: float = 0.002) -> None:
+                 bias_walk_rps2: float = 2e-6, bias_sigma_rps: float = 0.002,
+                 scale_sigma: float = 0.01, scale_walk: float = 1e-5) -> None:
         """Noise model: ``speed_sigma_mps`` / ``gyro_sigma_rps`` are per-step odometry noise, the walks are
         random-walk densities (per sqrt(s)) of position (slip, scale error), heading and gyro bias."""
-        self.x = np.zeros(4)
-        self.P = np.diag([100.0, 100.0, 1.0, bias_sigma_rps ** 2])
+        self.x = np.zeros(5)
+        """x, y, yaw, gyro bias (rad/s, subtracted), wheel-speed scale error (v = v_odo (1 + k))."""
+        self.P = np.diag([100.0, 100.0, 1.0, bias_sigma_rps ** 2, scale_sigma ** 2])
         self.initialised = False
         self.time_s = 0.0
         self.last_fix_s: float | None = None
@@ -109,7 +111,7 @@ class PoseEstimator:
         self.history_s = history_s
         self._q_v, self._q_w = speed_sigma_mps ** 2, gyro_sigma_rps ** 2 + heading_walk_rps ** 2
         self._q_p, self._q_b = position_walk_mps ** 2, bias_walk_rps2 ** 2
-        self._bias_sigma = bias_sigma_rps
+        self._bias_sigma, self._scale_sigma, self._q_k = bias_sigma_rps, scale_sigma, scale_walk ** 2
         # (time after the step, dt, v, w, v_y, state after, P after)
         self._hist: deque[tuple[float, float, float, float, float, np.ndarray, np.ndarray]] = deque()
         self.rejected_fixes = 0
@@ -117,8 +119,9 @@ class PoseEstimator:
 
     def initialise(self, now_s: float, x_m: float, y_m: float, yaw_rad: float,
                    pos_sigma_m: float = 0.5, yaw_sigma_rad: float = 0.05) -> None:
-        self.x = np.array([x_m, y_m, yaw_rad, 0.0], dtype=float)
-        self.P = np.diag([pos_sigma_m ** 2, pos_sigma_m ** 2, yaw_sigma_rad ** 2, self._bias_sigma ** 2])
+        self.x = np.array([x_m, y_m, yaw_rad, 0.0, 0.0], dtype=float)
+        self.P = np.diag([pos_sigma_m ** 2, pos_sigma_m ** 2, yaw_sigma_rad ** 2, self._bias_sigma ** 2,
+                          self._scale_sigma ** 2])
         self.time_s = now_s
         self.initialised = True
         self._hist.clear()
@@ -127,14 +130,20 @@ class PoseEstimator:
     def _predict(self, x: np.ndarray, P: np.ndarray, dt: float, v: float, w: float,
                  vy: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         rate = w - x[3]
+        vm = v
+        v = vm * (1.0 + x[4])
         yaw = x[2] + 0.5 * rate * dt  # midpoint heading
         c, s = math.cos(yaw), math.sin(yaw)
         dx, dy = (v * c - vy * s) * dt, (v * s + vy * c) * dt
-        xn = np.array([x[0] + dx, x[1] + dy, x[2] + rate * dt, x[3]])
-        F = np.array([[1.0, 0.0, -dy, 0.5 * dy * dt], [0.0, 1.0, dx, -0.5 * dx * dt],
-                      [0.0, 0.0, 1.0, -dt], [0.0, 0.0, 0.0, 1.0]])
-        G = np.array([[c * dt, 0.0], [s * dt, 0.0], [0.0, dt], [0.0, 0.0]])
-        Q = G @ np.diag([self._q_v, self._q_w]) @ G.T + np.diag([self._q_p, self._q_p, 0.0, self._q_b]) * dt
+        xn = np.array([x[0] + dx, x[1] + dy, x[2] + rate * dt, x[3], x[4]])
+        F = np.array([[1.0, 0.0, -dy, 0.5 * dy * dt, vm * c * dt],
+                      [0.0, 1.0, dx, -0.5 * dx * dt, vm * s * dt],
+                      [0.0, 0.0, 1.0, -dt, 0.0],
+                      [0.0, 0.0, 0.0, 1.0, 0.0],
+                      [0.0, 0.0, 0.0, 0.0, 1.0]])
+        G = np.array([[c * dt, 0.0], [s * dt, 0.0], [0.0, dt], [0.0, 0.0], [0.0, 0.0]])
+        Q = G @ np.diag([self._q_v, self._q_w]) @ G.T \
+            + np.diag([self._q_p, self._q_p, 0.0, self._q_b, self._q_k]) * dt
         return xn, F @ P @ F.T + Q
 
     def predict(self, now_s: float, speed_mps: float, yaw_rate_rps: float, lateral_speed_mps: float = 0.0) -> None:
@@ -189,7 +198,7 @@ class PoseEstimator:
         self._consecutive_rejects = 0
         K = Pk[:, :2] @ Sinv
         x = xk + K @ innov
-        P = (np.eye(4) - K @ np.eye(2, 4)) @ Pk
+        P = (np.eye(5) - K @ np.eye(2, 5)) @ Pk
         new_hist = list(hist)[: k]
         new_hist.append((*hist[k][:5], x.copy(), P.copy()))
         for j in range(k + 1, len(hist)):

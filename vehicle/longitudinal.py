@@ -48,7 +48,7 @@ class LongitudinalController:
                 v_ref = v_curve
                 ff = -self.plan_decel_mps2
             needed = speed_mps ** 2 / (2.0 * d) if d > 0 else math.inf
-            if needed > self.comfort_decel_mps2:
+            if needed > self.comfort_decel_mps2 and speed_mps > 2.0:  # not the last creep to the point
                 emergency = True
                 cap = self.emergency_decel_mps2
                 ff = -min(needed, cap)
