@@ -86,6 +86,7 @@ class VehicleCore:
         """Increments whenever the reference path changes (for recording)."""
         self._lane_paths: dict[int, ReferencePath] = {}
         self._pending: list[Decision] = []
+        self._vy = 0.0
 
     # ------------------------------------------------------------------ setup
     def lane_path(self, lane: int) -> ReferencePath:
@@ -155,12 +156,34 @@ class VehicleCore:
         return []
 
     # ------------------------------------------------------------------ control step
-    def control(self, now_s: float, speed_mps: float, yaw_rate_rps: float, dt_s: float) -> ControlOutput:
-        """One control step from odometry; returns actuator commands and any acks due."""
-        self.speed_mps, self.yaw_rate_rps = speed_mps, yaw_rate_rps
+    def lateral_speed_model(self, speed_mps: float, yaw_rate_rps: float, steer_rad: float | None,
+                            dt_s: float) -> float:
+        """The car's estimate of its body-frame v_y (for dead reckoning).
+
+        With the steering-angle sensor: eq. 4.11 driven by the measured steering and yaw rate (a
+        first-order filter, time constant m v_x / (C_f + C_r)); without it, the steady-state sideslip.
+        """
         p = self.config.params
-        vy_model = p.steady_sideslip_rad(yaw_rate_rps / speed_mps, speed_mps) * speed_mps \
-            if speed_mps > p.kinematic_below_mps else p.cg_to_rear_m * yaw_rate_rps
+        if speed_mps <= p.kinematic_below_mps:
+            self._vy = p.cg_to_rear_m * yaw_rate_rps
+        elif steer_rad is None:
+            self._vy = p.steady_sideslip_rad(yaw_rate_rps / speed_mps, speed_mps) * speed_mps
+        else:
+            m, a, b = p.mass_kg, p.cg_to_front_m, p.cg_to_rear_m
+            cf, cr, v = p.cornering_front_npr, p.cornering_rear_npr, speed_mps
+            n = max(1, int(dt_s / 0.002 + 0.999))
+            for _ in range(n):
+                dvy = (cf * steer_rad - (cf + cr) / v * self._vy - (a * cf - b * cr) / v * yaw_rate_rps) / m \
+                    - v * yaw_rate_rps
+                self._vy += dvy * dt_s / n
+        return self._vy
+
+    def control(self, now_s: float, speed_mps: float, yaw_rate_rps: float, dt_s: float,
+                steer_rad: float | None = None) -> ControlOutput:
+        """One control step from odometry (and the steering-angle sensor); returns actuator commands and
+        any acks due."""
+        self.speed_mps, self.yaw_rate_rps = speed_mps, yaw_rate_rps
+        vy_model = self.lateral_speed_model(speed_mps, yaw_rate_rps, steer_rad, dt_s)
         self.estimator.predict(now_s, speed_mps, yaw_rate_rps, vy_model)
         decisions: list[Decision] = []
         reason = self.watchdog.check(now_s, self.mode == VehicleMode.MANOEUVRE, self.estimator.age_s(now_s))
@@ -249,7 +272,7 @@ class SimulatedVehicle:
                 if self.fix_source_enabled:
                     self.core.on_fix(fix)
         v, w = self.odometry.measure(st.vx_mps, st.yaw_rate_rps)
-        out = self.core.control(now_s, v, w, dt_s)
+        out = self.core.control(now_s, v, w, dt_s, st.steer_rad)
         self.plant.step(dt_s, out.steer_cmd_rad, out.accel_cmd_mps2)
         return out
 

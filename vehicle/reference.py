@@ -153,19 +153,18 @@ def lane_centre_waypoints(road, lane: int, s_from_m: float, s_to_m: float, step_
 
 def lane_change_waypoints(road, s_start_m: float, from_lane: int, to_lane: int, change_length_m: float,
                           total_length_m: float, step_m: float = 2.0, lead_m: float = 0.0) -> np.ndarray:
-    """A one-lane change on a ``Road``: lateral offset follows a raised cosine over ``change_length_m``.
+    """A one-lane change on a ``Road``: the lateral offset follows a quintic over ``change_length_m``.
 
     The path starts ``lead_m`` before ``s_start_m`` (still in ``from_lane``) and ends
-    ``total_length_m`` after it.
-
-    The raised cosine d(s) = d0 + (d1 - d0) (1 - cos(pi u)) / 2 has zero slope at both ends and a
-    peak curvature of |d1 - d0| pi^2 / (2 L^2) (1.8 m^-1 x 0.0114 for 3.7 m over 40 m).
+    ``total_length_m`` after it. d(u) = d0 + (d1 - d0)(10u^3 - 15u^4 + 6u^5), u in [0, 1], has zero
+    slope and zero curvature at both ends (no steering step) and a peak curvature of
+    5.77 |d1 - d0| / L^2 (0.0133 1/m for 3.7 m over 40 m).
     """
     d0, d1 = road.lane_centre_offset_m(from_lane), road.lane_centre_offset_m(to_lane)
     s_end = min(s_start_m + total_length_m, road.length_m)
     n = max(2, int(math.ceil((s_end - s_start_m) / step_m)) + 1)
     s = np.linspace(s_start_m - lead_m, s_end, n + int(math.ceil(lead_m / step_m)))
     u = np.clip((s - s_start_m) / change_length_m, 0.0, 1.0)
-    d = d0 + (d1 - d0) * 0.5 * (1.0 - np.cos(math.pi * u))
+    d = d0 + (d1 - d0) * u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
     x, y, _ = road.pose_at(s, d)
     return np.column_stack([x, y])
