@@ -9,7 +9,8 @@ Every ``PathSwitchCommand`` gets exactly one decision, sent as a ``CommandAck``:
   above what the car can drive at the speed it can have there, stop point off the path);
 - ``accepted``: the car switches to the command's path now;
 - ``completed`` later: stopped at the stop point, end of the path reached, or superseded by a newer
-  accepted command (reason ``superseded by <id>``).
+  accepted command (reason ``superseded by <id>``); or ``rejected`` with reason ``aborted: ...`` when
+  the fail-safe takes over before it is done.
 
 A duplicate (same ``command_id``) changes nothing and gets the same decision again, so a DDM that
 retries until it hears an ack is answered every time. ``valid_until`` is the acceptance deadline: a
@@ -170,6 +171,14 @@ class CommandBook:
         self.active, self.active_path = cmd, path
         out.append(self._record(Decision(cmd.command_id, AckStatus.ACCEPTED)))
         return out
+
+    def abort(self, reason: str) -> Decision:
+        """The active command will not be carried out (fail-safe); returns its ``rejected`` decision."""
+        if self.active is None:
+            raise RuntimeError("no active command to abort")
+        d = self._record(Decision(self.active.command_id, AckStatus.REJECTED, f"aborted: {reason}"[:250]))
+        self.active, self.active_path = None, None
+        return d
 
     def complete(self, reason: str = "") -> Decision:
         """The active command is done; returns its ``completed`` decision."""

@@ -85,7 +85,6 @@ class VehicleCore:
         self.path_version = 0
         """Increments whenever the reference path changes (for recording)."""
         self._lane_paths: dict[int, ReferencePath] = {}
-        self._pending: list[Decision] = []
         self._vy = 0.0
 
     # ------------------------------------------------------------------ setup
@@ -228,9 +227,7 @@ class VehicleCore:
         """Fail-safe: stop in the lane the car is in, at ``mrm_decel``; abort the active command."""
         out = []
         if self.book.active is not None:
-            out.append(Decision(self.book.active.command_id, AckStatus.REJECTED, f"aborted: {reason}"[:250]))
-            self.book._record(out[-1])
-            self.book.active, self.book.active_path = None, None
+            out.append(self.book.abort(reason))
         lane = self.current_lane()
         path = self.lane_path(lane)
         x, y, _ = self.estimator.pose

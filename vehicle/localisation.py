@@ -116,6 +116,7 @@ class PoseEstimator:
         self._hist: deque[tuple[float, float, float, float, float, np.ndarray, np.ndarray]] = deque()
         self.rejected_fixes = 0
         self._consecutive_rejects = 0
+        self._pending: list[Fix] = []
 
     def initialise(self, now_s: float, x_m: float, y_m: float, yaw_rad: float,
                    pos_sigma_m: float = 0.5, yaw_sigma_rad: float = 0.05) -> None:
@@ -125,6 +126,7 @@ class PoseEstimator:
         self.time_s = now_s
         self.initialised = True
         self._hist.clear()
+        self._pending.clear()
         self._hist.append((now_s, 0.0, 0.0, 0.0, 0.0, self.x.copy(), self.P.copy()))
 
     def _predict(self, x: np.ndarray, P: np.ndarray, dt: float, v: float, w: float,
@@ -164,13 +166,21 @@ class PoseEstimator:
         self._hist.append((now_s, dt, speed_mps, yaw_rate_rps, lateral_speed_mps, self.x.copy(), self.P.copy()))
         while self._hist and self._hist[0][0] < now_s - self.history_s:
             self._hist.popleft()
+        if self._pending:
+            due = [f for f in self._pending if f.measured_at_s <= now_s + 1e-9]
+            self._pending = [f for f in self._pending if f.measured_at_s > now_s + 1e-9]
+            for f in due:
+                self.update(f)
 
     def update(self, fix: Fix, gate_sigma: float = 5.0) -> bool:
         """Apply a (possibly delayed) fix; returns False when it is too old or fails the gate."""
         if not self.initialised:
             return False
-        if fix.measured_at_s > self.time_s + 1e-6:
-            fix = Fix(self.time_s, fix.x_m, fix.y_m, fix.sigma_m)  # a fix from the future: use it now
+        if fix.measured_at_s > self.time_s + 1e-9:
+            # measured after the newest state (e.g. no latency, fix before this step's odometry):
+            # applied by the predict() that reaches its time
+            self._pending.append(fix)
+            return True
         hist = self._hist
         k = None
         for i in range(len(hist) - 1, -1, -1):

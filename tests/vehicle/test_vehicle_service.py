@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import numpy as np
 import pytest
 from conftest import make_command
 
@@ -142,3 +143,33 @@ def test_unknown_vehicle_is_refused():
     corridor = dataclasses.replace(load_corridor(), corridor_id=C)
     with pytest.raises(KeyError):
         VehicleService(LocalBus(), SimClock(), corridor, "nobody")
+
+
+def test_rsu_track_localisation_and_its_loss():
+    from protocol.keys import rsu_key
+    from protocol.messages import DetectedObject, ObjectList
+
+    corridor = dataclasses.replace(load_corridor(), corridor_id=C)
+    bus, clock = LocalBus(), SimClock(500.0)
+    states = []
+    bus.subscribe(vehicle_key(C, "av1", "state"), lambda k, m: states.append(m))
+    svc = VehicleService(bus, clock, corridor, "av1", localisation="rsu")
+    rng = np.random.default_rng(0)
+    for k in range(800):
+        now = clock.now()
+        if k % 7 == 0 and k < 400:  # ~15 Hz RSU track of the car, 0.2 s old, plus a stranger 20 m away
+            st = svc.sim.truth
+            objs = [DetectedObject(object_id=i, pos_x_m=x, pos_y_m=y, lat_deg=30.6, lon_deg=-96.5,
+                                   bbox_px=(0.0, 0.0, 1.0, 1.0), pos_cov_m2=(0.09, 0.0, 0.09))
+                    for i, (x, y) in enumerate([(st.x_m - 13.4 * 0.2 + rng.normal(0, 0.3), st.y_m + rng.normal(0, 0.3)),
+                                                (st.x_m + 20.0, st.y_m - 3.7)])]
+            bus.publish(rsu_key(C, "rsu1", "objects"),
+                        ObjectList(src="rsu1", stamp=now, rsu_id="rsu1", frame=k, measurement_time=now - 0.2,
+                                   objects=objs))
+        svc.step(now)
+        clock.advance(0.01)
+        if k == 399:
+            assert states[-1].mode == VehicleMode.DRIVING and states[-1].localisation_age_s < 0.4
+            assert abs(states[-1].lateral_error_m) < 0.3
+    # the RSU track stopped at 4 s: stale after 1 s more, then a minimal-risk stop
+    assert states[-1].mode == VehicleMode.MINIMAL_RISK and "localisation stale" in states[-1].detail
