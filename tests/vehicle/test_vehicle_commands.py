@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import make_command
+from vehicle_helpers import make_command
 
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand
 from vehicle.commands import CommandBook, validate_command

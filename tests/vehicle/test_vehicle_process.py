@@ -9,7 +9,7 @@ from pathlib import Path
 from uuid import uuid4
 
 import pytest
-from conftest import make_command
+from vehicle_helpers import make_command
 
 from protocol.corridor import load_corridor
 from protocol.keys import vehicle_key

@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import make_command
+from vehicle_helpers import make_command
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
