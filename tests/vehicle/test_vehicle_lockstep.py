@@ -1,0 +1,91 @@
+"""The field test in lockstep (report Figs. 12-16) and the fail-safe stop."""
+
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from protocol.messages import AckStatus, VehicleMode
+from vehicle.lockstep import field_test_scenario, run_scenario
+
+
+def check_field_test(m):
+    assert m["completed"] and m["stopped"]
+    assert m["max_lateral_error_m"] <= 0.25  # the field test had 0.55 m
+    assert m["settled_lateral_error_m"] <= 0.05  # RMS after settling (field: ~0.10 m)
+    assert m["max_yaw_error_rad"] <= 0.05
+    assert m["stop_error_m"] <= 1.0
+    assert m["max_decel_mps2"] <= 3.0
+
+
+def test_field_test_13_4_mps_reproduced():
+    t0 = time.perf_counter()
+    r = run_scenario(field_test_scenario(13.4, sigma_m=0.2, latency_s=0.1, rate_hz=10.0))
+    elapsed = time.perf_counter() - t0
+    m = r.metrics
+    check_field_test(m)
+    assert [a.status for a in r.acks] == [AckStatus.ACCEPTED, AckStatus.COMPLETED]
+    # it really changed lane: ends in lane 0 (3.7 m right of where it started)
+    c = r.record.columns()
+    assert c["y_m"][0] == pytest.approx(5.55, abs=0.01) and abs(c["y_m"][-1] - 1.85) < 0.15
+    assert elapsed < 5.0, f"a {m['duration_s']:.0f} s scenario took {elapsed:.1f} s"
+
+
+@pytest.mark.parametrize("speed, radius", [(25.0, None), (13.4, 200.0), (25.0, 200.0)])
+def test_field_test_at_speed_and_on_a_curve(speed, radius):
+    m = run_scenario(field_test_scenario(speed, radius_m=radius)).metrics
+    assert m["completed"] and m["stopped"]
+    assert m["max_lateral_error_m"] <= 0.25
+    assert m["max_yaw_error_rad"] <= 0.05
+    assert m["stop_error_m"] <= 1.0
+    # RMS after settling: on the straight as in the reference case; on the curve the car also brakes
+    # through the bend and the GNSS-limited estimate wanders more (measured 0.07 / 0.12 worst of 6 seeds)
+    assert m["settled_lateral_error_m"] <= (0.05 if radius is None else 0.15)
+
+
+def test_many_seeds_stay_stable():
+    for seed in range(1, 4):
+        m = run_scenario(field_test_scenario(13.4, seed=seed)).metrics
+        assert m["max_lateral_error_m"] <= 0.25 and m["stop_error_m"] <= 1.0 and m["completed"]
+
+
+def test_rsu_track_localisation_with_more_latency():
+    m = run_scenario(field_test_scenario(13.4, sigma_m=0.3, latency_s=0.2, rate_hz=15.0, source="rsu",
+                                         dropout_prob=0.05)).metrics
+    assert m["completed"] and m["max_lateral_error_m"] <= 0.25 and m["stop_error_m"] <= 1.0
+
+
+def test_failsafe_stop_when_the_ddm_goes_silent():
+    sc = field_test_scenario(13.4)
+    sc = replace(sc, ddm_health_period_s=None)  # only the command itself is ever heard
+    r = run_scenario(sc)
+    c = r.record.columns()
+    core = r.sim.core
+    assert core.mode == VehicleMode.MINIMAL_RISK and "link lost" in core.watchdog.reason
+    assert core.watchdog.triggered_at_s == pytest.approx(sc.command_at_s + 2.0, abs=0.05)
+    assert [a.status for a in r.acks] == [AckStatus.ACCEPTED, AckStatus.REJECTED]
+    assert r.acks[1].reason.startswith("aborted: link lost")
+    assert c["speed_mps"][-1] < 0.01  # stopped
+    assert -c["accel_mps2"].min() <= 3.0  # controlled, not an emergency stop
+    # stopped in a lane (mid-change it picks the lane it is in), not between lanes
+    y_end = c["y_m"][-1]
+    assert min(abs(y_end - 1.85), abs(y_end - 5.55)) < 0.3
+
+
+def test_failsafe_stop_when_localisation_goes_stale():
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=14.0, fix_outage=(4.0, 99.0))
+    r = run_scenario(sc)
+    core = r.sim.core
+    assert core.mode == VehicleMode.MINIMAL_RISK and "localisation stale" in core.watchdog.reason
+    assert 4.75 <= core.watchdog.triggered_at_s <= 5.05  # newest fix measured at ~3.8 s, stale after 1 s
+    c = r.record.columns()
+    assert c["speed_mps"][-1] < 0.01 and -c["accel_mps2"].min() <= 3.0
+    assert np.abs(c["lateral_error_m"]).max() < 0.3  # dead reckoning keeps it in lane while stopping
+
+
+def test_no_failsafe_in_normal_driving():
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=12.0, ddm_health_period_s=None)
+    r = run_scenario(sc)
+    assert r.sim.core.mode == VehicleMode.DRIVING and r.sim.core.watchdog.reason is None
+    assert abs(r.record.columns()["speed_mps"][-1] - 13.4) < 0.2

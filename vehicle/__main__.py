@@ -1,0 +1,5 @@
+import sys
+
+from vehicle.cli import main
+
+sys.exit(main())

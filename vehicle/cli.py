@@ -1,0 +1,150 @@
+"""``iea-vehicle``: run the vehicle process, replay the field test in lockstep, plot a run."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import signal
+import sys
+
+from protocol.transport import ZenohSettings
+from vehicle.localisation import FixSourceConfig
+
+
+def _positive(text: str) -> float:
+    v = float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    v = float(text)
+    if not v >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="iea-vehicle", description=(
+        "Autonomous vehicle process of the IEA corridor: follows path-switch commands from the DDM with the "
+        "thesis's lateral controller on a simulated dynamic bicycle, publishes its state, stops safely when "
+        "it loses the DDM or its localisation."))
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run the vehicle service over Zenoh in real time")
+    run.add_argument("--corridor", metavar="FILE", default=None, help="corridor TOML (default: deploy/corridors/rellis.toml)")
+    run.add_argument("--corridor-id", metavar="ID", default=None, help="override the corridor id (key prefix), e.g. for tests")
+    run.add_argument("--vehicle", metavar="ID", default="av1", help="vehicle id in the corridor file (default av1)")
+    run.add_argument("--localisation", choices=["gnss", "rsu", "both"], default="gnss",
+                     help="own GNSS, the RSUs' track of the car, or both (default gnss)")
+    run.add_argument("--gnss-sigma", type=_non_negative, default=0.2, metavar="M", help="GNSS noise sigma (m, default 0.2)")
+    run.add_argument("--gnss-rate", type=_positive, default=10.0, metavar="HZ", help="GNSS rate (default 10 Hz)")
+    run.add_argument("--gnss-latency", type=_non_negative, default=0.1, metavar="S", help="GNSS latency (default 0.1 s)")
+    run.add_argument("--link-timeout", type=_positive, default=2.0, metavar="S",
+                     help="fail-safe: stop when no command or DDM health for this long in a manoeuvre (default 2 s)")
+    run.add_argument("--localisation-stale", type=_positive, default=1.0, metavar="S",
+                     help="fail-safe: stop when the newest fix is older than this (default 1 s)")
+    run.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors")
+    run.add_argument("--duration", type=_positive, default=None, metavar="S", help="exit after this many seconds")
+    run.add_argument("--record", metavar="DIR", default=None, help="write the run (npz/csv/json) here on exit")
+    run.add_argument("-v", "--verbose", action="store_true")
+    ZenohSettings.add_arguments(run)
+
+    ls = sub.add_parser("lockstep", help="replay the field test in lockstep (no transport) and write a run folder")
+    ls.add_argument("--speed", type=_positive, default=13.4, metavar="MPS", help="cruise speed (default 13.4)")
+    ls.add_argument("--radius", type=_positive, default=None, metavar="M", help="curved road of this radius (default straight)")
+    ls.add_argument("--sigma", type=_non_negative, default=0.2, metavar="M", help="fix noise sigma (default 0.2)")
+    ls.add_argument("--latency", type=_non_negative, default=0.1, metavar="S", help="fix latency (default 0.1)")
+    ls.add_argument("--rate", type=_positive, default=10.0, metavar="HZ", help="fix rate (default 10)")
+    ls.add_argument("--seed", type=int, default=0)
+    ls.add_argument("--out", metavar="DIR", required=True, help="run folder to write")
+    ls.add_argument("--plot", action="store_true", help="also write the PNG figures")
+
+    pl = sub.add_parser("plot", help="write the report's figures (PNG) for a run folder")
+    pl.add_argument("run_dir", metavar="RUN", help="run folder (run.npz + meta.json)")
+    pl.add_argument("--out", metavar="DIR", default=None, help="where to write the PNGs (default: the run folder)")
+    return p
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from protocol.clock import WallClock
+    from protocol.corridor import load_corridor
+    from protocol.transport import ZenohTransport
+    from vehicle.core import CoreConfig
+    from vehicle.failsafe import FailsafeConfig
+    from vehicle.service import VehicleService
+
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    corridor = load_corridor(args.corridor)
+    if args.corridor_id:
+        corridor = dataclasses.replace(corridor, corridor_id=args.corridor_id)
+    try:
+        corridor.vehicle(args.vehicle)
+    except KeyError as exc:
+        print(f"iea-vehicle: {exc.args[0]}", file=sys.stderr)
+        return 2
+    settings = ZenohSettings.from_args(args)
+    config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=args.link_timeout,
+                                                localisation_stale_s=args.localisation_stale))
+    fix = FixSourceConfig("gnss", args.gnss_sigma, args.gnss_rate, args.gnss_latency)
+    transport = ZenohTransport(settings)
+    service = VehicleService(transport, WallClock(), corridor, args.vehicle, config=config,
+                             localisation=args.localisation, fix_source=fix, seed=args.seed,
+                             record=args.record is not None)
+    signal.signal(signal.SIGTERM, lambda *_: service.stop())
+    logging.getLogger("iea-vehicle").info("vehicle %s on corridor %s: publishing %s", args.vehicle,
+                                          corridor.corridor_id, service.state_key)
+    try:
+        service.run(args.duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        service.close()
+        transport.close()
+        if args.record and service.record is not None:
+            from vehicle.record import write_run
+            write_run(args.record, service.record)
+    return 0
+
+
+def _cmd_lockstep(args: argparse.Namespace) -> int:
+    from vehicle.lockstep import field_test_scenario, run_scenario
+    from vehicle.record import write_run
+
+    sc = field_test_scenario(args.speed, args.sigma, args.latency, args.rate, args.radius, args.seed)
+    result = run_scenario(sc)
+    write_run(args.out, result.record)
+    if args.plot:
+        from vehicle.plot import plot_run
+        plot_run(args.out)
+    print(json.dumps(result.metrics))
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from vehicle.plot import plot_run
+
+    try:
+        for path in plot_run(args.run_dir, args.out):
+            print(path)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"iea-vehicle plot: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return {"run": _cmd_run, "lockstep": _cmd_lockstep, "plot": _cmd_plot}[args.command](args)
+    except ValueError as exc:  # bad settings (zenoh endpoints, corridor file)
+        print(f"iea-vehicle: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,294 @@
+"""The vehicle's driving logic (pure core): modes, reference switching, controllers, fail-safe.
+
+``VehicleCore`` sees only what a car's computer sees: odometry (wheel speed, yaw-rate gyro),
+position fixes (own GNSS or the RSU's track of the car) and commands. Each control step
+(``control(now, ...)``, 100 Hz) it dead-reckons the pose, checks the watchdog, picks the reference
+for its mode and returns steering and acceleration commands.
+
+Modes (``VehicleMode``): DRIVING keeps the centre of the current lane at cruise speed (and stops
+before the end of the corridor's road); MANOEUVRE follows a commanded path and speed profile and
+stops at its stop point; STOPPED is reached when a commanded stop is done; MINIMAL_RISK is the
+fail-safe stop in the current lane. A ``resume`` command returns to DRIVING in the current lane.
+
+``SimulatedVehicle`` closes the loop for the simulator, tests and the service: the bicycle plant
+(``vehicle/plant.py``), a simulated fix source and odometry feed a ``VehicleCore``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
+from vehicle.commands import CommandBook, CommandLimits, Decision
+from vehicle.failsafe import FailsafeConfig, Watchdog
+from vehicle.lateral import LateralController, LateralGains, LateralOutput
+from vehicle.localisation import (
+    GNSS,
+    Fix,
+    FixSourceConfig,
+    Odometry,
+    OdometryNoise,
+    PoseEstimator,
+    SimulatedFixSource,
+)
+from vehicle.longitudinal import LongitudinalController, LongitudinalOutput
+from vehicle.plant import BicyclePlant, VehicleParams, VehicleStateVec
+from vehicle.reference import ReferencePath, lane_centre_waypoints
+
+ROAD_END_MARGIN_M = 10.0
+
+
+@dataclass(frozen=True)
+class CoreConfig:
+    params: VehicleParams = field(default_factory=VehicleParams)
+    gains: LateralGains = field(default_factory=LateralGains)
+    failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)
+    limits: CommandLimits = field(default_factory=CommandLimits)
+    stop_tolerance_m: float = 1.0
+    """A commanded stop is complete when stopped within this distance of the stop point."""
+    stopped_speed_mps: float = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class ControlOutput:
+    time_s: float
+    steer_cmd_rad: float
+    accel_cmd_mps2: float
+    lateral: LateralOutput
+    longitudinal: LongitudinalOutput
+    mode: VehicleMode
+    decisions: tuple[Decision, ...]
+    """Acks produced during this step (completion, abort)."""
+
+
+class VehicleCore:
+    def __init__(self, road, vehicle_id: str, cruise_speed_mps: float, config: CoreConfig = CoreConfig()) -> None:
+        self.road = road
+        self.vehicle_id = vehicle_id
+        self.cruise_speed_mps = cruise_speed_mps
+        self.config = config
+        self.estimator = PoseEstimator()
+        self.lateral = LateralController(config.params, config.gains)
+        self.longitudinal = LongitudinalController(comfort_decel_mps2=3.0)
+        self.book = CommandBook(vehicle_id, config.limits)
+        self.watchdog = Watchdog(config.failsafe)
+        self.mode = VehicleMode.DRIVING
+        self.detail = "lane keeping"
+        self.lane = 0
+        self.target_speed_mps = cruise_speed_mps
+        self.path: ReferencePath | None = None
+        self.stop_s_m: float | None = None
+        self.plan_decel_mps2 = self.longitudinal.plan_decel_mps2
+        self.speed_mps = 0.0
+        self.yaw_rate_rps = 0.0
+        self.last: ControlOutput | None = None
+        self.path_version = 0
+        """Increments whenever the reference path changes (for recording)."""
+        self._lane_paths: dict[int, ReferencePath] = {}
+        self._vy = 0.0
+
+    # ------------------------------------------------------------------ setup
+    def lane_path(self, lane: int) -> ReferencePath:
+        if lane not in self._lane_paths:
+            wp = lane_centre_waypoints(self.road, lane, 0.0, self.road.length_m, step_m=2.0)
+            self._lane_paths[lane] = ReferencePath(wp)
+        return self._lane_paths[lane]
+
+    def initialise(self, now_s: float, x_m: float, y_m: float, yaw_rad: float, speed_mps: float) -> None:
+        self.estimator.initialise(now_s, x_m, y_m, yaw_rad)
+        self.estimator.last_fix_s = now_s  # the start pose counts as a fix
+        self.speed_mps = speed_mps
+        lane = self.road.lane_at(x_m, y_m)
+        self._keep_lane(0 if lane is None else lane, self.cruise_speed_mps, "lane keeping")
+
+    def _set_path(self, path: ReferencePath, stop_s_m: float | None) -> None:
+        self.path, self.stop_s_m = path, stop_s_m
+        self.lateral.reset()
+        self.path_version += 1
+
+    def _keep_lane(self, lane: int, speed_mps: float, detail: str) -> None:
+        self.lane = lane
+        path = self.lane_path(lane)
+        self.target_speed_mps = speed_mps
+        self.mode, self.detail = VehicleMode.DRIVING, detail
+        self.plan_decel_mps2 = self.longitudinal.plan_decel_mps2
+        self._set_path(path, path.length_m - ROAD_END_MARGIN_M)
+
+    def current_lane(self) -> int:
+        x, y, _ = self.estimator.pose
+        lane = self.road.lane_at(x, y)
+        if lane is None:
+            _, d = self.road.to_frenet(x, y)
+            lane = 0 if d < 0 else self.road.lanes - 1
+        return lane
+
+    # ------------------------------------------------------------------ inputs
+    def on_fix(self, fix: Fix) -> bool:
+        return self.estimator.update(fix)
+
+    def on_link(self, now_s: float) -> None:
+        """DDM health heard."""
+        self.watchdog.link_seen(now_s)
+
+    def on_command(self, cmd: PathSwitchCommand, now_s: float) -> list[Decision]:
+        if cmd.vehicle_id == self.vehicle_id:
+            self.watchdog.link_seen(now_s)
+        blocked = self.watchdog.healthy(now_s, self.estimator.age_s(now_s))
+        decisions = self.book.offer(cmd, now_s, self.estimator.pose, self.speed_mps, blocked)
+        if decisions and decisions[-1].status == AckStatus.ACCEPTED and decisions[-1].command_id == cmd.command_id \
+                and self.book.active is cmd:
+            decisions += self._engage(cmd)
+        return decisions
+
+    def _engage(self, cmd: PathSwitchCommand) -> list[Decision]:
+        self.watchdog.clear()
+        if cmd.manoeuvre == Manoeuvre.RESUME:
+            self._keep_lane(self.current_lane(), self.cruise_speed_mps, f"resumed ({cmd.command_id})")
+            return [self.book.complete("resumed cruise")]
+        path = self.book.active_path
+        assert path is not None
+        self.target_speed_mps = cmd.target_speed_mps
+        self.mode = VehicleMode.MANOEUVRE
+        self.detail = f"{cmd.manoeuvre.value}: {cmd.reason}"[:200]
+        self.plan_decel_mps2 = self.longitudinal.plan_decel_mps2
+        self._set_path(path, path.stop_s_m)
+        return []
+
+    # ------------------------------------------------------------------ control step
+    def lateral_speed_model(self, speed_mps: float, yaw_rate_rps: float, steer_rad: float | None,
+                            dt_s: float) -> float:
+        """The car's estimate of its body-frame v_y (for dead reckoning).
+
+        With the steering-angle sensor: eq. 4.11 driven by the measured steering and yaw rate (a
+        first-order filter, time constant m v_x / (C_f + C_r)); without it, the steady-state sideslip.
+        """
+        p = self.config.params
+        if speed_mps <= p.kinematic_below_mps:
+            self._vy = p.cg_to_rear_m * yaw_rate_rps
+        elif steer_rad is None:
+            self._vy = p.steady_sideslip_rad(yaw_rate_rps / speed_mps, speed_mps) * speed_mps
+        else:
+            m, a, b = p.mass_kg, p.cg_to_front_m, p.cg_to_rear_m
+            cf, cr, v = p.cornering_front_npr, p.cornering_rear_npr, speed_mps
+            n = max(1, int(dt_s / 0.002 + 0.999))
+            for _ in range(n):
+                dvy = (cf * steer_rad - (cf + cr) / v * self._vy - (a * cf - b * cr) / v * yaw_rate_rps) / m \
+                    - v * yaw_rate_rps
+                self._vy += dvy * dt_s / n
+        return self._vy
+
+    def control(self, now_s: float, speed_mps: float, yaw_rate_rps: float, dt_s: float,
+                steer_rad: float | None = None) -> ControlOutput:
+        """One control step from odometry (and the steering-angle sensor); returns actuator commands and
+        any acks due."""
+        self.speed_mps, self.yaw_rate_rps = speed_mps, yaw_rate_rps
+        vy_model = self.lateral_speed_model(speed_mps, yaw_rate_rps, steer_rad, dt_s)
+        self.estimator.predict(now_s, speed_mps, yaw_rate_rps, vy_model)
+        decisions: list[Decision] = []
+        reason = self.watchdog.check(now_s, self.mode == VehicleMode.MANOEUVRE, self.estimator.age_s(now_s))
+        if reason is not None and self.mode != VehicleMode.MINIMAL_RISK:
+            decisions += self._minimal_risk(reason)
+        assert self.path is not None
+        x, y, yaw = self.estimator.pose
+        lat = self.lateral.step(self.path, x, y, yaw, speed_mps, yaw_rate_rps, dt_s)
+        dist = None if self.stop_s_m is None else self.stop_s_m - lat.s_m
+        if self.mode == VehicleMode.STOPPED:
+            dist = 0.0
+        target = self.path.speed_at(lat.s_m, self.target_speed_mps) if self.mode == VehicleMode.MANOEUVRE \
+            else self.target_speed_mps
+        self.longitudinal.plan_decel_mps2 = self.plan_decel_mps2
+        lon = self.longitudinal.step(speed_mps, target, dist)
+        decisions += self._progress(lat, speed_mps, dist)
+        out = ControlOutput(now_s, lat.steer_cmd_rad, lon.accel_cmd_mps2, lat, lon, self.mode, tuple(decisions))
+        self.last = out
+        return out
+
+    def _progress(self, lat: LateralOutput, speed_mps: float, dist: float | None) -> list[Decision]:
+        cfg = self.config
+        stopped = speed_mps <= cfg.stopped_speed_mps
+        if self.mode == VehicleMode.MANOEUVRE:
+            assert self.path is not None and self.book.active is not None
+            if dist is not None:
+                if stopped and abs(dist) <= cfg.stop_tolerance_m:
+                    self.mode, self.detail = VehicleMode.STOPPED, f"stopped {dist:+.2f} m from the stop point"
+                    return [self.book.complete(self.detail)]
+            elif lat.s_m >= self.path.length_m - 10.0:  # 10 m run-out added by validate_command
+                cmd = self.book.active
+                done = self.book.complete("end of path reached")
+                self._keep_lane(self.current_lane(), cmd.target_speed_mps, f"lane keeping after {cmd.command_id}")
+                return [done]
+        elif self.mode == VehicleMode.DRIVING and dist is not None and stopped and dist < 2.0:
+            self.detail = "stopped at the end of the road"
+        elif self.mode == VehicleMode.MINIMAL_RISK and stopped:
+            self.detail = f"minimal-risk stop done: {self.watchdog.reason}"[:200]
+        return []
+
+    def _minimal_risk(self, reason: str) -> list[Decision]:
+        """Fail-safe: stop in the lane the car is in, at ``mrm_decel``; abort the active command."""
+        out = []
+        if self.book.active is not None:
+            out.append(self.book.abort(reason))
+        lane = self.current_lane()
+        path = self.lane_path(lane)
+        x, y, _ = self.estimator.pose
+        s_now = path.project(x, y).s_m
+        decel = self.config.failsafe.mrm_decel_mps2
+        self.lane = lane
+        self.mode, self.detail = VehicleMode.MINIMAL_RISK, f"minimal-risk stop: {reason}"[:250]
+        self.target_speed_mps = 0.0
+        self.plan_decel_mps2 = decel
+        self._set_path(path, min(path.length_m, s_now + self.speed_mps ** 2 / (2.0 * decel) + 1.0))
+        return out
+
+
+class SimulatedVehicle:
+    """Plant + sensors + core, stepped at the control rate (the car of the simulator and the service)."""
+
+    def __init__(self, road, vehicle_id: str, start_s_m: float, start_lane: int, cruise_speed_mps: float,
+                 config: CoreConfig = CoreConfig(), fix_source: FixSourceConfig | None = GNSS,
+                 odometry: OdometryNoise = OdometryNoise(), seed: int = 0, start_time_s: float = 0.0,
+                 start_speed_mps: float | None = None) -> None:
+        self.road = road
+        x, y, h = road.pose_at(start_s_m, road.lane_centre_offset_m(start_lane))
+        v0 = cruise_speed_mps if start_speed_mps is None else start_speed_mps
+        self.plant = BicyclePlant(config.params, VehicleStateVec(x_m=x, y_m=y, yaw_rad=h, vx_mps=v0))
+        self.fixes = SimulatedFixSource(fix_source, seed) if fix_source is not None else None
+        self.odometry = Odometry(odometry, seed)
+        self.core = VehicleCore(road, vehicle_id, cruise_speed_mps, config)
+        self.core.initialise(start_time_s, x, y, h, v0)
+        self.fix_source_enabled = True
+
+    @property
+    def truth(self) -> VehicleStateVec:
+        return self.plant.state
+
+    def step(self, now_s: float, dt_s: float) -> ControlOutput:
+        st = self.plant.state
+        if self.fixes is not None:
+            for fix in self.fixes.step(now_s, st.x_m, st.y_m):
+                if self.fix_source_enabled:
+                    self.core.on_fix(fix)
+        v, w = self.odometry.measure(st.vx_mps, st.yaw_rate_rps)
+        out = self.core.control(now_s, v, w, dt_s, st.steer_rad)
+        self.plant.step(dt_s, out.steer_cmd_rad, out.accel_cmd_mps2)
+        return out
+
+    def true_errors(self) -> tuple[float, float, float, float]:
+        """(e_lat, yaw err, yaw-rate err, s) of the TRUE pose against the active path."""
+        core, st = self.core, self.plant.state
+        path = core.path
+        assert path is not None
+        proj = path.project(st.x_m, st.y_m, getattr(self, "_hint", None))
+        self._hint = proj.index
+        fit = path.fit_at(proj.s_m, core.lateral.fit_points, core.lateral.line_tolerance_m)
+        e, ye, yre = fit.errors(st.x_m, st.y_m, st.yaw_rad, st.yaw_rate_rps, st.vx_mps)
+        return e, ye, yre, proj.s_m
+
+    def stop_error_m(self) -> float | None:
+        """Signed distance along the path from the stop point to the car (+ past it)."""
+        core = self.core
+        if core.stop_s_m is None or core.path is None:
+            return None
+        st = self.plant.state
+        return core.path.project(st.x_m, st.y_m).s_m - core.stop_s_m
+
