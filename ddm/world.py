@@ -528,38 +528,32 @@ class CorridorWorld:
     def is_ev_mask(self, slots: np.ndarray, now: float) -> np.ndarray:
         return (self.ev_alert_until[slots] > now) | ((self.ev_obj_until[slots] > now) & ~self.ev_suppressed[slots])
 
-    def _track(self, s: int, now: float) -> Track:
-        dt = now - self.t[s]
-        var = 0.5 * (self.pxx[s] + self.pyy[s])
-        rsus = tuple(sorted({self._rsu_names[ri] for ri, _ in self._slot_keys.get(s, ())}))
-        lane = int(self.lane[s])
-        return Track(
-            track_id=int(self.gid[s]),
-            x_m=float(self.x[s] + self.vx[s] * dt),
-            y_m=float(self.y[s] + self.vy[s] * dt),
-            vx_mps=float(self.vx[s]),
-            vy_mps=float(self.vy[s]),
-            length_m=float(self.length[s]),
-            width_m=float(self.width[s]),
-            obj_type=_TYPES[int(self.otype[s])],
-            is_ev=bool(self.is_ev_mask(np.array([s]), now)[0]),
-            ev_alert_id=self._alert_of_slot.get(s),
-            lane=None if lane < 0 else lane,
-            vehicle_id=self._vehicle_of_slot.get(s),
-            hits=int(self.hits[s]),
-            first_seen_s=float(self.first[s]),
-            last_update_s=float(self.seen[s]),
-            pos_var_m2=float(var),
-            rsus=rsus,
-        )
+    def _tracks(self, slots: np.ndarray, now: float) -> list[Track]:
+        """Track records for ``slots`` predicted to ``now`` (columns gathered once, vectorised)."""
+        if not len(slots):
+            return []
+        dt = now - self.t[slots]
+        cols = zip(
+            self.gid[slots].tolist(), (self.x[slots] + self.vx[slots] * dt).tolist(),
+            (self.y[slots] + self.vy[slots] * dt).tolist(), self.vx[slots].tolist(), self.vy[slots].tolist(),
+            self.length[slots].tolist(), self.width[slots].tolist(), self.otype[slots].tolist(),
+            self.is_ev_mask(slots, now).tolist(), self.lane[slots].tolist(), self.hits[slots].tolist(),
+            self.first[slots].tolist(), self.seen[slots].tolist(), (0.5 * (self.pxx[slots] + self.pyy[slots])).tolist(),
+            slots.tolist(), strict=True)
+        names, keys, alerts, vehicles = self._rsu_names, self._slot_keys, self._alert_of_slot, self._vehicle_of_slot
+        return [
+            Track(g, x, y, vx, vy, ln, wd, _TYPES[ot], ev, alerts.get(s), None if lane < 0 else lane,
+                  vehicles.get(s), hits, first, seen, var, tuple(sorted({names[ri] for ri, _ in keys.get(s, ())})))
+            for g, x, y, vx, vy, ln, wd, ot, ev, lane, hits, first, seen, var, s in cols
+        ]
 
     def tracks(self, now: float) -> list[Track]:
         """Every live track, predicted to ``now``, ordered by id."""
-        return sorted((self._track(int(s), now) for s in np.nonzero(self.alive)[0]), key=lambda t: t.track_id)
+        return sorted(self._tracks(np.nonzero(self.alive)[0], now), key=lambda t: t.track_id)
 
     def track(self, track_id: int, now: float) -> Track | None:
         s = self._slot_of_gid.get(track_id)
-        return None if s is None else self._track(s, now)
+        return None if s is None else self._tracks(np.array([s]), now)[0]
 
     def tracks_near(self, x_m: float, y_m: float, radius_m: float, now: float) -> list[Track]:
         live = np.nonzero(self.alive)[0]
@@ -567,12 +561,12 @@ class CorridorWorld:
             return []
         dt = now - self.t[live]
         d = np.hypot(self.x[live] + self.vx[live] * dt - x_m, self.y[live] + self.vy[live] * dt - y_m)
-        return [self._track(int(s), now) for s in live[d <= radius_m]]
+        return self._tracks(live[d <= radius_m], now)
 
     def ev_tracks(self, now: float) -> list[Track]:
         """Tracks currently marked EV (by an active alert or a confirmed detection)."""
         live = np.nonzero(self.alive)[0]
-        return [self._track(int(s), now) for s in live[self.is_ev_mask(live, now)]]
+        return self._tracks(live[self.is_ev_mask(live, now)], now)
 
     def vehicle_track_id(self, vehicle_id: str) -> int | None:
         rec = self.vehicles.get(vehicle_id)
