@@ -214,6 +214,7 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
     lane_e = int(frame.lane_of(d_e))
     lane_e = 0 if lane_e < 0 and d_e < 0 else lane_e  # on the shoulder: treat as lane 0
     base = dict(ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=ego.speed_mps)
+    evs = [e for e in evs if ego.track_id is None or e.track_id != ego.track_id]  # never yield to itself
     ev_ids = {e.track_id for e in evs}
     exclude = ev_ids | ({ego.track_id} if ego.track_id is not None else set())
     # tracks that are the AV itself but not bound (pose within a car length and a half width)

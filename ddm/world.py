@@ -129,6 +129,8 @@ class CorridorWorld:
         self._rsu_index: dict[str, int] = {}
         self._rsu_names: list[str] = []
         self._maps: list[dict[int, tuple[int, int]]] = []  # per RSU: object id -> (slot, gid)
+        self._bind_seen: list[dict[int, float]] = []  # per RSU: object id -> last time it was in a list
+        self._lists_per_rsu: list[int] = []
         self._slot_keys: dict[int, set[tuple[int, int]]] = {}  # slot -> {(rsu index, object id)}
         self.rsu_last_objects: dict[str, float] = {}
         self.rsu_last_health: dict[str, float] = {}
@@ -167,6 +169,8 @@ class CorridorWorld:
             self._rsu_index[rsu_id] = i
             self._rsu_names.append(rsu_id)
             self._maps.append({})
+            self._bind_seen.append({})
+            self._lists_per_rsu.append(0)
         return i
 
     def _delete(self, slot: int) -> None:
@@ -246,6 +250,9 @@ class CorridorWorld:
         if now - t_meas > cfg.max_measurement_age_s:
             self.stats.dropped_old += len(msg.objects)
             return 0
+        self._lists_per_rsu[ri] += 1
+        if self._lists_per_rsu[ri] % 16 == 0:
+            self._prune_bindings(ri, now)
         objs = msg.objects
         n = len(objs)
         if n == 0:
@@ -325,8 +332,10 @@ class CorridorWorld:
         self.width[st] = rows[:, 6]
         self.last_rsu[st] = ri
         # per-object attributes that are not numbers: a short loop over the frame
+        seen_map = self._bind_seen[ri]
         for k, o in enumerate(objs):
             s = int(st[k])
+            seen_map[o.object_id] = now
             code = _TYPE_CODES[o.obj_type]
             self.otype[s] = code
             self.lane[s] = -1 if o.lane is None else o.lane
@@ -336,6 +345,17 @@ class CorridorWorld:
                 self.ev_obj_until[s] = 0.0
         self.stats.objects += n
         return n
+
+    def _prune_bindings(self, ri: int, now: float) -> None:
+        """Forget (rsu, object id) bindings the RSU has not reported for ``track_timeout_s``: the RSU lost
+        the object, and ``Track.rsus`` lists only the RSUs that currently see a track."""
+        seen_map, bindings = self._bind_seen[ri], self._maps[ri]
+        horizon = now - self.config.track_timeout_s
+        for oid in [o for o, t in seen_map.items() if t < horizon]:
+            del seen_map[oid]
+            b = bindings.pop(oid, None)
+            if b is not None:
+                self._slot_keys.get(b[0], set()).discard((ri, oid))
 
     def _candidates(self, zx: np.ndarray, zy: np.ndarray, claimed: np.ndarray) -> np.ndarray:
         """Alive, unclaimed tracks inside the measurements' bounding box grown by a generous margin."""

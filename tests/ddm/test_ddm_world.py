@@ -40,11 +40,16 @@ def drive(world: CorridorWorld, cover: dict[str, tuple[float, float]], cars: dic
 
 def test_handover_between_overlapping_rsus_keeps_one_global_id():
     w = CorridorWorld(DdmConfig())
-    seen, _, _ = drive(w, {"rsu1": (-60, 60), "rsu2": (40, 160)}, {"a": (0.0, lane_y(1), 13.4)}, 0.0, 8.0)
-    ids = set().union(*seen["a"])
-    assert ids == {1}, f"car got tracks {ids}"
-    assert all(len(s) == 1 for s in seen["a"])  # one track at every step, also in the overlap
+    cover = {"rsu1": (-60, 60), "rsu2": (40, 160)}
+    ids: dict = {}
+    seen, cars, t = drive(w, cover, {"a": (0.0, lane_y(1), 13.4)}, 0.0, 3.5, ids=ids)
+    assert w.tracks(t)[0].rsus == ("rsu1", "rsu2")  # in the overlap: one track fed by both
+    seen2, _, t = drive(w, cover, cars, t, 4.5, ids=ids)
+    ids_seen = set().union(*seen["a"], *seen2["a"])
+    assert ids_seen == {1}, f"car got tracks {ids_seen}"
+    assert all(len(s) == 1 for s in seen["a"] + seen2["a"])  # one track at every step, also in the overlap
     assert w.track_count == 1
+    assert w.tracks(t)[0].rsus == ("rsu2",)  # rsu1 lost it 3 s ago: its binding is forgotten
 
 
 def test_handover_across_a_gap_between_fields_of_view_keeps_id():
