@@ -97,6 +97,8 @@ class Rig:
         self.av_path: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.av_arc = 0.0
         self.ev_alert: EvAlert | None = None
+        self.hooks: list = []
+        """Called after each step's publications, before the DDM steps (e.g. a DsrcLink's deliver_due)."""
         self.bus.subscribe(all_vehicles_expr(self.c, "cmd"), lambda k, m: self._on_cmd(m))
         self.bus.subscribe(ddm_health_key(self.c), lambda k, m: self.health.append(m))
 
@@ -193,6 +195,8 @@ class Rig:
             self.publish_av()
             if alert_every_s and self.ev_alert_on and i % max(1, int(round(alert_every_s / dt))) == 0:
                 self.alert()
+            for hook in self.hooks:
+                hook()
             self.svc.step()
 
     ev_alert_on: bool = False
