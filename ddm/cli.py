@@ -42,12 +42,14 @@ def main(argv: list[str] | None = None) -> int:
     from ddm.service import DdmService
     from protocol.clock import WallClock
     from protocol.corridor import CorridorError, load_corridor
+    from protocol.keys import all_rsus_expr
     from protocol.transport import ZenohSettings, ZenohTransport
 
     try:
         corridor = load_corridor(args.corridor)
         config = DdmConfig(rate_hz=args.rate_hz, startup_listen_s=args.startup_listen_s)
         settings = ZenohSettings.from_args(args)
+        all_rsus_expr(args.corridor_id or corridor.corridor_id)  # a corridor id that cannot be a key chunk fails here
     except (CorridorError, ValueError) as exc:
         print(f"iea-ddm: {exc}", file=sys.stderr)
         return 2

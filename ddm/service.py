@@ -87,13 +87,15 @@ class DdmService:
         self._stale_reported: set[str] = set()
         self._lock = threading.RLock()
         c = self.corridor_id
+        self._cmd_keys: dict[str, str] = {}
+        self._health_key = ddm_health_key(c)
+        self._step_time_s = 0.0
+        # subscribe last: a Zenoh callback may run (on its own thread) as soon as this returns
         self._subs = [
             transport.subscribe(all_rsus_expr(c), self._on_rsu),
             transport.subscribe(all_vehicles_expr(c, "state"), self._on_vehicle_state),
             transport.subscribe(all_vehicles_expr(c, "ack"), self._on_ack),
         ]
-        self._cmd_keys: dict[str, str] = {}
-        self._health_key = ddm_health_key(c)
 
     # ------------------------------------------------------------------ inputs
     def _reject(self, reason: str, detail: str) -> None:
@@ -276,7 +278,7 @@ class DdmService:
             lat["decision_p99"] = float(np.percentile(arr, 99))
         if self._period_latency:
             lat["decision_mean"] = float(np.mean(self._period_latency))
-        lat["step"] = getattr(self, "_step_time_s", 0.0) * 1000.0
+        lat["step"] = self._step_time_s * 1000.0
         rejected = dict(self.rejected)
         for reason, n in self.transport.stats.rejected.items():
             rejected[f"decode_{reason}"] = int(n)

@@ -104,3 +104,15 @@ def test_ddm_process_pulls_over_and_retransmits_until_acked():
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5)
+
+
+def test_cli_help_and_bad_arguments(capsys):
+    from ddm.cli import main
+
+    with pytest.raises(SystemExit) as ex:
+        main(["run", "--help"])
+    assert ex.value.code == 0 and "--corridor-id" in capsys.readouterr().out
+    assert main(["run", "--corridor", "/nonexistent/corridor.toml"]) == 2
+    assert "corridor file not found" in capsys.readouterr().err
+    assert main(["run", "--corridor-id", "bad/id"]) == 2
+    assert "not a valid key chunk" in capsys.readouterr().err
