@@ -1,0 +1,169 @@
+"""Path planner: commanded reference paths (waypoints + speed profile) in the corridor frame. Pure.
+
+Lateral motion is a quintic in the road frame, d(s) from the current offset (and heading error) to
+the target offset with zero lateral slope and curvature at the end (minimum-jerk lane change,
+Werling et al. 2010). For a unit-free quintic the largest d'' is 5.7735 * delta_d / L^2, so the
+lane-change length is chosen as
+
+    L = max(lane_change_min_m, v * lane_change_min_s, sqrt(5.7735 |delta_d| / kappa_allowed))
+    kappa_allowed = min(max_curvature_1pm, max_lat_accel_mps2 / v^2) - |road curvature|
+
+which keeps the commanded curvature within the vehicle's limit and the lateral acceleration within
+comfort at the speed the manoeuvre starts with (the speed only decreases afterwards). Speed profiles
+are constant-deceleration (v^2 = v0^2 - 2 a s) to a stop point, or to a slow speed, or an
+acceleration back to cruise on resume.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ddm.config import DdmConfig
+from ddm.geometry import RoadFrame
+from protocol.messages import MAX_WAYPOINTS
+
+QUINTIC_PEAK = 5.773502691896258  # max over u of |60u - 180u^2 + 120u^3| (at u = (3 - sqrt 3) / 6)
+MIN_PLAN_SPEED_MPS = 2.0
+"""A stopped car still needs a speed to move along a path: plans start at least at this speed."""
+
+
+@dataclass(frozen=True)
+class PlannedPath:
+    waypoints: list[tuple[float, float]]
+    speeds_mps: list[float]
+    target_speed_mps: float
+    stop_point: tuple[float, float] | None
+    target_offset_m: float
+    lane_change_length_m: float
+    stop_distance_m: float | None
+    decel_mps2: float
+    max_curvature_1pm: float
+    """Largest curvature of the waypoint polyline (numerical, three-point circle)."""
+
+
+def quintic_offset(u: np.ndarray, d0: float, d1: float, slope0: float = 0.0) -> np.ndarray:
+    """d(u), u in [0, 1]: d(0)=d0, d'(0)=slope0 (per unit u), d''(0)=0, d(1)=d1, d'(1)=d''(1)=0."""
+    a0, a1 = d0, slope0
+    rhs = np.array([d1 - a0 - a1, -a1, 0.0])
+    m = np.array([[1.0, 1.0, 1.0], [3.0, 4.0, 5.0], [6.0, 12.0, 20.0]])
+    a3, a4, a5 = np.linalg.solve(m, rhs)
+    u = np.clip(u, 0.0, 1.0)
+    return a0 + a1 * u + a3 * u**3 + a4 * u**4 + a5 * u**5
+
+
+def curvature_allowed(speed_mps: float, road_curvature_1pm: float, cfg: DdmConfig) -> float:
+    v = max(speed_mps, 1.0)
+    return max(1e-4, min(cfg.max_curvature_1pm, cfg.max_lat_accel_mps2 / (v * v)) - abs(road_curvature_1pm))
+
+
+def lane_change_length(delta_d_m: float, speed_mps: float, road_curvature_1pm: float, cfg: DdmConfig) -> float:
+    kappa = curvature_allowed(speed_mps, road_curvature_1pm, cfg)
+    return max(cfg.lane_change_min_m, speed_mps * cfg.lane_change_min_s,
+               math.sqrt(QUINTIC_PEAK * abs(delta_d_m) / kappa) if delta_d_m else 0.0)
+
+
+def polyline_curvature(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Menger curvature of each interior point (1/m)."""
+    if len(xs) < 3:
+        return np.zeros(0)
+    ax, ay = xs[:-2], ys[:-2]
+    bx, by = xs[1:-1], ys[1:-1]
+    cx, cy = xs[2:], ys[2:]
+    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    la = np.hypot(bx - ax, by - ay)
+    lb = np.hypot(cx - bx, cy - by)
+    lc = np.hypot(cx - ax, cy - ay)
+    return 2.0 * np.abs(cross) / np.maximum(la * lb * lc, 1e-12)
+
+
+def _sample(s0: float, length_m: float, cfg: DdmConfig) -> np.ndarray:
+    step = max(cfg.waypoint_step_m, length_m / (MAX_WAYPOINTS - 2))
+    n = max(2, int(math.ceil(length_m / step)) + 1)
+    return s0 + np.linspace(0.0, length_m, n)
+
+
+def _build(frame: RoadFrame, s: np.ndarray, d: np.ndarray, v: np.ndarray, target_speed: float,
+           stop: tuple[float, float] | None, d1: float, lc_len: float, stop_dist: float | None,
+           decel: float) -> PlannedPath:
+    x, y, _ = frame.road.pose_at(s, d)
+    kappa = polyline_curvature(np.asarray(x), np.asarray(y))
+    return PlannedPath(
+        waypoints=[(float(a), float(b)) for a, b in zip(x, y, strict=True)],
+        speeds_mps=[float(max(0.0, w)) for w in v],
+        target_speed_mps=float(target_speed),
+        stop_point=stop,
+        target_offset_m=float(d1),
+        lane_change_length_m=float(lc_len),
+        stop_distance_m=stop_dist,
+        decel_mps2=float(decel),
+        max_curvature_1pm=float(kappa.max()) if len(kappa) else 0.0,
+    )
+
+
+def plan_stop(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+              d_target: float, cfg: DdmConfig) -> PlannedPath:
+    """Move from (s0, d0) to offset d_target and stop there at a constant deceleration <= comfort."""
+    v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
+    kroad = frame.road.curvature_at(s0)
+    lc = lane_change_length(d_target - d0, v0, kroad, cfg)
+    stop_dist = max(lc + 5.0, v0 * v0 / (2.0 * cfg.comfort_decel_mps2))
+    decel = v0 * v0 / (2.0 * stop_dist)
+    s = _sample(s0, stop_dist + cfg.path_tail_m, cfg)
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
+    v = np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * rel))
+    v[rel >= stop_dist - 1e-6] = 0.0
+    sx, sy, _ = frame.road.pose_at(s0 + stop_dist, d_target)
+    return _build(frame, s, d, v, 0.0, (float(sx), float(sy)), d_target, lc, stop_dist, decel)
+
+
+def plan_keep_lane_slow(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+                        d_lane: float, slow_speed_mps: float, cfg: DdmConfig, hold_m: float = 80.0) -> PlannedPath:
+    """Stay in the lane (re-centre on it) and slow to ``slow_speed_mps`` at the comfort deceleration."""
+    v0 = max(speed_mps, 0.0)
+    vs = min(slow_speed_mps, max(v0, slow_speed_mps))
+    decel_dist = max(0.0, (v0 * v0 - vs * vs) / (2.0 * cfg.comfort_decel_mps2))
+    lc = lane_change_length(d_lane - d0, max(v0, MIN_PLAN_SPEED_MPS), frame.road.curvature_at(s0), cfg)
+    s = _sample(s0, decel_dist + hold_m, cfg)
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_lane, math.tan(heading_error_rad) * lc)
+    v = np.maximum(vs, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * cfg.comfort_decel_mps2 * rel)))
+    return _build(frame, s, d, v, vs, None, d_lane, lc, None, cfg.comfort_decel_mps2 if v0 > vs else 0.0)
+
+
+def plan_lane_change(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+                     d_target: float, target_speed_mps: float, cfg: DdmConfig, hold_m: float = 80.0) -> PlannedPath:
+    """Change to offset d_target and keep driving, slowing (or not) to ``target_speed_mps``."""
+    v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
+    lc = lane_change_length(d_target - d0, v0, frame.road.curvature_at(s0), cfg)
+    s = _sample(s0, lc + hold_m, cfg)
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
+    vt = min(target_speed_mps, v0)
+    v = np.maximum(vt, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * cfg.comfort_decel_mps2 * rel)))
+    return _build(frame, s, d, v, vt, None, d_target, lc, None, cfg.comfort_decel_mps2 if v0 > vt else 0.0)
+
+
+def plan_resume(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+                d_target: float, cruise_speed_mps: float, cfg: DdmConfig) -> PlannedPath:
+    """Back to the lane centre d_target and accelerate to cruise at ``resume_accel_mps2``."""
+    v0 = max(speed_mps, 0.0)
+    lc = lane_change_length(d_target - d0, max(cruise_speed_mps * 0.6, MIN_PLAN_SPEED_MPS),
+                            frame.road.curvature_at(s0), cfg)
+    s = _sample(s0, max(cfg.resume_length_m, lc + 20.0), cfg)
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
+    v = np.minimum(cruise_speed_mps, np.sqrt(max(v0, MIN_PLAN_SPEED_MPS) ** 2 + 2.0 * cfg.resume_accel_mps2 * rel))
+    return _build(frame, s, d, v, cruise_speed_mps, None, d_target, lc, None, 0.0)
+
+
+def stop_offset_m(frame: RoadFrame, vehicle_width_m: float, shoulder_width_m: float, cfg: DdmConfig) -> float:
+    """Lateral offset of the stop (car centre): on the shoulder when it fits the car with clearance on
+    both sides, else at the curb side of lane 0 with ``curb_clearance_m`` to the edge."""
+    half = vehicle_width_m / 2.0
+    if cfg.stop_on_shoulder and shoulder_width_m >= vehicle_width_m + 2 * cfg.curb_clearance_m:
+        return -(cfg.curb_clearance_m + half)
+    return cfg.curb_clearance_m + half

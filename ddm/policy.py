@@ -1,0 +1,322 @@
+"""EV response policy (issue 7 step 2): what each autonomous vehicle should do about emergency vehicles. Pure.
+
+For one AV, from the fused EV tracks (road frame via ``RoadFrame``):
+
+- an EV is *relevant* when it moves (>= ``min_ev_speed_mps``) in the road's direction (velocity within
+  60 deg of the lane direction), is on the carriageway, and is behind the AV by at most
+  ``ev_lookbehind_m``. Opposite-direction EVs and EVs already ahead are not threats.
+- time until it passes, as CARMA's approaching-emergency-vehicle plugin does (SPEC.md):
+  ``ttp = (s_ego - s_ev) / (v_ev - v_ego)`` (infinite when not closing).
+- it *triggers* a response when ``ttp <= act_time_to_pass_s`` or it is within ``act_gap_m``.
+
+Responses (Texas Transportation Code 545.156: move to the right-hand edge or curb and stop until the
+EV has passed):
+
+- AV in lane 0 (or on the shoulder): PULL_OVER - stop at the curb side of lane 0 / on the shoulder.
+- AV in lane k > 0, ``ttp >= too_late_s`` and a safe gap in lane 0: PULL_OVER (change to lane 0 and stop).
+- ... no safe gap in lane 0: SLOW_IN_LANE, re-checked every cycle; PULL_OVER once the gap opens while
+  there is still time.
+- ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late).
+- ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
+  there is one and a safe gap, else SLOW_IN_LANE.
+- RESUME once every EV the AV yielded to is ``pass_margin_m`` ahead, its alert is cleared, or it is
+  forgotten; RESUME waits for a safe gap in the lane it merges into.
+
+Gap check (lane change / merge into lane L): every other track in lane L needs a bumper-to-bumper
+clearance of at least ``gap_min_m + gap_time_s * v_follower + max(0, v_follower - v_leader) * t_change``
+(the headway the follower needs plus what the speed difference eats during the manoeuvre).
+
+``decide`` is stateless except for ``Response``, the per-vehicle memory of what was commanded, which
+the caller updates when a command is issued (``Response.commit``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ddm.config import DdmConfig
+from ddm.geometry import RoadFrame
+from ddm.paths import (
+    PlannedPath,
+    lane_change_length,
+    plan_keep_lane_slow,
+    plan_lane_change,
+    plan_resume,
+    plan_stop,
+    stop_offset_m,
+)
+from ddm.world import Track
+from protocol.messages import Manoeuvre, VehicleMode
+
+Action = Literal["none", "hold"] | Manoeuvre
+
+
+@dataclass(frozen=True)
+class Ego:
+    vehicle_id: str
+    x_m: float
+    y_m: float
+    heading_rad: float
+    speed_mps: float
+    length_m: float = 4.9
+    width_m: float = 1.9
+    mode: VehicleMode = VehicleMode.DRIVING
+    active_command_id: str | None = None
+    track_id: int | None = None
+
+
+@dataclass
+class Response:
+    """What the DDM has commanded one vehicle (its memory between decisions)."""
+
+    phase: Literal["normal", "yielding"] = "normal"
+    manoeuvre: Manoeuvre | None = None
+    target_lane: int | None = None
+    ev_track_ids: set[int] = field(default_factory=set)
+    slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
+    since_s: float = 0.0
+
+    def commit(self, decision: Decision, now: float) -> None:
+        m = decision.manoeuvre
+        if m is None:
+            return
+        if m == Manoeuvre.RESUME:
+            self.phase, self.manoeuvre, self.target_lane = "normal", None, None
+            self.ev_track_ids = set()
+            self.slow_because = ""
+        else:
+            self.phase, self.manoeuvre, self.target_lane = "yielding", m, decision.target_lane
+            if decision.ev_track_id is not None:
+                self.ev_track_ids.add(decision.ev_track_id)
+            self.slow_because = decision.slow_because
+        self.since_s = now
+
+
+@dataclass(frozen=True)
+class Threat:
+    track_id: int
+    s_m: float
+    d_m: float
+    lane: int | None
+    speed_mps: float
+    gap_m: float
+    """Centre-to-centre distance behind the AV along the road (m)."""
+    closing_mps: float
+    time_to_pass_s: float
+    triggered: bool
+
+
+@dataclass(frozen=True)
+class Decision:
+    action: Action
+    reason: str
+    target_lane: int | None = None
+    ev_track_id: int | None = None
+    time_to_pass_s: float | None = None
+    ev_gap_m: float | None = None
+    slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
+    ego_s_m: float = 0.0
+    ego_d_m: float = 0.0
+    ego_heading_error_rad: float = 0.0
+    ego_speed_mps: float = 0.0
+
+    @property
+    def manoeuvre(self) -> Manoeuvre | None:
+        return self.action if isinstance(self.action, Manoeuvre) else None
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def _fmt_t(t: float) -> str:
+    return "inf" if not math.isfinite(t) else f"{t:.1f}"
+
+
+def assess_evs(ego_s: float, ego_v_long: float, ego_len: float, evs: list[Track], frame: RoadFrame,
+               cfg: DdmConfig) -> tuple[list[Threat], dict[int, float]]:
+    """Relevant EVs behind (threats) and, for the others in the same direction, how far ahead they are."""
+    if not evs:
+        return [], {}
+    xs = np.array([e.x_m for e in evs])
+    ys = np.array([e.y_m for e in evs])
+    s, d = frame.to_frenet(xs, ys)
+    vlong = frame.longitudinal_speed(s, [e.vx_mps for e in evs], [e.vy_mps for e in evs])
+    lanes = frame.lane_of(d)
+    road_w = frame.lanes * frame.lane_width_m
+    threats: list[Threat] = []
+    ahead: dict[int, float] = {}
+    for k, ev in enumerate(evs):
+        speed = ev.speed_mps
+        if speed < cfg.min_ev_speed_mps or vlong[k] < cfg.same_direction_cos * speed:
+            continue  # parked, crossing or opposite direction
+        if d[k] < -frame.road.shoulder_width_m - 1.0 or d[k] > road_w + 1.0:
+            continue  # not on this carriageway
+        gap = ego_s - float(s[k])
+        if gap < 0:
+            ahead[ev.track_id] = -gap
+            continue
+        if gap > cfg.ev_lookbehind_m:
+            continue
+        closing = float(vlong[k]) - ego_v_long
+        ttp = gap / closing if closing > cfg.min_closing_mps else math.inf
+        trig = ttp <= cfg.act_time_to_pass_s or gap <= cfg.act_gap_m
+        lane = int(lanes[k])
+        threats.append(Threat(ev.track_id, float(s[k]), float(d[k]), None if lane < 0 else lane, speed, gap,
+                              closing, ttp, trig))
+    threats.sort(key=lambda t: (t.time_to_pass_s, t.gap_m))
+    return threats, ahead
+
+
+def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, target_lane: int,
+              others: list[Track], frame: RoadFrame, change_time_s: float, cfg: DdmConfig,
+              exclude: set[int] = frozenset()) -> tuple[bool, str]:
+    """Is there a safe gap for the AV in ``target_lane``? (ok, explanation)."""
+    cand = [o for o in others if o.track_id not in exclude]
+    if not cand:
+        return True, f"lane {target_lane} empty"
+    s, d = frame.to_frenet(np.array([o.x_m for o in cand]), np.array([o.y_m for o in cand]))
+    vl = frame.longitudinal_speed(s, [o.vx_mps for o in cand], [o.vy_mps for o in cand])
+    lo = target_lane * frame.lane_width_m
+    hi = lo + frame.lane_width_m
+    worst = ""
+    for k, o in enumerate(cand):
+        half_w = max(o.width_m, 1.5) / 2.0
+        if d[k] + half_w <= lo or d[k] - half_w >= hi:
+            continue  # not in the target lane
+        ds = float(s[k]) - ego_s
+        clearance = abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0
+        if ds >= 0:  # leader: the AV follows it
+            v_f, v_l = ego_v, float(vl[k])
+            role = "leader"
+        else:  # lag: it follows the AV, which slows during the manoeuvre
+            v_f, v_l = float(vl[k]), ego_v_after
+            role = "follower"
+        need = cfg.gap_min_m + cfg.gap_time_s * max(v_f, 0.0) + max(0.0, v_f - v_l) * change_time_s
+        if clearance < need:
+            return False, (f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
+                           f"{clearance:.1f} m < {need:.1f} m needed")
+        worst = worst or f"gaps in lane {target_lane} ok"
+    return True, worst or f"lane {target_lane} clear"
+
+
+def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cfg: DdmConfig,
+           response: Response) -> Decision:
+    """One vehicle's EV response (see module docstring). ``others``: tracks near the AV (any kind)."""
+    s_arr, d_arr = frame.to_frenet(ego.x_m, ego.y_m)
+    s_e, d_e = float(s_arr[0]), float(d_arr[0])
+    h_err = _wrap(ego.heading_rad - float(frame.heading_at(s_e)))
+    v_e = ego.speed_mps * math.cos(h_err)
+    lane_e = int(frame.lane_of(d_e))
+    lane_e = 0 if lane_e < 0 and d_e < 0 else lane_e  # on the shoulder: treat as lane 0
+    base = dict(ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=ego.speed_mps)
+    evs = [e for e in evs if ego.track_id is None or e.track_id != ego.track_id]  # never yield to itself
+    ev_ids = {e.track_id for e in evs}
+    exclude = ev_ids | ({ego.track_id} if ego.track_id is not None else set())
+    # tracks that are the AV itself but not bound (pose within a car length and a half width)
+    near_self = {o.track_id for o in others if math.hypot(o.x_m - ego.x_m, o.y_m - ego.y_m) < 2.0}
+    traffic = [o for o in others if o.track_id not in exclude and o.track_id not in near_self]
+    threats, ahead = assess_evs(s_e, v_e, ego.length_m, evs, frame, cfg)
+    urgent = [t for t in threats if t.triggered]
+
+    def describe(t: Threat) -> str:
+        lane = "?" if t.lane is None else str(t.lane)
+        return (f"EV track {t.track_id} {t.gap_m:.0f} m behind in lane {lane}, {t.speed_mps:.1f} m/s, "
+                f"closing {t.closing_mps:.1f} m/s, time to pass {_fmt_t(t.time_to_pass_s)} s")
+
+    def pull_over_gap(t: Threat) -> tuple[bool, str]:
+        lc = lane_change_length(frame.lane_centre_offset(0) - d_e, max(v_e, 2.0), 0.0, cfg)
+        t_change = lc / max(v_e, 2.0)
+        v_after = max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
+        return gap_check(s_e, v_e, v_after, ego.length_m, 0, traffic, frame, t_change, cfg)
+
+    if urgent:
+        t = urgent[0]
+        common = dict(base, ev_track_id=t.track_id, time_to_pass_s=t.time_to_pass_s, ev_gap_m=t.gap_m)
+        if response.phase == "yielding":
+            if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and response.slow_because == "gap"
+                    and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s):
+                ok, why = pull_over_gap(t)
+                if ok:
+                    return Decision(Manoeuvre.PULL_OVER, f"gap opened ({why}); pull over to lane 0: {describe(t)}",
+                                    target_lane=0, **common)
+            return Decision("hold", f"keep {response.manoeuvre.value if response.manoeuvre else 'manoeuvre'}: "
+                            f"{describe(t)}", target_lane=response.target_lane, **common)
+        if lane_e <= 0:
+            return Decision(Manoeuvre.PULL_OVER, f"in lane 0, stop at the curb: {describe(t)}", target_lane=0,
+                            **common)
+        if t.time_to_pass_s < cfg.too_late_s:
+            return Decision(Manoeuvre.SLOW_IN_LANE, f"too late to change lane (< {cfg.too_late_s:.0f} s): "
+                            f"{describe(t)}", target_lane=lane_e, slow_because="too_late", **common)
+        if t.lane == 0:
+            left = lane_e + 1
+            if left < frame.lanes:
+                lc = lane_change_length(frame.lane_width_m, max(v_e, 2.0), 0.0, cfg)
+                t_change = lc / max(v_e, 2.0)
+                ok, why = gap_check(s_e, v_e, v_e, ego.length_m, left, traffic, frame, t_change, cfg)
+                if ok:
+                    return Decision(Manoeuvre.LANE_CHANGE, f"EV drives in lane 0, move left to lane {left} "
+                                    f"({why}): {describe(t)}", target_lane=left, **common)
+            return Decision(Manoeuvre.SLOW_IN_LANE, f"EV drives in lane 0, no safe lane to the left: "
+                            f"{describe(t)}", target_lane=lane_e, slow_because="ev_in_lane0", **common)
+        ok, why = pull_over_gap(t)
+        if ok:
+            return Decision(Manoeuvre.PULL_OVER, f"pull over to lane 0 ({why}): {describe(t)}", target_lane=0,
+                            **common)
+        return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e}: {describe(t)}",
+                        target_lane=lane_e, slow_because="gap", **common)
+
+    if response.phase == "yielding":
+        # still passing: an EV we yield to is behind (not triggering any more) or less than the margin ahead
+        for tid in sorted(response.ev_track_ids):
+            if tid in ahead and ahead[tid] < cfg.pass_margin_m:
+                return Decision("hold", f"EV track {tid} passing, {ahead[tid]:.0f} m ahead "
+                                f"(< {cfg.pass_margin_m:.0f} m)", ev_track_id=tid, **base)
+            if any(t.track_id == tid for t in threats):
+                return Decision("hold", f"EV track {tid} still behind", ev_track_id=tid, **base)
+        target = max(lane_e, 0)
+        if abs(d_e - frame.lane_centre_offset(target)) > 0.5 * frame.lane_width_m:
+            lc = lane_change_length(frame.lane_centre_offset(target) - d_e, 6.0, 0.0, cfg)
+            ok, why = gap_check(s_e, v_e, v_e, ego.length_m, target, traffic, frame, lc / 6.0, cfg)
+            if not ok:
+                return Decision("hold", f"waiting to resume: {why}", target_lane=target, **base)
+        gone = [tid for tid in sorted(response.ev_track_ids) if tid not in ev_ids]
+        passed = [f"{tid} ({ahead[tid]:.0f} m ahead)" for tid in sorted(response.ev_track_ids) if tid in ahead]
+        why = []
+        if passed:
+            why.append(f"EV track {', '.join(passed)} passed")
+        if gone:
+            why.append(f"EV track {', '.join(map(str, gone))} cleared or lost")
+        return Decision(Manoeuvre.RESUME, "resume: " + ("; ".join(why) or "no EV to yield to"),
+                        target_lane=target, **base)
+
+    if threats:
+        t = threats[0]
+        return Decision("none", f"EV track {t.track_id} behind but not imminent (time to pass "
+                        f"{_fmt_t(t.time_to_pass_s)} s, {t.gap_m:.0f} m)", **base)
+    if ahead:
+        return Decision("none", "EV ahead: nothing to do", **base)
+    return Decision("none", "no EV approaching from behind", **base)
+
+
+def plan(decision: Decision, frame: RoadFrame, cfg: DdmConfig, vehicle_width_m: float,
+         cruise_speed_mps: float) -> PlannedPath:
+    """The commanded path for a decision that carries a manoeuvre."""
+    m = decision.manoeuvre
+    s0, d0, h, v = decision.ego_s_m, decision.ego_d_m, decision.ego_heading_error_rad, decision.ego_speed_mps
+    if m == Manoeuvre.PULL_OVER:
+        d_stop = stop_offset_m(frame, vehicle_width_m, frame.road.shoulder_width_m, cfg)
+        return plan_stop(frame, s0, d0, h, v, d_stop, cfg)
+    lane = decision.target_lane if decision.target_lane is not None else max(int(frame.lane_of(d0)), 0)
+    centre = frame.lane_centre_offset(lane)
+    if m == Manoeuvre.SLOW_IN_LANE:
+        return plan_keep_lane_slow(frame, s0, d0, h, v, centre, cfg.slow_speed_mps, cfg)
+    if m == Manoeuvre.LANE_CHANGE:
+        return plan_lane_change(frame, s0, d0, h, v, centre, min(v, cruise_speed_mps), cfg)
+    if m == Manoeuvre.RESUME:
+        return plan_resume(frame, s0, d0, h, v, centre, cruise_speed_mps, cfg)
+    raise ValueError(f"no plan for decision action {decision.action!r}")

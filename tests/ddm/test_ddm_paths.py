@@ -1,0 +1,98 @@
+"""Path planner: smooth lane-change curves within the curvature limit, stops at comfortable deceleration."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ddm.config import DdmConfig
+from ddm.geometry import RoadFrame
+from ddm.paths import (
+    plan_keep_lane_slow,
+    plan_resume,
+    plan_stop,
+    polyline_curvature,
+    quintic_offset,
+    stop_offset_m,
+)
+from protocol.corridor import Road, Segment, load_corridor
+
+CFG = DdmConfig()
+FRAME = RoadFrame(load_corridor().road)
+
+
+def test_quintic_boundary_conditions():
+    u = np.linspace(0, 1, 1001)
+    d = quintic_offset(u, 5.55, -1.25)
+    assert d[0] == pytest.approx(5.55) and d[-1] == pytest.approx(-1.25)
+    dd = np.gradient(d, u)
+    assert abs(dd[0]) < 1e-2 and abs(dd[-1]) < 1e-2
+    assert np.all(np.diff(d) <= 1e-12)  # monotonic: no overshoot
+
+
+@pytest.mark.parametrize("speed", [4.0, 13.4, 25.0])
+def test_pull_over_from_lane_1_stays_within_curvature_and_decel_limits(speed):
+    s0, d0 = 120.0, FRAME.lane_centre_offset(1)
+    d_stop = stop_offset_m(FRAME, 1.9, FRAME.road.shoulder_width_m, CFG)
+    p = plan_stop(FRAME, s0, d0, 0.0, speed, d_stop, CFG)
+    x0, y0, _ = FRAME.road.pose_at(s0, d0)
+    assert p.waypoints[0] == pytest.approx((x0, y0))  # starts at the vehicle
+    kappa_limit = min(CFG.max_curvature_1pm, CFG.max_lat_accel_mps2 / speed**2)
+    assert p.max_curvature_1pm <= kappa_limit * 1.05
+    assert p.decel_mps2 <= CFG.comfort_decel_mps2 + 1e-9 <= 3.0
+    # speeds never increase and reach 0 at the stop point, which lies on the target offset
+    v = np.array(p.speeds_mps)
+    assert np.all(np.diff(v) <= 1e-9) and v[-1] == 0.0 and v[0] == pytest.approx(speed)
+    s_stop, d_at_stop = FRAME.to_frenet(*p.stop_point)
+    assert d_at_stop[0] == pytest.approx(d_stop, abs=0.05)
+    assert s_stop[0] - s0 == pytest.approx(p.stop_distance_m, abs=0.1)
+    # and the lateral acceleration v^2 kappa along the path is within comfort
+    xs, ys = np.array(p.waypoints).T
+    lat = v[1:-1] ** 2 * polyline_curvature(xs, ys)
+    assert lat.max() <= CFG.max_lat_accel_mps2 * 1.05
+
+
+def test_stop_on_shoulder_only_when_it_fits():
+    assert stop_offset_m(FRAME, 1.9, 2.5, CFG) == pytest.approx(-1.25)  # RELLIS: 2.5 m shoulder fits 1.9 + 2 x 0.3
+    assert stop_offset_m(FRAME, 1.9, 1.0, CFG) == pytest.approx(1.25)  # curb side of lane 0
+    assert stop_offset_m(FRAME, 1.9, 2.5, DdmConfig(stop_on_shoulder=False)) == pytest.approx(1.25)
+
+
+def test_paths_follow_a_curved_road():
+    road = Road(0.0, 0.0, 0.0, (Segment("straight", 50.0), Segment("arc", 300.0, 150.0)), lanes=2)
+    frame = RoadFrame(road)
+    p = plan_stop(frame, 60.0, frame.lane_centre_offset(1), 0.0, 13.4, -1.25, CFG)
+    s, d = frame.to_frenet(*np.array(p.waypoints).T)
+    assert np.all(np.diff(s) > 0)
+    assert d[-1] == pytest.approx(-1.25, abs=0.05)
+    assert p.max_curvature_1pm <= 1 / 150.0 + CFG.max_lat_accel_mps2 / 13.4**2 + 1e-3
+
+
+def test_slow_in_lane_and_resume_profiles():
+    slow = plan_keep_lane_slow(FRAME, 50.0, FRAME.lane_centre_offset(1), 0.0, 13.4, FRAME.lane_centre_offset(1),
+                               CFG.slow_speed_mps, CFG)
+    assert slow.speeds_mps[0] == pytest.approx(13.4) and slow.speeds_mps[-1] == pytest.approx(CFG.slow_speed_mps)
+    _, d = FRAME.to_frenet(*np.array(slow.waypoints).T)
+    assert np.allclose(d, FRAME.lane_centre_offset(1), atol=0.01)
+    res = plan_resume(FRAME, 90.0, -1.25, 0.0, 0.0, FRAME.lane_centre_offset(0), 13.4, CFG)
+    assert res.speeds_mps[0] > 0 and res.speeds_mps[-1] == pytest.approx(13.4)
+    _, d = FRAME.to_frenet(*np.array(res.waypoints[-5:]).T)
+    assert np.allclose(d, FRAME.lane_centre_offset(0), atol=0.05)
+    assert len(res.waypoints) <= 512
+
+
+def test_road_frame_matches_the_corridor_road():
+    road = Road(0.0, 0.0, 0.3, (Segment("straight", 40.0), Segment("arc", 100.0, -80.0)), lanes=3)
+    frame = RoadFrame(road)
+    rng = np.random.default_rng(0)
+    s = rng.uniform(1, 139, 50)
+    d = rng.uniform(-2, 10, 50)
+    x, y, _ = road.pose_at(s, d)
+    fs, fd = frame.to_frenet(x, y)
+    for k in range(0, 50, 7):
+        rs, rd = road.to_frenet(float(x[k]), float(y[k]))
+        assert fs[k] == pytest.approx(rs, abs=0.05) and fd[k] == pytest.approx(rd, abs=0.05)
+    assert np.allclose(fs, s, atol=0.05) and np.allclose(fd, d, atol=0.05)
+    assert math.isclose(float(frame.heading_at(10.0)), 0.3, abs_tol=1e-6)

@@ -1,0 +1,104 @@
+"""EV response policy, pure: which manoeuvre for which EV situation, with its reason."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from ddm_rig import lane_y
+
+from ddm.config import DdmConfig
+from ddm.geometry import RoadFrame
+from ddm.policy import Ego, Response, decide, gap_check, plan
+from ddm.world import Track
+from protocol.corridor import load_corridor
+from protocol.messages import Manoeuvre, ObjectType
+
+CFG = DdmConfig()
+FRAME = RoadFrame(load_corridor().road)
+
+
+def trk(tid: int, x: float, lane: int, vx: float, *, ev: bool = False, y: float | None = None) -> Track:
+    return Track(tid, x, lane_y(lane) if y is None else y, vx, 0.0, 4.8, 1.9,
+                 ObjectType.EV if ev else ObjectType.VEHICLE, ev, None, lane, None, 10, 0.0, 0.0, 0.1)
+
+
+def ego(x: float = 100.0, lane: int = 1, v: float = 13.4, y: float | None = None) -> Ego:
+    return Ego("av1", x, lane_y(lane) if y is None else y, 0.0, v, track_id=1)
+
+
+def test_ev_behind_same_lane_pull_over_with_carma_time_to_pass():
+    ev = trk(2, 50.0, 1, 20.0, ev=True)
+    d = decide(ego(), [ev], [ev], FRAME, CFG, Response())
+    assert d.action == Manoeuvre.PULL_OVER and d.target_lane == 0
+    assert d.time_to_pass_s == pytest.approx(50.0 / 6.6, rel=1e-3)  # (s_ego - s_ev) / (v_ev - v_ego)
+    assert "50 m behind in lane 1" in d.reason and "time to pass 7.6 s" in d.reason
+
+
+def test_not_imminent_far_ev_is_no_action_but_close_slow_ev_is():
+    far = trk(2, -90.0, 1, 14.0, ev=True)  # 190 m behind, closing 0.6 m/s
+    assert decide(ego(), [far], [], FRAME, CFG, Response()).action == "none"
+    close = trk(3, 70.0, 1, 13.4, ev=True)  # 30 m behind, not closing: still 'immediate approach'
+    assert decide(ego(), [close], [], FRAME, CFG, Response()).action == Manoeuvre.PULL_OVER
+
+
+def test_too_late_to_change_lane_slows_in_lane():
+    ev = trk(2, 80.0, 1, 20.0, ev=True)  # 20 m behind closing 6.6 m/s: 3 s
+    d = decide(ego(), [ev], [], FRAME, CFG, Response())
+    assert d.action == Manoeuvre.SLOW_IN_LANE and "too late" in d.reason and d.target_lane == 1
+    p = plan(d, FRAME, CFG, 1.9, 13.4)
+    assert p.target_speed_mps == pytest.approx(CFG.slow_speed_mps)
+
+
+def test_av_in_lane_0_stops_at_the_curb():
+    ev = trk(2, 60.0, 0, 20.0, ev=True)
+    d = decide(ego(lane=0), [ev], [], FRAME, CFG, Response())
+    assert d.action == Manoeuvre.PULL_OVER and "in lane 0" in d.reason
+
+
+def test_ev_driving_in_lane_0_makes_av_move_left_not_into_its_path():
+    road3 = load_corridor().road
+    from dataclasses import replace
+
+    frame3 = RoadFrame(replace(road3, lanes=3))
+    ev = trk(2, 50.0, 0, 20.0, ev=True)
+    d = decide(ego(lane=1), [ev], [ev], frame3, CFG, Response())
+    assert d.action == Manoeuvre.LANE_CHANGE and d.target_lane == 2
+    # two lanes only: nowhere to go left, slow in lane
+    d2 = decide(ego(lane=1), [ev], [ev], FRAME, CFG, Response())
+    assert d2.action == Manoeuvre.SLOW_IN_LANE and "lane 0" in d2.reason
+
+
+def test_gap_check_leader_and_follower():
+    s_me = float(FRAME.to_frenet(100.0, lane_y(1))[0][0])  # the AV at x = 100 m
+    ok, why = gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, 160.0, 0, 13.4)], FRAME, 4.0, CFG)
+    assert ok
+    ok, why = gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, 108.0, 0, 13.4)], FRAME, 4.0, CFG)
+    assert not ok and "leader track 5" in why
+    ok, why = gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, 80.0, 0, 13.4)], FRAME, 4.0, CFG)
+    assert not ok and "follower track 5" in why  # 20 m behind, but the AV slows to 8 m/s while changing
+    ok, _ = gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, 100.0, 1, 13.4)], FRAME, 4.0, CFG)
+    assert ok  # a car in the other lane does not matter
+
+
+def test_yielding_holds_then_resumes_after_pass_margin():
+    resp = Response()
+    ev = trk(2, 50.0, 1, 20.0, ev=True)
+    d = decide(ego(), [ev], [ev], FRAME, CFG, resp)
+    resp.commit(d, 0.0)
+    stopped = ego(x=150.0, y=-1.25, v=0.0)
+    assert decide(stopped, [trk(2, 120.0, 1, 20.0, ev=True)], [], FRAME, CFG, resp).action == "hold"
+    assert decide(stopped, [trk(2, 170.0, 1, 20.0, ev=True)], [], FRAME, CFG, resp).action == "hold"  # 20 m ahead
+    r = decide(stopped, [trk(2, 185.0, 1, 20.0, ev=True)], [], FRAME, CFG, resp)
+    assert r.action == Manoeuvre.RESUME and r.target_lane == 0 and "35 m ahead" in r.reason
+    # merging back from the shoulder waits for a gap in lane 0
+    blocker = trk(9, 147.0, 0, 13.4)
+    w = decide(stopped, [trk(2, 185.0, 1, 20.0, ev=True)], [blocker], FRAME, CFG, resp)
+    assert w.action == "hold" and "waiting to resume" in w.reason
+
+
+def test_reason_is_carried_by_every_decision():
+    for evs in ([], [trk(2, 150.0, 1, 20.0, ev=True)], [trk(2, 50.0, 1, -20.0, ev=True)]):
+        d = decide(ego(), evs, [], FRAME, CFG, Response())
+        assert d.action == "none" and d.reason
+    assert math.isfinite(CFG.act_time_to_pass_s)
