@@ -150,8 +150,10 @@ class IdmTraffic:
             des = v.desired_speed_mps
             if v.brake_period_s > 0 and (t_s % v.brake_period_s) >= v.brake_period_s / 2:
                 des *= 0.4
-            if v.yielding:
-                des *= YIELD_SPEED_FACTOR
+            if v.yielding:  # move right first, then slow down at the right edge
+                des *= YIELD_SPEED_FACTOR if road.lane_of_offset(v.d_m) == 0 else 0.8
+            if v.kind == "ev" and v.light_bar_on(t_s):
+                v.idm_time_gap_s = 0.7
             v0[i] = des
         t_gap = np.array([v.idm_time_gap_s for v in vs])
         a_max = np.array([v.idm_max_accel_mps2 for v in vs])
@@ -165,13 +167,15 @@ class IdmTraffic:
         for i, v in enumerate(vs):
             if v.is_static or v.external or v.kind == "av" or t_s < v.next_lane_check_s:
                 continue
-            v.next_lane_check_s = t_s + LANE_CHECK_PERIOD_S * (0.8 + 0.4 * self.rng.random())
+            period = LANE_CHECK_PERIOD_S * (0.3 if v.kind == "ev" and v.light_bar_on(t_s) else 1.0)
+            v.next_lane_check_s = t_s + period * (0.8 + 0.4 * self.rng.random())
             lane_now = road.lane_of_offset(v.d_m)
             if lane_now is None or (v.target_lane is not None and v.target_lane != lane_now and not v.yielding):
                 continue
             options = [ln for ln in (lane_now - 1, lane_now + 1) if 0 <= ln < road.lanes]
-            if v.yielding:
-                options = [ln for ln in options if ln < lane_now]
+            if v.yielding:  # only to the right, and never into the lane an EV is coming up in
+                options = [ln for ln in options if ln < lane_now and not any(
+                    e.s_m < v.s_m and v.s_m - e.s_m < 40.0 and road.lane_of_offset(e.d_m) == ln for e in evs)]
             best, best_gain = None, MOBIL_THRESHOLD_MPS2 if v.kind != "ev" else 0.05
             for ln in options:
                 dn = road.lane_centre_offset_m(ln)
@@ -195,6 +199,8 @@ class IdmTraffic:
                 gain = a_new - acc[i]
                 if v.yielding:
                     gain += 1.0  # moving right for the EV is the goal itself
+                elif v.kind == "ev":  # EVs keep left (drivers yield to the right) and pass on the right reluctantly
+                    gain += (0.8 if v.light_bar_on(t_s) else 0.2) if ln > lane_now else -0.6
                 elif ln > lane_now:
                     gain -= 0.2  # keep-right bias
                 if gain > best_gain:
@@ -219,8 +225,8 @@ class IdmTraffic:
             target_d = road.lane_centre_offset_m(v.lane)
             if v.yielding and v.lane == 0:
                 target_d -= YIELD_EDGE_SHIFT_M
-            v.lateral_speed_mps = float(np.clip(LATERAL_GAIN_PER_S * (target_d - v.d_m),
-                                                -LATERAL_SPEED_MAX_MPS, LATERAL_SPEED_MAX_MPS))
+            lat_max = LATERAL_SPEED_MAX_MPS * (1.4 if v.kind == "ev" else 1.0)
+            v.lateral_speed_mps = float(np.clip(LATERAL_GAIN_PER_S * (target_d - v.d_m), -lat_max, lat_max))
             if v.speed_mps < 0.5:
                 v.lateral_speed_mps *= v.speed_mps / 0.5
             v.d_m += v.lateral_speed_mps * dt_s
@@ -299,6 +305,9 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                               hz.width_m, hz.height_m, (60, 75, 95), make_style(LIVERY_PLAIN, k), desired_speed_mps=0.0,
                               is_static=True))
 
+    ev_gap = None
+    if av is not None and ev is not None and ev.lane == av.lane and ev.start_offset_m < 0:
+        ev_gap = (ev.lane, av.start_s_m + ev.start_offset_m, av.start_s_m)
     tr = scenario.traffic
     span = tr.spawn_s_max_m - tr.spawn_s_min_m
     n_per_lane = int(round(tr.density_veh_per_km_lane * span / 1000.0))
@@ -311,6 +320,8 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                 s0 = float(rng.uniform(tr.spawn_s_min_m, tr.spawn_s_max_m))
                 clear = all(abs(o.s_m - s0) > (o.length_m + size[0]) / 2 + 6.0 or abs(o.d_m - centre(lane)) > 2.0
                             for o in out)
+                if ev_gap is not None and lane == ev_gap[0] and ev_gap[1] - 10.0 < s0 < ev_gap[2] + 10.0:
+                    clear = False  # the EV's lane is free up to the AV (thesis test set-up)
                 if clear:
                     break
             else:
