@@ -28,7 +28,7 @@ from protocol.corridor import load_corridor  # noqa: E402
 from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot  # noqa: E402
 from sim.render import Renderer  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
-from sim.vehicles import LIVERY_AMBULANCE, make_style  # noqa: E402
+from sim.vehicles import LIVERY_AMBULANCE, make_style, random_colour  # noqa: E402
 from sim.world import World  # noqa: E402
 
 N_VEHICLES = 20
@@ -49,7 +49,7 @@ def scene(t_s: float, lighting: str) -> WorldSnapshot:
         lb = LightBar(on=True, pattern="alternating", frequency_hz=2.0) if kind == "ev" else None
         actors.append(Actor(actor_id=f"b{i}", kind=ActorKind(kind), pos_x_m=x, pos_y_m=1.85 + 3.7 * lane,
                             heading_rad=0.0, length_m=L, width_m=W, height_m=H, speed_mps=speed,
-                            colour_bgr=tuple(int(c) for c in rng.integers(20, 240, 3)), brake_on=bool(i % 5 == 0),
+                            colour_bgr=random_colour(rng), brake_on=bool(i % 5 == 0),
                             light_bar=lb, style=make_style(LIVERY_AMBULANCE if kind == "ev" else 0, i)))
     return WorldSnapshot(src="bench", stamp=t_s, scenario="bench", sim_time_s=t_s, lighting=Lighting(lighting),
                          actors=actors)

@@ -37,7 +37,7 @@ CLASS_NAMES = ("vehicle", "ev")
 # per lighting: ambient, sun strength, sun direction (towards the sun), sky top/bottom (BGR), grass, asphalt,
 # haze distance (m), exposure time (s), noise sigma, lamps glow scale, running lights on
 LIGHTING = {
-    "day": dict(ambient=0.55, sun=0.55, sun_dir=(-0.35, -0.45, 0.82), sky_top=(235, 190, 140),
+    "day": dict(ambient=0.55, sun=0.55, sun_dir=(0.25, -0.55, 0.8), sky_top=(235, 190, 140),
                 sky_bottom=(235, 225, 210), grass=(70, 125, 95), asphalt=(100, 102, 104), shoulder=(125, 128, 130),
                 haze_m=900.0, exposure_s=1 / 250, noise=2.5, glow=1.0, running_lights=False, scene_gain=1.0),
     "dusk": dict(ambient=0.40, sun=0.30, sun_dir=(-0.8, 0.3, 0.2), sky_top=(120, 90, 80),
@@ -82,11 +82,15 @@ class Part:
     top_colour: np.ndarray | None = None
     side_colour: np.ndarray | None = None
     silhouette: bool = True
+    inset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Top face pulled in at the rear, front and sides (m): sloped windscreens and rear windows."""
 
     def corners(self) -> np.ndarray:
         x0, x1, y0, y1, z0, z1 = self.x0, self.x1, self.y0, self.y1, self.z0, self.z1
+        ir, i_f, i_s = self.inset
         return np.array([[x0, y0, z0], [x0, y1, z0], [x1, y1, z0], [x1, y0, z0],
-                         [x0, y0, z1], [x0, y1, z1], [x1, y1, z1], [x1, y0, z1]])
+                         [x0 + ir, y0 + i_s, z1], [x0 + ir, y1 - i_s, z1], [x1 - i_f, y1 - i_s, z1],
+                         [x1 - i_f, y0 + i_s, z1]])
 
 
 @dataclass
@@ -148,8 +152,14 @@ def _body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
         parts.append(Part(-hl * 0.86, hl * 0.86, -hw * 0.92, hw * 0.92, 0.0, H * 0.22, DARK_BGR))
         parts.append(Part(-hl, hl, -hw, hw, H * 0.18, z_belt, body))
         cab = {0: (-0.62, 0.42), 1: (-0.9, 0.38), 2: (-0.92, 0.5)}[shape]
-        parts.append(Part(hl * cab[0], hl * cab[1], -hw * 0.84, hw * 0.84, z_belt, H, GLASS_BGR, top_colour=roof))
+        cab_len = hl * (cab[1] - cab[0])
+        slope = {0: (0.32, 0.38), 1: (0.12, 0.36), 2: (0.1, 0.3)}[shape]
+        parts.append(Part(hl * cab[0], hl * cab[1], -hw * 0.86, hw * 0.86, z_belt, H, GLASS_BGR, top_colour=roof,
+                          inset=(cab_len * slope[0], cab_len * slope[1], hw * 0.1)))
         pillar = 2
+        for face in ("left", "right"):
+            for u0, u1 in ((0.12, 0.27), (0.73, 0.88)):
+                decals.append(Decal(1, face, u0, u1, 0.0, 0.35, DARK_BGR))
         for face in ("left", "right"):
             decals.append(Decal(pillar, face, 0.46, 0.54, 0.0, 1.0, roof * 0.9))
         for u0, u1 in ((0.04, 0.2), (0.8, 0.96)):
@@ -234,8 +244,9 @@ class Renderer:
     """Renders one camera's view of world snapshots."""
 
     def __init__(self, camera: CameraConfig, road: Road, seed: int = 0, *, noise: bool = True,
-                 motion_blur: bool = True, exposure: bool = True) -> None:
+                 motion_blur: bool = True, exposure: bool = True, shadows: bool = True) -> None:
         self.cfg = camera
+        self.shadows = shadows
         self.cam = PinholeCamera.from_config(camera)
         self.road = road
         self.seed = int(seed)
@@ -288,7 +299,14 @@ class Renderer:
         t_coarse = cv2.remap(coarse, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
         # road surfaces and markings as projected polygons into a class mask
-        cls = np.zeros((h, w), np.uint8)  # 0 grass, 1 shoulder, 2 asphalt, 3 white marking, 4 yellow marking
+        asphalt = np.array(L["asphalt"], np.float32)
+        colours = np.stack([np.array(L["grass"], np.float32), np.array(L["shoulder"], np.float32), asphalt,
+                            np.array([225, 228, 230], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
+                            np.array([40, 185, 215], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
+                            asphalt * 0.9, asphalt * 0.8 + 4])
+        surf = np.empty((h, w, 3), np.float32)
+        surf[:] = colours[0]
+        cls = np.zeros((h, w), np.uint8)  # 0 grass, 1 shoulder, 2 asphalt, 3 white, 4 yellow, 5 wheel path, 6 patch
         road = self.road
         W = road.width_m
         step = 1.0
@@ -308,12 +326,20 @@ class Renderer:
                 quad = np.array([uv0[k], uv0[k + 1], uv1[k + 1], uv1[k]])
                 if quad[:, 0].max() < -50 or quad[:, 0].min() > w + 50 or quad[:, 1].max() < -50 or quad[:, 1].min() > h + 50:
                     continue
-                cv2.fillConvexPoly(cls, np.clip(np.round(quad * 16), -2**24, 2**24).astype(np.int32), value,
-                                   lineType=cv2.LINE_AA, shift=4)
+                q = np.clip(np.round(quad * 16), -2**24, 2**24).astype(np.int32)
+                cv2.fillConvexPoly(cls, q, value, lineType=cv2.LINE_8, shift=4)
+                cv2.fillConvexPoly(surf, q, colours[value].tolist(), lineType=cv2.LINE_AA, shift=4)
 
         strip(-road.shoulder_width_m, 0.0, 1)
-        strip(W, W + 0.6, 1)
         strip(0.0, W, 2)
+        for lane in range(road.lanes):  # darker, polished wheel paths
+            c = (lane + 0.5) * road.lane_width_m
+            strip(c - 1.1, c - 0.55, 5)
+            strip(c + 0.55, c + 1.1, 5)
+        for s0 in rng.uniform(0, road.length_m - 8, int(road.length_m / 40)):  # patched asphalt
+            d0 = float(rng.uniform(0, W - 2.0))
+            strip(d0, d0 + float(rng.uniform(0.8, 2.0)), 6, s0, s0 + float(rng.uniform(2.0, 8.0)))
+        strip(W, W + 0.6, 1)
         strip(0.15, 0.30, 3)  # right edge line
         strip(W - 0.3, W - 0.15, 4)  # left edge line (yellow)
         dash, period = 3.0, 12.0
@@ -322,15 +348,9 @@ class Renderer:
             for s0 in np.arange(0.0, road.length_m - dash, period):
                 strip(d - 0.075, d + 0.075, 3, s0, s0 + dash)
 
-        asphalt = np.array(L["asphalt"], np.float32)
-        colours = np.stack([np.array(L["grass"], np.float32), np.array(L["shoulder"], np.float32), asphalt,
-                            np.array([225, 228, 230], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
-                            np.array([40, 185, 215], np.float32) * (0.5 + 0.5 * L["scene_gain"])])
-        surf = colours[cls]
         grass = cls == 0
         tex = np.where(grass, 16.0 * t_fine + 11.0 * t_coarse, 6.0 * t_fine + 5.0 * t_coarse)
         surf = surf + tex[..., None] * np.where(grass[..., None], np.array([0.7, 1.0, 0.8], np.float32), 1.0)
-        # tyre-worn darker bands in the lane centres' wheel paths
         img = np.where(ground[..., None], surf, img)
 
         # tree line along the horizon
@@ -392,20 +412,47 @@ class Renderer:
         return out
 
     @staticmethod
-    def _visible_faces(parts, corners, C) -> list[list[str]]:
-        """Per part, the faces that face the camera (back-face culling)."""
+    def _visible_faces(parts, corners, C) -> list[dict[str, np.ndarray]]:
+        """Per part, the faces that face the camera (back-face culling) with their outward unit normals."""
         out = []
         for p_i in range(len(parts)):
             cs = corners[p_i]
             centre = cs.mean(axis=0)
-            faces = []
+            faces = {}
             for name, (idx, _) in _FACES.items():
+                a, b, _c, d = (cs[i] for i in idx)
+                n = np.cross(b - a, d - a)
+                norm = float(np.linalg.norm(n))
+                if norm < 1e-9:
+                    continue
+                n /= norm
                 fc = cs[list(idx)].mean(axis=0)
-                n = fc - centre
+                if float(n @ (fc - centre)) < 0:
+                    n = -n
                 if float(n @ (C - fc)) > 0:
-                    faces.append(name)
+                    faces[name] = n
             out.append(faces)
         return out
+
+    def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
+        """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
+        pts = corners.reshape(-1, 3)
+        ground = pts[:, :2] - pts[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
+        hull = cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
+        uv, depth = self.cam.project(np.column_stack([hull, np.zeros(len(hull))]))
+        if np.any(depth <= NEAR_M):
+            return
+        x1, y1 = np.floor(uv.min(axis=0)).astype(int)
+        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
+        if x2 - x1 < 2 or y2 - y1 < 2:
+            return
+        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
+        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        roi = img[y1:y2, x1:x2]
+        dark = (roi.astype(np.uint16) * int(256 * (1 - strength)) >> 8).astype(np.uint8)
+        m = mask > 127
+        roi[m] = dark[m]
 
     # ------------------------------------------------------------------ per frame
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
@@ -422,13 +469,22 @@ class Renderer:
         gain = L["scene_gain"]
         glows: list[tuple[np.ndarray, tuple, float]] = []
         lamp_pts: dict[tuple[str, str], list] = {}
+        drawn = []
         for _dist, a in self._ordered(snapshot):
-            parts, decals, corners, uv, depth, rot = self._actor_geometry(a)
+            geo = self._actor_geometry(a)
+            uv, depth = geo[3], geo[4]
             if np.any(depth <= NEAR_M):
                 continue
             allx, ally = uv[..., 0], uv[..., 1]
-            x1, x2, y1, y2 = allx.min(), allx.max(), ally.min(), ally.max()
-            if x2 < 0 or y2 < 0 or x1 >= self.w or y1 >= self.h:
+            if allx.max() < -200 or ally.max() < 0 or allx.min() >= self.w + 200 or ally.min() >= self.h:
+                continue  # (shadows may reach into the image from a little outside)
+            drawn.append((a, geo))
+            if L["sun"] > 0.05 and self.shadows:
+                self._draw_shadow(img, geo[2], sun, 0.45 * L["sun"] / 0.55)
+        for a, geo in drawn:
+            parts, decals, corners, uv, depth, rot = geo
+            allx, ally = uv[..., 0], uv[..., 1]
+            if allx.max() < 0 or allx.min() >= self.w:
                 continue
             blur_px = self._blur_vector(a, L["exposure_s"]) if self.blur_enabled else None
             # contact shadow
@@ -436,14 +492,12 @@ class Renderer:
             centre = fp.mean(axis=0)
             fp = centre + (fp - centre) * 1.08
             suv, _ = self.cam.project(fp)
-            shadow_roi = img
-            cv2.fillConvexPoly(shadow_roi, np.round(suv * 16).astype(np.int32), (0, 0, 0), cv2.LINE_AA, 4)
+            cv2.fillConvexPoly(img, np.round(suv * 16).astype(np.int32), (16, 16, 16), cv2.LINE_AA, 4)
             faces = self._visible_faces(parts, corners, C)
             face_uv: dict[tuple[int, str], np.ndarray] = {}
             for p_i, part in enumerate(parts):
-                for name in faces[p_i]:
-                    idx, n_local = _FACES[name]
-                    n = rot @ np.array(n_local)
+                for name, n in faces[p_i].items():
+                    idx, _n_local = _FACES[name]
                     shade = L["ambient"] + L["sun"] * max(0.0, float(n @ sun))
                     if name == "top":
                         col = part.top_colour if part.top_colour is not None else part.colour

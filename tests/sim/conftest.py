@@ -11,5 +11,7 @@ def corridor():
 
 @pytest.fixture(scope="session")
 def clean_renderer(corridor):
-    """rsu1's renderer without noise, blur or exposure drift: pixels depend on geometry only."""
-    return Renderer(corridor.rsu("rsu1").camera, corridor.road, seed=3, noise=False, motion_blur=False, exposure=False)
+    """rsu1's renderer without noise, blur, exposure drift or cast shadows: the pixels that change when a
+    vehicle is removed are the vehicle's own."""
+    return Renderer(corridor.rsu("rsu1").camera, corridor.road, seed=3, noise=False, motion_blur=False, exposure=False,
+                    shadows=False)
