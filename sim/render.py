@@ -68,6 +68,10 @@ _FACES = {
 }
 
 
+_FACE_NAMES = tuple(_FACES)
+_FACE_IDX = np.array([_FACES[f][0] for f in _FACE_NAMES])
+
+
 @dataclass
 class Part:
     """Axis-aligned box in the vehicle frame (x forward from the centre, y left, z up), in metres."""
@@ -231,13 +235,11 @@ def _body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
 
 def _face_points(corners: np.ndarray, face: str, u0: float, u1: float, v0: float, v1: float) -> np.ndarray:
     """World points of a (u, v) sub-rectangle of a box face (corners (8, 3) of the part)."""
-    idx, _ = _FACES[face]
-    a, b, c, d = (corners[i] for i in idx)  # a bottom-left, b bottom-right, c top-right, d top-left
-    def at(u: float, v: float) -> np.ndarray:
-        bottom = a + (b - a) * u
-        top = d + (c - d) * u
-        return bottom + (top - bottom) * v
-    return np.array([at(u0, v0), at(u1, v0), at(u1, v1), at(u0, v1)])
+    a, b, c, d = corners[_FACES[face][0], :]  # a bottom-left, b bottom-right, c top-right, d top-left
+    u = np.array([[u0], [u1], [u1], [u0]])
+    v = np.array([[v0], [v0], [v1], [v1]])
+    bottom = a + (b - a) * u
+    return bottom + (d + (c - d) * u - bottom) * v
 
 
 class Renderer:
@@ -414,25 +416,19 @@ class Renderer:
     @staticmethod
     def _visible_faces(parts, corners, C) -> list[dict[str, np.ndarray]]:
         """Per part, the faces that face the camera (back-face culling) with their outward unit normals."""
-        out = []
-        for p_i in range(len(parts)):
-            cs = corners[p_i]
-            centre = cs.mean(axis=0)
-            faces = {}
-            for name, (idx, _) in _FACES.items():
-                a, b, _c, d = (cs[i] for i in idx)
-                n = np.cross(b - a, d - a)
-                norm = float(np.linalg.norm(n))
-                if norm < 1e-9:
-                    continue
-                n /= norm
-                fc = cs[list(idx)].mean(axis=0)
-                if float(n @ (fc - centre)) < 0:
-                    n = -n
-                if float(n @ (C - fc)) > 0:
-                    faces[name] = n
-            out.append(faces)
-        return out
+        fc_all = corners[:, _FACE_IDX]  # (P, 5, 4, 3)
+        a, b, d = fc_all[:, :, 0], fc_all[:, :, 1], fc_all[:, :, 3]
+        e1, e2 = b - a, d - a
+        n = np.stack([e1[..., 1] * e2[..., 2] - e1[..., 2] * e2[..., 1],
+                      e1[..., 2] * e2[..., 0] - e1[..., 0] * e2[..., 2],
+                      e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]], axis=-1)
+        norm = np.linalg.norm(n, axis=-1, keepdims=True)
+        n = n / np.where(norm > 1e-9, norm, 1.0)
+        fc = fc_all.mean(axis=2)
+        centre = corners.mean(axis=1)[:, None, :]
+        n = np.where((np.sum(n * (fc - centre), axis=-1) < 0)[..., None], -n, n)
+        vis = (np.sum(n * (C - fc), axis=-1) > 0) & (norm[..., 0] > 1e-9)
+        return [{_FACE_NAMES[f]: n[p, f] for f in np.flatnonzero(vis[p])} for p in range(len(parts))]
 
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
@@ -511,11 +507,12 @@ class Renderer:
                     cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour.tolist(), cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             tail_bright = a.brake_on or L["running_lights"]
-            for dc in decals:
-                if (dc.part, dc.face) not in face_uv:
-                    continue
-                pts = _face_points(corners[dc.part], dc.face, dc.u0, dc.u1, dc.v0, dc.v1)
-                puv, _ = self.cam.project(pts)
+            shown = [dc for dc in decals if (dc.part, dc.face) in face_uv]
+            if shown:
+                all_uv, _ = self.cam.project(np.concatenate(
+                    [_face_points(corners[dc.part], dc.face, dc.u0, dc.u1, dc.v0, dc.v1) for dc in shown]))
+            for k_dc, dc in enumerate(shown):
+                puv = all_uv[4 * k_dc:4 * k_dc + 4]
                 lit = False
                 if dc.lamp == "tail":
                     if tail_bright:
