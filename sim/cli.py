@@ -83,7 +83,7 @@ def _cmd_render(args) -> int:
             for lb in r.labels(snap):
                 x1, y1, x2, y2 = (int(round(v)) for v in lb.bbox_px)
                 cv2.rectangle(img, (x1, y1), (x2, y2), (0, 255, 255) if lb.class_id else (0, 255, 0), 1)
-        path = out / f"{sc.name}_{rsu.rsu_id}_t{args.t:05.1f}.png"
+        path = out / f"{sc.name}_{rsu.rsu_id}_t{args.t:06.2f}.png"
         cv2.imwrite(str(path), img)
         print(path)
     return 0

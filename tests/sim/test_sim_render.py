@@ -175,3 +175,31 @@ def test_lighting_darkens_the_scene(corridor):
     r = Renderer(corridor.rsu("rsu1").camera, corridor.road, seed=0, noise=False, exposure=False)
     means = {lt: float(r.render(snap([], lighting=lt)).mean()) for lt in ("day", "dusk", "night")}
     assert means["day"] > means["dusk"] > means["night"]
+
+
+def test_lookalike_scenario_never_labels_an_ev(corridor):
+    sc = load_scenario("ev_lights_never_on")
+    w = World(sc)
+    renderers = [Renderer(r.camera, corridor.road, seed=0) for r in corridor.rsus[:2]]
+    seen_kinds = set()
+    while w.t_s < 20.0:
+        w.run_until(w.t_s + 2.0)
+        s = w.snapshot()
+        for r in renderers:
+            for lb in r.labels(s):
+                seen_kinds.add(lb.kind)
+                assert lb.class_id == CLASS_VEHICLE
+    assert {"ev", "van", "car"} <= seen_kinds  # the lookalikes were in view
+
+
+def test_motion_blur_and_exposure_vary_the_image(corridor):
+    cam = corridor.rsu("rsu1").camera
+    fast = Actor(actor_id="f", kind=ActorKind.CAR, pos_x_m=30.0, pos_y_m=-1.0, heading_rad=0.0, length_m=4.5,
+                 width_m=1.8, height_m=1.5, speed_mps=30.0, colour_bgr=(30, 30, 30))
+    s = snap([fast], lighting="night")
+    sharp = Renderer(cam, corridor.road, noise=False, exposure=False, motion_blur=False).render(s, 0)
+    blurred = Renderer(cam, corridor.road, noise=False, exposure=False, motion_blur=True).render(s, 0)
+    assert np.abs(sharp.astype(int) - blurred.astype(int)).sum() > 1000
+    r = Renderer(cam, corridor.road, noise=False, motion_blur=False)
+    means = [float(r.render(snap([], t=t), 0).mean()) for t in (0.0, 2.0, 4.0)]
+    assert max(means) - min(means) > 1.0  # auto-exposure drifts over time
