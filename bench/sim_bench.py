@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -115,7 +114,6 @@ def main(argv: list[str] | None = None) -> int:
           f"(x{figures['world_steps_per_s'] / 20.0:.0f} real time at 20 Hz), {figures['snapshots_per_s']:.0f} snapshots/s")
     if args.json:
         print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in figures.items()}))
-    _ = math
     return 0
 
 

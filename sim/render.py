@@ -357,17 +357,16 @@ class Renderer:
 
         # tree line along the horizon
         hv = self.cam.horizon_v_px()
-        cols = np.arange(w)
         prof = cv2.resize(rng.uniform(0, 1, (1, w // 16 + 2)).astype(np.float32), (w, 1),
                           interpolation=cv2.INTER_CUBIC)[0]
         prof2 = cv2.resize(rng.uniform(0, 1, (1, w // 4 + 2)).astype(np.float32), (w, 1),
                            interpolation=cv2.INTER_LINEAR)[0]
         tree_h = 6 + 14 * prof + 5 * prof2
         top = hv - tree_h
-        trees = (vv >= top[None, :]) & (vv < hv + 3) & ~ground | ((vv >= top[None, :]) & (dist > 300) & (vv < hv + 3))
+        trees = (vv >= top[None, :]) & (vv < hv + 3)
         tree_col = np.array(L["grass"], np.float32) * 0.6
-        img = np.where(trees[..., None], tree_col + 10 * t_fine[..., None] * 0, img)
-        _ = cols
+        tree_tex = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 1.2) * 10.0
+        img = np.where(trees[..., None], tree_col + tree_tex[..., None], img)
 
         # haze towards the horizon
         haze = (1.0 - np.exp(-dist / L["haze_m"]))[..., None]
@@ -380,8 +379,8 @@ class Renderer:
             pool = np.zeros((h, w), np.float32)
             for x0, y0 in zip(lx, ly, strict=True):
                 r2 = (gx - x0) ** 2 + (gy - y0) ** 2
-                pool += np.exp(-r2 / (2 * 7.0 ** 2))
-            img = img * (1.0 + 1.6 * np.clip(pool, 0, 1.5))[..., None]
+                pool += np.exp(-r2 / (2 * 5.0 ** 2))
+            img = img * (1.0 + 1.1 * np.clip(pool, 0, 1.5))[..., None]
 
         # vignetting
         r2 = ((uu - w / 2) / (w / 2)) ** 2 + ((vv - h / 2) / (h / 2)) ** 2
@@ -430,6 +429,27 @@ class Renderer:
         vis = (np.sum(n * (C - fc), axis=-1) > 0) & (norm[..., 0] > 1e-9)
         return [{_FACE_NAMES[f]: n[p, f] for f in np.flatnonzero(vis[p])} for p in range(len(parts))]
 
+    def _draw_headlight_pool(self, img: np.ndarray, a: Actor, strength: float) -> None:
+        """Light thrown on the road ahead of a vehicle by its headlights (dusk and night)."""
+        c, s_ = math.cos(a.heading_rad), math.sin(a.heading_rad)
+        fx, fy = a.pos_x_m + c * a.length_m / 2, a.pos_y_m + s_ * a.length_m / 2
+        local = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])
+        pts = np.column_stack([fx + local[:, 0] * c - local[:, 1] * s_, fy + local[:, 0] * s_ + local[:, 1] * c,
+                               np.zeros(4)])
+        uv, depth = self.cam.project(pts)
+        if np.any(depth <= NEAR_M):
+            return
+        x1, y1 = np.floor(uv.min(axis=0)).astype(int) - 6
+        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 7
+        ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
+        if ox2 - ox1 < 2 or oy2 - oy1 < 2:
+            return
+        pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
+        col = tuple(int(v * strength) for v in (70, 95, 110))
+        cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), col, cv2.LINE_AA, 4)
+        pool = cv2.blur(pool, (7, 7))
+        img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1])
+
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
         pts = corners.reshape(-1, 3)
@@ -477,6 +497,8 @@ class Renderer:
             drawn.append((a, geo))
             if L["sun"] > 0.05 and self.shadows:
                 self._draw_shadow(img, geo[2], sun, 0.45 * L["sun"] / 0.55)
+            if L["running_lights"] and a.kind.value != "debris":
+                self._draw_headlight_pool(img, a, 1.0 if lighting == "night" else 0.4)
         for a, geo in drawn:
             parts, decals, corners, uv, depth, rot = geo
             allx, ally = uv[..., 0], uv[..., 1]

@@ -35,20 +35,12 @@ class World:
         self.av_id = scenario.av.vehicle_id if scenario.av else None
 
     def step(self, dt_s: float) -> float:
-        """Advance the world by dt_s; returns the new sim time."""
+        """Advance the world by dt_s; returns the new sim time (rounded to 1 ns so that fixed steps
+        give exact times, e.g. 200 steps of 0.05 s end at 10.0 s)."""
         self.traffic.step(dt_s, self.t_s)
         self.steps += 1
-        self.t_s = self.steps * dt_s if self._uniform(dt_s) else self.t_s + dt_s
+        self.t_s = round(self.t_s + dt_s, 9)
         return self.t_s
-
-    def _uniform(self, dt_s: float) -> bool:
-        # exact times for fixed steps (no drift from repeated float addition)
-        last = getattr(self, "_dt", None)
-        if last is None or last == dt_s:
-            self._dt = dt_s
-            return True
-        self._dt = float("nan")
-        return False
 
     def run_until(self, t_s: float, dt_s: float = 0.05) -> None:
         while self.t_s < t_s - 1e-9:
