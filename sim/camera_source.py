@@ -40,9 +40,8 @@ class SimCamera:
         self.renderer = Renderer(self.rsu.camera, corridor.road, seed=seed, noise=noise, motion_blur=motion_blur,
                                  exposure=exposure)
         self.fps = self.rsu.camera.fps
-        self._frame_number = 0
         self._latest: WorldSnapshot | None = None
-        self._latest_seen: float | None = None
+        self._latest_seen: int | None = None
         self._cond = threading.Condition()
         self._sub: Subscription | None = None
         self.snapshots_received = 0
@@ -63,22 +62,28 @@ class SimCamera:
             self.snapshots_received += 1
             self._cond.notify_all()
 
+    def frame_index(self, sim_time_s: float) -> int:
+        """The camera's frame counter at a sim time (it exposes a frame every 1/fps s from t = 0)."""
+        return int(sim_time_s * self.fps + 1e-6)
+
     def render(self, snapshot: WorldSnapshot) -> Frame:
-        """Render one frame of the snapshot (lockstep path); frame numbers count up from 0."""
-        n = self._frame_number
-        self._frame_number += 1
-        img = self.renderer.render(snapshot, frame_index=int(round(snapshot.sim_time_s * self.fps)))
+        """Render one frame of the snapshot (lockstep path); the frame number is the camera's counter."""
+        n = self.frame_index(snapshot.sim_time_s)
+        img = self.renderer.render(snapshot, frame_index=n)
         return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id)
 
     def read(self, timeout_s: float = 1.0) -> Frame | None:
-        """The next frame: renders the newest snapshot not rendered yet; None if none came in time."""
+        """The next frame at the camera's rate: renders the newest snapshot that falls in a camera frame
+        not delivered yet (snapshots come at 20 Hz, a 15 fps camera skips one in four); None on timeout."""
+        def fresh() -> bool:
+            return self._latest is not None and (self._latest_seen is None or
+                                                 self.frame_index(self._latest.sim_time_s) > self._latest_seen)
+
         with self._cond:
-            ok = self._cond.wait_for(
-                lambda: self._latest is not None and self._latest.sim_time_s != self._latest_seen, timeout_s)
-            if not ok:
+            if not self._cond.wait_for(fresh, timeout_s):
                 return None
             snap = self._latest
-            self._latest_seen = snap.sim_time_s
+            self._latest_seen = self.frame_index(snap.sim_time_s)
         return self.render(snap)
 
     def frames(self, timeout_s: float = 1.0):

@@ -25,6 +25,8 @@ from sim.world import World
 log = logging.getLogger("iea.sim")
 WORLD_RATE_HZ = 20.0
 HEALTH_PERIOD_S = 1.0
+AV_STATE_TIMEOUT_S = 1.0
+"""Without vehicle state for this long, the AV goes back to its script (from its last pose)."""
 
 
 @dataclass
@@ -52,6 +54,7 @@ class SimService:
         self.published = 0
         self.av_updates = 0
         self._pending_states: dict[str, VehicleState] = {}
+        self._last_state: dict[str, float] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._step_ms = 0.0
@@ -82,9 +85,16 @@ class SimService:
         """One world step: apply the latest AV states, step, publish the snapshot, record frames."""
         with self._lock:
             states, self._pending_states = self._pending_states, {}
+        now = self.clock.now()
         for st in states.values():
             self.world.set_av_pose(st)
             self.av_updates += 1
+            self._last_state[st.vehicle_id] = now
+        for vid, t_last in list(self._last_state.items()):
+            if now - t_last > AV_STATE_TIMEOUT_S and vid not in states:
+                self.world.release_av(vid)
+                del self._last_state[vid]
+                log.info("no state from %s for %.1f s: AV scripted again", vid, now - t_last)
         t0 = time.perf_counter()
         self.world.step(self.dt_s)
         self._step_ms = (time.perf_counter() - t0) * 1e3

@@ -61,6 +61,9 @@ class TrafficModel(Protocol):
                           speed_mps: float) -> None:
         """Pose of a vehicle driven from outside (the AV's vehicle process)."""
 
+    def release_external(self, vehicle_id: str) -> None:
+        """The outside driver went quiet: the model drives the vehicle again from where it is."""
+
 
 def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, t_gap: np.ndarray,
               a_max: np.ndarray) -> np.ndarray:
@@ -98,6 +101,15 @@ class IdmTraffic:
                     v.lane = lane
                 return
         raise KeyError(f"no vehicle {vehicle_id!r} in the world")
+
+    def release_external(self, vehicle_id: str) -> None:
+        for v in self._vehicles:
+            if v.vehicle_id == vehicle_id and v.external:
+                v.external = False
+                lane = self.road.lane_of_offset(v.d_m)
+                v.lane = lane if lane is not None else 0
+                v.target_lane = None
+                return
 
     # ---------------------------------------------------------------- model
     def _ev_threat(self, t_s: float) -> list[SimVehicle]:

@@ -51,6 +51,10 @@ class World:
         self.traffic.set_external_pose(state.vehicle_id, state.pos_x_m, state.pos_y_m, state.heading_rad,
                                        state.speed_mps)
 
+    def release_av(self, vehicle_id: str) -> None:
+        """No vehicle state for a while: the AV is scripted again (lane keeping) from its last pose."""
+        self.traffic.release_external(vehicle_id)
+
     def vehicles(self) -> list[SimVehicle]:
         return self.traffic.vehicles()
 

@@ -34,12 +34,23 @@ def test_sim_camera_renders_snapshots_from_the_transport(corridor):
     snap = w.snapshot()
     bus.publish(sim_world_key(corridor.corridor_id), snap)
     f = cam.read(timeout_s=0.5)
-    assert f is not None and f.image.shape == (720, 1280, 3) and f.frame_number == 0
+    assert f is not None and f.image.shape == (720, 1280, 3) and f.frame_number == 75  # 15 fps camera
     assert f.timestamp_s == pytest.approx(5.0) and f.camera_id == "rsu2"
     assert cam.read(timeout_s=0.01) is None  # the same snapshot is not rendered twice
+    # at 20 Hz snapshots and 15 fps, one snapshot in four falls in a frame already delivered
+    frames = []
+    for _ in range(8):
+        w.step(0.05)
+        bus.publish(sim_world_key(corridor.corridor_id), w.snapshot())
+        f = cam.read(timeout_s=0.01)
+        if f is not None:
+            frames.append(f.frame_number)
+    assert len(frames) == 6 and frames == sorted(set(frames))
+    w2 = World(load_scenario("rellis_ev_yield"))
+    w2.run_until(5.0)
     # the lockstep path gives the same pixels as a Renderer with the same seed
     ref = Renderer(corridor.rsu("rsu2").camera, corridor.road, seed=1).render(snap, frame_index=75)
-    assert np.array_equal(cam.render(snap).image, ref)
+    assert np.array_equal(cam.render(w2.snapshot()).image, ref)
     cam.close()
 
 
@@ -141,6 +152,10 @@ def test_service_publishes_snapshots_at_20hz_and_follows_the_av_state():
     assert [m.seq for m in got] == list(range(40))
     av = next(a for a in got[0].actors if a.actor_id == "av1")
     assert av.pos_x_m == pytest.approx(60.0)
+    # no state for more than 1 s: the AV is scripted again from that pose (lane keeping, moving on)
+    av_last = next(a for a in got[-1].actors if a.actor_id == "av1")
+    assert av_last.pos_x_m > 60.5 and av_last.pos_y_m == pytest.approx(1.0, abs=0.9)
+    assert av_last.pos_x_m > next(a for a in got[25].actors if a.actor_id == "av1").pos_x_m
     assert 2 <= len(health) <= 3 and health[0].role.value == "sim" and health[-1].rejected.get("unknown_vehicle") == 1
 
 
