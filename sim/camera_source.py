@@ -1,0 +1,100 @@
+"""``SimCamera``: the RSU's frame source in simulation.
+
+It subscribes to ``WorldSnapshot`` (``iea/{c}/sim/world``) through any ``Transport`` and renders that
+RSU's view locally, so the RSU works on pixels exactly as on a real camera's frames. It is the only
+consumer of ground truth besides evaluation code: it hands out images, a timestamp and a frame number,
+never the snapshot. ``render(snapshot)`` is the plain path for lockstep runs (no transport, no threads).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.corridor import Corridor
+from protocol.keys import sim_world_key
+from protocol.messages import WorldSnapshot
+from protocol.transport import Subscription, Transport
+from sim.render import Renderer
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame: BGR image (h, w, 3) uint8, capture time (s, sim clock) and frame number."""
+
+    image: np.ndarray
+    timestamp_s: float
+    frame_number: int
+    camera_id: str
+
+
+class SimCamera:
+    """Frame source of one RSU camera rendered from world snapshots."""
+
+    def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport | None = None, *, seed: int = 0,
+                 noise: bool = True, motion_blur: bool = True, exposure: bool = True) -> None:
+        self.corridor = corridor
+        self.rsu = corridor.rsu(rsu_id)
+        self.renderer = Renderer(self.rsu.camera, corridor.road, seed=seed, noise=noise, motion_blur=motion_blur,
+                                 exposure=exposure)
+        self.fps = self.rsu.camera.fps
+        self._latest: WorldSnapshot | None = None
+        self._latest_seen: int | None = None
+        self._cond = threading.Condition()
+        self._sub: Subscription | None = None
+        self.snapshots_received = 0
+        if transport is not None:
+            self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
+
+    @property
+    def width_px(self) -> int:
+        return self.rsu.camera.width_px
+
+    @property
+    def height_px(self) -> int:
+        return self.rsu.camera.height_px
+
+    def _on_snapshot(self, _key: str, snap: WorldSnapshot) -> None:
+        with self._cond:
+            self._latest = snap
+            self.snapshots_received += 1
+            self._cond.notify_all()
+
+    def frame_index(self, sim_time_s: float) -> int:
+        """The camera's frame counter at a sim time (it exposes a frame every 1/fps s from t = 0)."""
+        return int(sim_time_s * self.fps + 1e-6)
+
+    def render(self, snapshot: WorldSnapshot) -> Frame:
+        """Render one frame of the snapshot (lockstep path); the frame number is the camera's counter."""
+        n = self.frame_index(snapshot.sim_time_s)
+        img = self.renderer.render(snapshot, frame_index=n)
+        return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id)
+
+    def read(self, timeout_s: float = 1.0) -> Frame | None:
+        """The next frame at the camera's rate: renders the newest snapshot that falls in a camera frame
+        not delivered yet (snapshots come at 20 Hz, a 15 fps camera skips one in four); None on timeout."""
+        def fresh() -> bool:
+            return self._latest is not None and (self._latest_seen is None or
+                                                 self.frame_index(self._latest.sim_time_s) > self._latest_seen)
+
+        with self._cond:
+            if not self._cond.wait_for(fresh, timeout_s):
+                return None
+            snap = self._latest
+            self._latest_seen = self.frame_index(snap.sim_time_s)
+        return self.render(snap)
+
+    def frames(self, timeout_s: float = 1.0):
+        """Iterate frames until no snapshot arrives within timeout_s."""
+        while True:
+            f = self.read(timeout_s)
+            if f is None:
+                return
+            yield f
+
+    def close(self) -> None:
+        if self._sub is not None:
+            self._sub.close()
+            self._sub = None

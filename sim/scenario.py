@@ -1,0 +1,295 @@
+"""Scenario files (``sim/scenarios/*.toml``): load and validate into a ``Scenario``.
+
+A scenario names the corridor, the duration, the seed and the lighting, the background traffic
+(density, speeds, vehicle mix, the fraction of drivers that yield to an EV with lights on), the EV
+(start offset behind the AV, lane, speed, light bar switch-on time, pattern and frequency), static
+hazards, the AV script, and distractor vehicles (red cars, blue cars, red/white vans without lights,
+cars that brake). A bad file fails with ``ScenarioError`` naming the file, the field and what was
+expected. See ``sim/scenarios/rellis_ev_yield.toml`` for a commented example.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from protocol.corridor import DEFAULT_CORRIDOR, Corridor, CorridorError, load_corridor
+
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+CORRIDOR_DIR = DEFAULT_CORRIDOR.parent
+LIGHTINGS = ("day", "dusk", "night")
+PATTERNS = ("alternating", "strobe")
+DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_van", "red_truck")
+EV_BODIES = ("ambulance", "police")
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be used; the message says where and why."""
+
+
+@dataclass(frozen=True)
+class TrafficSpec:
+    density_veh_per_km_lane: float = 12.0
+    speed_mps: float = 12.0
+    speed_spread_mps: float = 1.5
+    spawn_s_min_m: float = 0.0
+    spawn_s_max_m: float = 350.0
+    yield_fraction: float = 0.6
+    van_fraction: float = 0.15
+    truck_fraction: float = 0.08
+    bus_fraction: float = 0.04
+    red_fraction: float = 0.1
+    blue_fraction: float = 0.08
+
+
+@dataclass(frozen=True)
+class AvSpec:
+    vehicle_id: str = "av1"
+    start_s_m: float = 100.0
+    lane: int = 1
+    speed_mps: float = 13.4
+
+
+@dataclass(frozen=True)
+class EvSpec:
+    start_offset_m: float = -50.0
+    """Start position along the road relative to the AV (negative = behind)."""
+    lane: int = 1
+    speed_mps: float = 19.0
+    lights_on_at_s: float | None = 4.0
+    """None: the light bar never switches on."""
+    pattern: str = "alternating"
+    frequency_hz: float = 2.0
+    body: str = "ambulance"
+
+
+@dataclass(frozen=True)
+class HazardSpec:
+    s_m: float
+    lane: int
+    length_m: float = 0.8
+    width_m: float = 0.7
+    height_m: float = 0.35
+    offset_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class DistractorSpec:
+    kind: str
+    s_m: float
+    lane: int
+    speed_mps: float = 11.0
+    brake_period_s: float = 0.0
+    """brake_car: the driver brakes for half of every period (brake lights flash on and off)."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    corridor: Corridor
+    duration_s: float
+    seed: int
+    lighting: str
+    traffic: TrafficSpec
+    av: AvSpec | None
+    ev: EvSpec | None
+    hazards: tuple[HazardSpec, ...] = ()
+    distractors: tuple[DistractorSpec, ...] = ()
+    description: str = ""
+    source: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def with_overrides(self, *, seed: int | None = None, lighting: str | None = None) -> Scenario:
+        from dataclasses import replace
+
+        if lighting is not None and lighting not in LIGHTINGS:
+            raise ScenarioError(f"lighting must be one of {LIGHTINGS}, got {lighting!r}")
+        return replace(self, seed=self.seed if seed is None else seed,
+                       lighting=self.lighting if lighting is None else lighting)
+
+
+class _R:
+    def __init__(self, source: str, data: dict[str, Any], path: str) -> None:
+        self.source, self.data, self.path = source, data, path
+
+    def fail(self, key: str, expected: str, got: Any = None) -> ScenarioError:
+        where = f"{self.path}.{key}" if self.path else key
+        got_s = "" if got is None else f", got {got!r}"
+        return ScenarioError(f"{self.source}: field '{where}': expected {expected}{got_s}")
+
+    def num(self, key: str, default: float | None = None, lo: float | None = None, hi: float | None = None) -> float:
+        if key not in self.data:
+            if default is None:
+                raise self.fail(key, "a number (missing)")
+            return float(default)
+        v = self.data[key]
+        if isinstance(v, bool) or not isinstance(v, int | float) or v != v or v in (float("inf"), float("-inf")):
+            raise self.fail(key, "a finite number", v)
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise self.fail(key, f"a number in [{lo}, {hi}]", v)
+        return float(v)
+
+    def integer(self, key: str, default: int, lo: int = 0, hi: int = 2**31) -> int:
+        v = self.data.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise self.fail(key, f"an integer in [{lo}, {hi}]", v)
+        return v
+
+    def text(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+        if key not in self.data:
+            if default is None:
+                raise self.fail(key, "a string (missing)")
+            return default
+        v = self.data[key]
+        if not isinstance(v, str) or not v:
+            raise self.fail(key, "a non-empty string", v)
+        if choices and v not in choices:
+            raise self.fail(key, f"one of {list(choices)}", v)
+        return v
+
+    def table(self, key: str) -> _R | None:
+        if key not in self.data:
+            return None
+        v = self.data[key]
+        if not isinstance(v, dict):
+            raise self.fail(key, "a table", type(v).__name__)
+        return _R(self.source, v, f"{self.path}.{key}" if self.path else key)
+
+    def tables(self, key: str) -> list[_R]:
+        v = self.data.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+            raise self.fail(key, "an array of tables ([[...]])", type(v).__name__)
+        return [_R(self.source, x, f"{key}[{i}]") for i, x in enumerate(v)]
+
+    def check_keys(self, allowed: set[str]) -> None:
+        unknown = sorted(set(self.data) - allowed)
+        if unknown:
+            raise ScenarioError(f"{self.source}: unknown field(s) {unknown} in '{self.path or 'top level'}'; "
+                                f"allowed: {sorted(allowed)}")
+
+
+def resolve_scenario_path(name_or_path: str | Path) -> Path:
+    """A scenario name (``rellis_ev_yield``) or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return SCENARIO_DIR / f"{name_or_path}.toml"
+
+
+def list_scenarios() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def _resolve_corridor(value: str, scenario_path: Path) -> Path:
+    if "/" not in value and not value.endswith(".toml"):
+        return CORRIDOR_DIR / f"{value}.toml"
+    p = Path(value)
+    if not p.is_absolute():
+        beside = scenario_path.parent / p
+        p = beside if beside.exists() else Path.cwd() / p
+    return p
+
+
+def load_scenario(name_or_path: str | Path, corridor: Corridor | None = None) -> Scenario:
+    """Load a scenario by name or path; ``corridor`` overrides the file's corridor."""
+    path = resolve_scenario_path(name_or_path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: scenario not found; known scenarios: {list_scenarios()}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    return parse_scenario(data, str(path), corridor)
+
+
+def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: Corridor | None = None) -> Scenario:
+    top = _R(source, data, "")
+    top.check_keys({"scenario", "traffic", "av", "ev", "hazard", "distractor"})
+    sc = top.table("scenario")
+    if sc is None:
+        raise top.fail("scenario", "a [scenario] table (missing)")
+    sc.check_keys({"name", "description", "corridor", "duration_s", "seed", "lighting"})
+    name = sc.text("name")
+    if not all(c.isalnum() or c in "_-." for c in name):
+        raise sc.fail("name", "an id of letters, digits, '_', '-', '.'", name)
+    if corridor is None:
+        try:
+            corridor = load_corridor(_resolve_corridor(sc.text("corridor", "rellis"), Path(source)))
+        except CorridorError as exc:
+            raise ScenarioError(f"{source}: field 'scenario.corridor': {exc}") from None
+    road = corridor.road
+    lanes = road.lanes
+
+    def lane_of(r: _R, key: str, default: int) -> int:
+        return r.integer(key, default, lo=0, hi=lanes - 1)
+
+    traffic = TrafficSpec()
+    tr = top.table("traffic")
+    if tr is not None:
+        tr.check_keys(set(TrafficSpec.__dataclass_fields__))
+        d = TrafficSpec()
+        traffic = TrafficSpec(
+            density_veh_per_km_lane=tr.num("density_veh_per_km_lane", d.density_veh_per_km_lane, 0.0, 120.0),
+            speed_mps=tr.num("speed_mps", d.speed_mps, 0.0, 40.0),
+            speed_spread_mps=tr.num("speed_spread_mps", d.speed_spread_mps, 0.0, 10.0),
+            spawn_s_min_m=tr.num("spawn_s_min_m", d.spawn_s_min_m, 0.0, road.length_m),
+            spawn_s_max_m=tr.num("spawn_s_max_m", min(d.spawn_s_max_m, road.length_m), 0.0, road.length_m),
+            yield_fraction=tr.num("yield_fraction", d.yield_fraction, 0.0, 1.0),
+            van_fraction=tr.num("van_fraction", d.van_fraction, 0.0, 1.0),
+            truck_fraction=tr.num("truck_fraction", d.truck_fraction, 0.0, 1.0),
+            bus_fraction=tr.num("bus_fraction", d.bus_fraction, 0.0, 1.0),
+            red_fraction=tr.num("red_fraction", d.red_fraction, 0.0, 1.0),
+            blue_fraction=tr.num("blue_fraction", d.blue_fraction, 0.0, 1.0),
+        )
+        if traffic.spawn_s_max_m < traffic.spawn_s_min_m:
+            raise tr.fail("spawn_s_max_m", f"a value >= spawn_s_min_m ({traffic.spawn_s_min_m})",
+                          traffic.spawn_s_max_m)
+        if traffic.van_fraction + traffic.truck_fraction + traffic.bus_fraction > 1.0:
+            raise tr.fail("van_fraction", "van + truck + bus fractions <= 1")
+
+    av = None
+    avr = top.table("av")
+    if avr is not None:
+        avr.check_keys({"id", "start_s_m", "lane", "speed_mps"})
+        av = AvSpec(vehicle_id=avr.text("id", "av1"), start_s_m=avr.num("start_s_m", 100.0, 0.0, road.length_m),
+                    lane=lane_of(avr, "lane", min(1, lanes - 1)), speed_mps=avr.num("speed_mps", 13.4, 0.0, 40.0))
+
+    ev = None
+    evr = top.table("ev")
+    if evr is not None:
+        evr.check_keys({"start_offset_m", "start_s_m", "lane", "speed_mps", "lights_on_at_s", "pattern",
+                        "frequency_hz", "body"})
+        if "start_s_m" in evr.data:
+            offset = evr.num("start_s_m", 0.0, 0.0, road.length_m) - (av.start_s_m if av else 0.0)
+        else:
+            offset = evr.num("start_offset_m", -50.0, -road.length_m, road.length_m)
+        lights = evr.num("lights_on_at_s", -1.0, -1.0, 1e6)
+        ev = EvSpec(start_offset_m=offset, lane=lane_of(evr, "lane", min(1, lanes - 1)),
+                    speed_mps=evr.num("speed_mps", 19.0, 0.0, 45.0),
+                    lights_on_at_s=None if lights < 0 else lights,
+                    pattern=evr.text("pattern", "alternating", PATTERNS),
+                    frequency_hz=evr.num("frequency_hz", 2.0, 1.0, 4.0),
+                    body=evr.text("body", "ambulance", EV_BODIES))
+
+    hazards = []
+    for hr in top.tables("hazard"):
+        hr.check_keys(set(HazardSpec.__dataclass_fields__))
+        hazards.append(HazardSpec(s_m=hr.num("s_m", None, 0.0, road.length_m), lane=lane_of(hr, "lane", 0),
+                                  length_m=hr.num("length_m", 0.8, 0.1, 5.0), width_m=hr.num("width_m", 0.7, 0.1, 3.0),
+                                  height_m=hr.num("height_m", 0.35, 0.05, 2.0),
+                                  offset_m=hr.num("offset_m", 0.0, -2.0, 2.0)))
+    distractors = []
+    for dr in top.tables("distractor"):
+        dr.check_keys(set(DistractorSpec.__dataclass_fields__))
+        distractors.append(DistractorSpec(kind=dr.text("kind", None, DISTRACTOR_TYPES),
+                                          s_m=dr.num("s_m", None, 0.0, road.length_m), lane=lane_of(dr, "lane", 0),
+                                          speed_mps=dr.num("speed_mps", 11.0, 0.0, 40.0),
+                                          brake_period_s=dr.num("brake_period_s", 0.0, 0.0, 60.0)))
+    return Scenario(
+        name=name, corridor=corridor, duration_s=sc.num("duration_s", 30.0, 0.1, 3600.0),
+        seed=sc.integer("seed", 0), lighting=sc.text("lighting", "day", LIGHTINGS), traffic=traffic, av=av, ev=ev,
+        hazards=tuple(hazards), distractors=tuple(distractors), description=sc.data.get("description", ""),
+        source=source,
+    )

@@ -1,0 +1,145 @@
+"""Simulator service (imperative shell): runs a scenario's world in (scaled) real time, publishes
+``WorldSnapshot`` at 20 Hz on ``iea/{c}/sim/world`` and ``Health`` at 1 Hz on ``iea/{c}/sim/health``,
+takes the AV pose from ``iea/{c}/vehicle/{veh}/state`` when a vehicle process publishes it, and can
+record any RSU camera's rendered view to a video file.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import cv2
+
+from protocol.clock import Clock, RateTimer, WallClock
+from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
+from protocol.messages import Health, HealthStatus, Role, VehicleState
+from protocol.transport import Transport
+from sim.render import Renderer
+from sim.scenario import Scenario
+from sim.world import World
+
+log = logging.getLogger("iea.sim")
+WORLD_RATE_HZ = 20.0
+HEALTH_PERIOD_S = 1.0
+AV_STATE_TIMEOUT_S = 1.0
+"""Without vehicle state for this long, the AV goes back to its script (from its last pose)."""
+
+
+@dataclass
+class Recording:
+    rsu_id: str
+    path: str
+
+
+class SimService:
+    def __init__(self, scenario: Scenario, transport: Transport, clock: Clock | None = None, *,
+                 corridor_id: str | None = None, speed: float = 1.0, duration_s: float | None = None,
+                 recordings: list[Recording] | None = None, src: str = "sim", seed: int | None = None) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.scenario = scenario
+        self.transport = transport
+        self.clock = clock or WallClock()
+        self.corridor_id = corridor_id or scenario.corridor.corridor_id
+        self.speed = speed
+        self.duration_s = scenario.duration_s if duration_s is None else duration_s
+        self.world = World(scenario, seed=seed)
+        self.src = src
+        self.dt_s = 1.0 / WORLD_RATE_HZ
+        self.rejected: Counter = Counter()
+        self.published = 0
+        self.av_updates = 0
+        self._pending_states: dict[str, VehicleState] = {}
+        self._last_state: dict[str, float] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._step_ms = 0.0
+        self._recorders = []
+        for rec in recordings or []:
+            rsu = scenario.corridor.rsu(rec.rsu_id)
+            r = Renderer(rsu.camera, scenario.corridor.road, seed=self.world.seed)
+            writer = cv2.VideoWriter(rec.path, cv2.VideoWriter_fourcc(*"mp4v"), rsu.camera.fps,
+                                     (rsu.camera.width_px, rsu.camera.height_px))
+            if not writer.isOpened():
+                raise ValueError(f"cannot open video file {rec.path!r} for writing")
+            self._recorders.append([rsu, r, writer, -1])
+        self._vehicle_ids = {v.vehicle_id for v in self.world.vehicles() if v.kind == "av"}
+        self._sub = transport.subscribe(all_vehicles_expr(self.corridor_id, "state"), self._on_state,
+                                        on_reject=lambda _k, _e: None)
+
+    def _on_state(self, _key: str, msg: VehicleState) -> None:
+        if msg.vehicle_id not in self._vehicle_ids:
+            self.rejected["unknown_vehicle"] += 1
+            return
+        with self._lock:
+            self._pending_states[msg.vehicle_id] = msg
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def step_once(self) -> None:
+        """One world step: apply the latest AV states, step, publish the snapshot, record frames."""
+        with self._lock:
+            states, self._pending_states = self._pending_states, {}
+        now = self.clock.now()
+        for st in states.values():
+            self.world.set_av_pose(st)
+            self.av_updates += 1
+            self._last_state[st.vehicle_id] = now
+        for vid, t_last in list(self._last_state.items()):
+            if now - t_last > AV_STATE_TIMEOUT_S and vid not in states:
+                self.world.release_av(vid)
+                del self._last_state[vid]
+                log.info("no state from %s for %.1f s: AV scripted again", vid, now - t_last)
+        t0 = time.perf_counter()
+        self.world.step(self.dt_s)
+        self._step_ms = (time.perf_counter() - t0) * 1e3
+        snap = self.world.snapshot(stamp=self.clock.now(), src=self.src, seq=self.published)
+        self.transport.publish(sim_world_key(self.corridor_id), snap)
+        self.published += 1
+        for rec in self._recorders:
+            rsu, r, writer, last = rec
+            idx = int(snap.sim_time_s * rsu.camera.fps)
+            if idx != last:
+                writer.write(r.render(snap, frame_index=idx))
+                rec[3] = idx
+
+    def health(self, uptime_s: float) -> Health:
+        rej = dict(self.rejected)
+        for reason, n in self.transport.stats.rejected.items():
+            rej[f"decode_{reason}"] = n
+        return Health(src=self.src, stamp=self.clock.now(), role=Role.SIM, status=HealthStatus.OK,
+                      uptime_s=max(0.0, uptime_s), rates_hz={"world": WORLD_RATE_HZ * self.speed},
+                      latency_ms={"world_step": self._step_ms}, rejected=rej,
+                      detail=f"scenario {self.scenario.name} t={self.world.t_s:.2f}s av_updates={self.av_updates}")
+
+    def run(self) -> int:
+        """Run until the scenario's duration or stop(); returns the number of snapshots published."""
+        start = self.clock.now()
+        health_timer = RateTimer(HEALTH_PERIOD_S)
+        next_t = start
+        try:
+            while not self._stop.is_set() and self.world.t_s < self.duration_s - 1e-9:
+                self.step_once()
+                now = self.clock.now()
+                if health_timer.due(now):
+                    self.transport.publish(sim_health_key(self.corridor_id), self.health(now - start))
+                next_t += self.dt_s / self.speed
+                delay = next_t - self.clock.now()
+                if delay > 0:
+                    self.clock.sleep(delay)
+                elif delay < -1.0:
+                    next_t = self.clock.now()  # fell behind (slow recorder): do not burst
+        finally:
+            self.close()
+        return self.published
+
+    def close(self) -> None:
+        self._sub.close()
+        for _rsu, _r, writer, _last in self._recorders:
+            writer.release()
+        self._recorders = []
