@@ -103,6 +103,11 @@ def x_to_boxes(x: np.ndarray) -> np.ndarray:
 
 def iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     """IoU of every box in ``boxes_a`` (N, 4) with every box in ``boxes_b`` (M, 4): (N, M)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _iou(boxes_a, boxes_b)
+
+
+def _iou(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     ax1, ay1, ax2, ay2 = boxes_a.T[:, :, None]
     bx1, by1, bx2, by2 = boxes_b.T[:, None, :]
     inter = np.minimum(ax2, bx2) - np.maximum(ax1, bx1)
@@ -111,8 +116,7 @@ def iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     np.maximum(ih, 0.0, out=ih)
     inter *= ih
     union = (ax2 - ax1) * (ay2 - ay1) + (bx2 - bx1) * (by2 - by1) - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return inter / union
+    return inter / union
 
 
 _EMPTY_INDEX = np.empty(0, dtype=np.intp)
@@ -129,7 +133,7 @@ def associate(det_boxes: np.ndarray, trk_boxes: np.ndarray, iou_threshold: float
     n_det, n_trk = len(det_boxes), len(trk_boxes)
     if n_trk == 0 or n_det == 0:
         return _EMPTY_INDEX, _EMPTY_INDEX, np.arange(n_det)
-    iou = iou_matrix(det_boxes, trk_boxes)
+    iou = _iou(det_boxes, trk_boxes)  # callers hold np.errstate
     above = iou > iou_threshold
     if above.sum(1).max() == 1 and above.sum(0).max() == 1:
         rows, cols = above.nonzero()  # unambiguous: every pair is above the threshold
@@ -292,12 +296,13 @@ class SortTracker:
             det, trk, new = associate(boxes, predicted, self.iou_threshold)
             z = boxes_to_z(boxes)
             if len(det):
-                i = self._i
-                i[trk, _TSU] = 0
-                i[trk, _HITS:_STREAK + 1] += 1
-                i[trk, _DET] = det
+                i = self._i[trk]
+                i[:, _TSU] = 0
+                i[:, _HITS:_STREAK + 1] += 1
+                i[:, _DET] = det
                 if class_ids is not None:
-                    i[trk, _CLASS] = np.asarray(class_ids).reshape(n)[det]
+                    i[:, _CLASS] = np.asarray(class_ids).reshape(n)[det]
+                self._i[trk] = i
                 f = self._f[trk]
                 f[:, _SCORE] = 1.0 if scores is None else np.asarray(scores).reshape(n)[det]
                 self._kalman_update(f, z[det])
