@@ -104,17 +104,21 @@ class VideoSource(_IterMixin):
     ``read_timeout_s`` bounds every ``read``; ``open_timeout_s`` bounds opening (done in the reader
     thread, so a URL that never answers cannot hang the caller). ``live`` (default: camera or URL)
     makes the queue drop its oldest frame when the consumer is slow; ``drops`` counts them.
+    ``realtime`` plays a file at its own frame rate as a live source (for demos and service tests).
     ``capture_factory`` replaces ``cv2.VideoCapture`` (tests).
     """
 
     def __init__(self, uri: str | int | os.PathLike, *, source_id: str | None = None,
                  read_timeout_s: float = 5.0, open_timeout_s: float = 10.0, queue_size: int = 2,
-                 live: bool | None = None,
+                 live: bool | None = None, realtime: bool = False,
                  capture_factory: Callable[[Any], Any] | None = None) -> None:
         if not 1 <= queue_size <= 64:
             raise ValueError(f"queue_size must be in [1, 64], got {queue_size}")
         self._arg, auto_live = _parse_uri(uri)
         self.live = auto_live if live is None else live
+        self.realtime = realtime
+        if realtime:  # a file played at its own rate behaves like a camera: late frames are dropped
+            self.live = True
         self.source_id = source_id or (f"camera{self._arg}" if isinstance(self._arg, int) else Path(str(self._arg)).name)
         self.read_timeout_s = read_timeout_s
         self._factory = capture_factory or cv2.VideoCapture
@@ -163,13 +167,18 @@ class VideoSource(_IterMixin):
                 if not ok or image is None:
                     break
                 media_s = float(cap.get(cv2.CAP_PROP_POS_MSEC) or 0.0) / 1000.0
-                if media_s > last_media_s and (media_s > 0.0 or number == 0) and not self.live:
+                from_file = not self.live or self.realtime
+                if media_s > last_media_s and (media_s > 0.0 or number == 0) and from_file:
                     stamp = media_s
-                elif self.fps and not self.live:
+                elif self.fps and from_file:
                     stamp = number / self.fps
                 else:
                     stamp = time.monotonic() - wall_start
                 last_media_s = max(last_media_s, media_s)
+                if self.realtime:  # pace on media time
+                    wait = stamp - (time.monotonic() - wall_start)
+                    if wait > 0 and self._stop.wait(wait):
+                        break
                 if image.ndim == 2:
                     image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
                 self._put(Frame(image, stamp, number, self.source_id))
