@@ -150,3 +150,24 @@ def test_iea_rsu_process_publishes_stable_ids_over_zenoh(tmp_path):
     assert len(steady) == 2, frames_per_id  # both vehicles, each under one id the whole time
     xs = [np.mean([b[0] for b in boxes_by_id[tid]][:3]) for tid in steady]
     assert min(xs) < 640 < max(xs)  # one is the left car, the other the right one
+
+
+def test_classifier_hook_marks_ev_tracks():
+    bus, clock = LocalBus(), SimClock(0.0)
+    lists: list[ObjectList] = []
+    bus.subscribe(rsu_key("tlocal", "rsu1", "objects"), lambda k, m: lists.append(m))
+    calls = []
+
+    def classifier(frame, tracks):
+        calls.append(frame.frame_number)
+        # the left car (smaller x) is the EV with flashing lights
+        return {int(t): (0.9 if b[0] < 640 else 0.1, None) for t, b in zip(tracks.track_ids, tracks.boxes, strict=True)}
+
+    pipeline = RsuPipeline(MotionDetector(min_area_px=1500), FrameworkTracker("B", max_age=3, min_hits=3),
+                           Localizer(CORRIDOR, "rsu1"), classifier=classifier)
+    svc = RsuService(CORRIDOR, "rsu1", _ClockedSource(_scene(45), clock), pipeline, bus, clock, corridor_id="tlocal")
+    assert svc.run() == 0
+    assert calls == list(range(45))
+    last = {o.object_id: o for o in lists[-1].objects}
+    kinds = sorted((o.bbox_px[0] < 640, o.obj_type, o.ev_score) for o in last.values())
+    assert kinds == [(False, ObjectType.VEHICLE, 0.1), (True, ObjectType.EV, 0.9)]
