@@ -9,8 +9,12 @@ Kalman predict/update runs as batched numpy over all tracks instead of one filte
 - noise as the reference sets it on filterpy's identity defaults: ``R[2:,2:] *= 10``,
   ``P[4:,4:] *= 1000; P *= 10``, ``Q[-1,-1] *= 0.01; Q[4:,4:] *= 0.01``;
 - before each predict, a track whose predicted area would become non-positive (``s + s' <= 0``)
-  has its area velocity zeroed; a track whose predicted box is not finite is dropped;
-- update in Joseph form, ``P = (I-KH) P (I-KH)' + K R K'`` (what filterpy does);
+  has its area velocity zeroed; a track whose predicted box is NaN is dropped;
+- covariance update: filterpy's Joseph form ``(I-KH) P (I-KH)' + K R K'``, computed in its
+  algebraically equal short form ``(I-KH) P`` (exact for the optimal gain; agrees to rounding);
+- vectorisation: F, H, Q, R and P0 are block-diagonal over (u, u'), (v, v'), (s, s'), (r), so P
+  stays so and every track's filter is a few 2x2 blocks; predict and update are element-wise array
+  arithmetic (one matrix product for the predict) over all tracks at once, with no per-track loop;
 - association: IoU matrix detections x predicted boxes; if every row and every column has at most
   one IoU above the threshold those pairs are taken directly, otherwise Hungarian assignment on
   ``-IoU`` (``scipy.optimize.linear_sum_assignment``); matched pairs below the threshold are undone;
