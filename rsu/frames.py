@@ -9,7 +9,9 @@ raises :class:`SourceStalled` instead of blocking the caller.
 ``VideoSource`` reads in a small background thread into a bounded queue (1-2 frames): a slow
 consumer of a live source gets the newest frames and the older ones are dropped and counted; a file
 is read at the consumer's pace with no drops. Timestamps come from the container
-(``CAP_PROP_POS_MSEC``) when it gives them, else from frame number / fps, else from the wall clock.
+(``CAP_PROP_POS_MSEC``) when it gives them, else from frame number / fps; live input (camera, URL)
+is stamped with the wall clock (UNIX seconds) when the frame is grabbed. A reader thread blocked
+inside a dead stream cannot be interrupted by OpenCV: ``close`` then leaves it (a daemon thread).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ class Frame:
     image: np.ndarray
     """H x W x 3 uint8, BGR (OpenCV order)."""
     timestamp_s: float
-    """Capture time in seconds: media time for files and folders, source clock for live input."""
+    """Capture time in seconds: media time for files and folders, UNIX time for live input."""
     frame_number: int
     """0-based index of the frame in its source (counts dropped frames too)."""
     source_id: str
@@ -173,7 +175,7 @@ class VideoSource(_IterMixin):
                 elif self.fps and from_file:
                     stamp = number / self.fps
                 else:
-                    stamp = time.monotonic() - wall_start
+                    stamp = time.time()  # live input: wall-clock capture time (UNIX s)
                 last_media_s = max(last_media_s, media_s)
                 if self.realtime:  # pace on media time
                     wait = stamp - (time.monotonic() - wall_start)

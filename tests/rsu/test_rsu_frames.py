@@ -109,12 +109,14 @@ def test_live_source_drops_old_frames_for_a_slow_consumer():
     cap = _FakeCapture(n_ok=60, period_s=0.002, block=False)
     src = VideoSource(0, queue_size=1, capture_factory=lambda _: cap)
     assert src.live and src.source_id == "camera0"
-    numbers = []
+    numbers, stamps = [], []
     while (frame := src.read(timeout_s=2.0)) is not None:
         numbers.append(frame.frame_number)
+        stamps.append(frame.timestamp_s)
         time.sleep(0.02)
     src.close()
     assert src.drops > 0 and len(numbers) + src.drops == 60
+    assert abs(stamps[-1] - time.time()) < 30.0 and stamps == sorted(stamps)  # wall-clock capture times
     assert numbers == sorted(numbers) and numbers[-1] == 59  # newest frames survive
 
 
