@@ -1,0 +1,1 @@
+"""Roadside unit: frame sources, detectors, SORT tracking, localisation, RSU service (DESIGN.md)."""

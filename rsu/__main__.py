@@ -1,0 +1,3 @@
+from rsu.cli import main
+
+raise SystemExit(main())

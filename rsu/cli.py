@@ -1,0 +1,108 @@
+"""``iea-rsu``: run one roadside unit on a video file, camera, stream or image folder."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from protocol.corridor import CorridorError, load_corridor
+from protocol.transport import ZenohSettings, ZenohTransport
+from rsu.detect import MotionDetector, OnnxDetector
+from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
+from rsu.localize import INTERPOLATIONS, Localizer
+from rsu.service import RsuPipeline, RsuService
+from rsu.track import FrameworkTracker
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="iea-rsu",
+        description="Roadside unit: detect and track every vehicle (SORT), localise it on the corridor and "
+                    "publish ObjectList every frame and Health at 1 Hz over Zenoh.",
+        epilog="example: iea-rsu --rsu rsu1 --source ../shared/data/real/traffic_videos/ambdet_video_3.mp4 "
+               "--detector onnx --model ../shared/data/real/yolox_nano/yolox_nano.onnx --annotate out.mp4")
+    ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
+    ap.add_argument("--corridor-id", default=None, help="override the corridor id used in key expressions")
+    ap.add_argument("--rsu", required=True, help="RSU id in the corridor file (its camera and calibration are used)")
+    ap.add_argument("--source", required=True,
+                    help="video file, camera index, rtsp://... or http://... URL, or a folder of images")
+    ap.add_argument("--fps", type=float, default=None, help="frame rate of an image folder (default: the camera's)")
+    ap.add_argument("--realtime", action="store_true", help="play a video file at its own rate, dropping late frames")
+    ap.add_argument("--read-timeout-s", type=float, default=5.0, help="a source silent this long is reported stalled")
+    ap.add_argument("--max-stall-s", type=float, default=None, help="exit (code 3) after a stall this long")
+    ap.add_argument("--queue-size", type=int, default=2, help="frames buffered from a live source (older dropped)")
+    ap.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    ap.add_argument("--detector", choices=["onnx", "motion"], default="motion",
+                    help="onnx: YOLOX-layout model (--model); motion: MOG2 background subtraction")
+    ap.add_argument("--model", default=None, help="ONNX model for --detector onnx")
+    ap.add_argument("--score-threshold", type=float, default=0.3)
+    ap.add_argument("--providers", default=None,
+                    help="onnxruntime providers, comma-separated, or 'auto' (default CPUExecutionProvider)")
+    ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
+    ap.add_argument("--framework", choices=["A", "B"], default="B",
+                    help="B: one class, track every vehicle (thesis 2.3); A: a tracker per class (thesis 2.2)")
+    ap.add_argument("--max-age", type=int, default=1)
+    ap.add_argument("--min-hits", type=int, default=3)
+    ap.add_argument("--iou-threshold", type=float, default=0.3)
+    ap.add_argument("--localization", choices=["transform", "reference"], default="transform",
+                    help="transform: ray-plane back-projection; reference: interpolate the calibration pairs")
+    ap.add_argument("--interpolation", choices=INTERPOLATIONS, default="homography+rbf")
+    ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
+    ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    ZenohSettings.add_arguments(ap)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    log = logging.getLogger("iea-rsu")
+    try:
+        corridor = load_corridor(args.corridor)
+        rsu = corridor.rsu(args.rsu)
+    except (CorridorError, KeyError) as exc:
+        print(f"iea-rsu: {exc}", file=sys.stderr)
+        return 2
+    try:
+        if args.detector == "onnx":
+            if not args.model:
+                print("iea-rsu: --detector onnx needs --model PATH", file=sys.stderr)
+                return 2
+            providers = args.providers if args.providers in (None, "auto") else args.providers.split(",")
+            detector = OnnxDetector(args.model, score_threshold=args.score_threshold, providers=providers,
+                                    intra_op_threads=args.threads)
+        else:
+            detector = MotionDetector()
+        tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
+        localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
+        if Path(args.source).is_dir():
+            source = ImageFolderSource(args.source, args.fps or rsu.camera.fps, source_id=args.rsu)
+        else:
+            source = VideoSource(args.source, source_id=args.rsu, read_timeout_s=args.read_timeout_s,
+                                 queue_size=args.queue_size, realtime=args.realtime)
+        settings = ZenohSettings.from_args(args)
+    except (ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:
+        print(f"iea-rsu: {exc}", file=sys.stderr)
+        return 2
+    transport = ZenohTransport(settings)
+    service = RsuService(corridor, args.rsu, source, RsuPipeline(detector, tracker, localizer), transport,
+                         corridor_id=args.corridor_id, annotate_path=args.annotate, max_frames=args.max_frames,
+                         read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
+    signal.signal(signal.SIGTERM, lambda *_: service.stop())
+    signal.signal(signal.SIGINT, lambda *_: service.stop())
+    log.info("RSU %s: %s -> %s on %s", args.rsu, source.source_id, getattr(detector, "name", "detector"),
+             service.objects_key)
+    try:
+        return service.run()
+    finally:
+        source.close()
+        transport.close()
+        log.info("RSU %s stopped after %d frames (drops %s, stalls %d)", args.rsu, service.frames,
+                 getattr(source, "drops", 0), service.stalls)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

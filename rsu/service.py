@@ -1,0 +1,255 @@
+"""RSU service (thesis 3.2-3.3, Framework B): frame source -> detector -> SORT -> (classifier) -> localiser
+-> ``ObjectList`` every frame and ``Health`` at 1 Hz over a ``Transport``.
+
+:class:`RsuPipeline` is the per-frame wiring of the pure cores (no I/O, no clock); :class:`RsuService`
+is the imperative shell: it pulls frames, times every stage, publishes, writes the optional annotated
+video and reports health. Frames never queue without bound: live sources keep at most
+``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
+reported in Health (``degraded``) and the service keeps waiting for it.
+
+Classifier hook: any callable ``(frame, tracks) -> {track_id: (ev_score, light_state | None)}``
+(the EV classifier of its own issue plugs in here); objects with ``ev_score >= ev_threshold`` are
+published as ``obj_type = ev``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from protocol.clock import Clock, WallClock
+from protocol.corridor import Corridor
+from protocol.keys import rsu_key
+from protocol.messages import (
+    DetectedObject,
+    Health,
+    HealthStatus,
+    LightState,
+    ObjectList,
+    ObjectType,
+    Role,
+)
+from protocol.transport import Transport
+from rsu.detect import EV, Detector
+from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
+from rsu.localize import LocalizedObject, Localizer
+from rsu.track import FrameworkTracker, TrackSet
+
+log = logging.getLogger(__name__)
+
+Classifier = Callable[[Frame, TrackSet], dict[int, tuple[float, LightState | None]]]
+STAGES = ("detect", "track", "classify", "localize", "publish")
+
+
+@dataclass
+class FrameResult:
+    objects: list[DetectedObject]
+    tracks: TrackSet
+    localized: list[LocalizedObject]
+    stage_s: dict[str, float] = field(default_factory=dict)
+
+
+class RsuPipeline:
+    """Detector -> tracker -> classifier hook -> localiser for one camera; ``process(frame)`` per frame."""
+
+    def __init__(self, detector: Detector, tracker: FrameworkTracker, localizer: Localizer,
+                 classifier: Classifier | None = None, ev_threshold: float = 0.5) -> None:
+        self.detector, self.tracker, self.localizer = detector, tracker, localizer
+        self.classifier = classifier
+        self.ev_threshold = ev_threshold
+
+    def process(self, frame: Frame) -> FrameResult:
+        stage_s: dict[str, float] = {}
+        t0 = time.perf_counter()
+        det = self.detector.detect(frame.image)
+        t1 = time.perf_counter()
+        tracks = self.tracker.update(det.boxes, det.scores, det.classes)
+        t2 = time.perf_counter()
+        ev = self.classifier(frame, tracks) if self.classifier is not None else {}
+        t3 = time.perf_counter()
+        localized = self.localizer.update(tracks, frame.timestamp_s)
+        objects = [self._to_message(o, ev.get(o.track_id)) for o in localized]
+        t4 = time.perf_counter()
+        stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3)
+        return FrameResult(objects, tracks, localized, stage_s)
+
+    def _to_message(self, o: LocalizedObject, ev: tuple[float, LightState | None] | None) -> DetectedObject:
+        ev_score = float(np.clip(ev[0], 0.0, 1.0)) if ev else 0.0
+        is_ev = o.class_id == EV or ev_score >= self.ev_threshold
+        return DetectedObject(
+            object_id=o.track_id, pos_x_m=o.x_m, pos_y_m=o.y_m, lat_deg=o.lat_deg, lon_deg=o.lon_deg,
+            bbox_px=o.bbox_px, obj_type=ObjectType.EV if is_ev else ObjectType.VEHICLE,
+            obj_type_cfd=float(np.clip(o.score, 0.0, 1.0)), ev_score=ev_score,
+            light_state=(ev[1] if ev and ev[1] is not None else LightState.UNKNOWN),
+            vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps, heading_rad=o.heading_rad,
+            pos_cov_m2=(max(o.pos_cov_m2[0], 0.0), o.pos_cov_m2[1], max(o.pos_cov_m2[2], 0.0)),
+            lane=o.lane, age_s=max(o.age_s, 0.0), hits=max(o.hits, 0),
+        )
+
+
+def annotate(image: np.ndarray, result: FrameResult) -> np.ndarray:
+    """Boxes, track ids and labels drawn on a copy of the frame (thesis Fig. 2.2 / 3.7)."""
+    out = image.copy()
+    by_id = {o.object_id: o for o in result.objects}
+    for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
+        obj = by_id.get(int(tid))
+        is_ev = obj is not None and obj.obj_type == ObjectType.EV
+        colour = (0, 0, 255) if is_ev else (0, 200, 0)
+        x1, y1, x2, y2 = (int(round(v)) for v in box)
+        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 2)
+        label = f"{int(tid)} {'EV' if is_ev else 'veh'}"
+        if obj is not None:
+            label += f" {obj.speed_mps:.1f}m/s" + (f" L{obj.lane}" if obj.lane is not None else "")
+        cv2.putText(out, label, (x1, max(12, y1 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+    return out
+
+
+class RsuService:
+    """Runs one RSU until its source ends (or ``max_frames``/``stop()``); returns an exit code from ``run``."""
+
+    def __init__(self, corridor: Corridor, rsu_id: str, source: FrameSource, pipeline: RsuPipeline,
+                 transport: Transport, clock: Clock | None = None, *, corridor_id: str | None = None,
+                 annotate_path: str | None = None, max_frames: int | None = None,
+                 read_timeout_s: float = 5.0, max_stall_s: float | None = None,
+                 health_period_s: float = 1.0) -> None:
+        self.corridor = corridor
+        self.rsu_id = rsu_id
+        self.source, self.pipeline, self.transport = source, pipeline, transport
+        self.clock = clock or WallClock()
+        cid = corridor_id or corridor.corridor_id
+        self.objects_key = rsu_key(cid, rsu_id, "objects")
+        self.health_key = rsu_key(cid, rsu_id, "health")
+        self.annotate_path = annotate_path
+        self.max_frames = max_frames
+        self.read_timeout_s = read_timeout_s
+        self.max_stall_s = max_stall_s
+        self.health_period_s = health_period_s
+        self._next_health_s: float | None = None
+        self._seq = {"objects": 0, "health": 0}
+        self._writer: cv2.VideoWriter | None = None
+        self._stop = False
+        self.frames = 0
+        self.stalls = 0
+        self.errors = 0
+        self.last_error = ""
+        self._start_s = self.clock.now()
+        self._period_frames = 0
+        self._period_start_s = self._start_s
+        self._period_stage_s = dict.fromkeys(STAGES, 0.0)
+        self._stalled = False
+
+    def stop(self) -> None:
+        self._stop = True
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> int:
+        stall_started: float | None = None
+        code = 0
+        try:
+            while not self._stop and (self.max_frames is None or self.frames < self.max_frames):
+                try:
+                    frame = self.source.read(self.read_timeout_s)
+                except SourceStalled as exc:
+                    self.stalls += 1
+                    self._stalled = True
+                    self.last_error = str(exc)
+                    stall_started = stall_started if stall_started is not None else self.clock.now()
+                    log.warning("%s", exc)
+                    self._maybe_health(force=True)
+                    if self.max_stall_s is not None and self.clock.now() - stall_started > self.max_stall_s:
+                        log.error("source stalled for more than %.1f s: giving up", self.max_stall_s)
+                        code = 3
+                        break
+                    continue
+                except SourceError as exc:
+                    self.last_error = str(exc)
+                    log.error("%s", exc)
+                    code = 2
+                    break
+                if frame is None:
+                    log.info("source %s ended after %d frames", self.source.source_id, self.frames)
+                    break
+                stall_started, self._stalled = None, False
+                self._process(frame)
+                self._maybe_health()
+        finally:
+            self._maybe_health(force=True, final_error=code != 0)
+            if self._writer is not None:
+                self._writer.release()
+        return code
+
+    def _process(self, frame: Frame) -> None:
+        try:
+            result = self.pipeline.process(frame)
+        except Exception as exc:  # a bad frame must not kill the RSU
+            self.errors += 1
+            self.last_error = f"frame {frame.frame_number}: {exc}"
+            log.exception("processing frame %d failed", frame.frame_number)
+            return
+        t0 = time.perf_counter()
+        msg = ObjectList(src=self.rsu_id, seq=self._seq["objects"], stamp=max(self.clock.now(), 0.0),
+                         rsu_id=self.rsu_id, frame=frame.frame_number,
+                         measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
+        self.transport.publish(self.objects_key, msg)
+        self._seq["objects"] += 1
+        if self.annotate_path:
+            self._write_annotated(frame, result)
+        result.stage_s["publish"] = time.perf_counter() - t0
+        for k, v in result.stage_s.items():
+            self._period_stage_s[k] += v
+        self.frames += 1
+        self._period_frames += 1
+
+    def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
+        image = annotate(frame.image, result)
+        if self._writer is None:
+            fps = float(getattr(self.source, "fps", None) or 15.0)
+            h, w = image.shape[:2]
+            self._writer = cv2.VideoWriter(self.annotate_path, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+            if not self._writer.isOpened():
+                raise SourceError(f"cannot write annotated video to {self.annotate_path!r}")
+        self._writer.write(image)
+
+    # ------------------------------------------------------------------ health
+    def _health_due(self, now: float) -> bool:
+        """1 Hz schedule that skips missed periods. (protocol.clock.RateTimer can fire twice in a row
+        when ``now`` lies within its 1e-9 s tolerance below the due time: floor of a tiny negative
+        number is -1, so the next due time does not move.)"""
+        nxt = self._next_health_s
+        if nxt is not None and now + 1e-9 < nxt:
+            return False
+        nxt = now if nxt is None else nxt
+        while nxt <= now + 1e-9:
+            nxt += self.health_period_s
+        self._next_health_s = nxt
+        return True
+
+    def _maybe_health(self, force: bool = False, final_error: bool = False) -> None:
+        now = self.clock.now()
+        if not (self._health_due(now) or force):
+            return
+        period = max(now - self._period_start_s, 1e-9)
+        n = self._period_frames
+        latency_ms = {k: (1000.0 * v / n if n else 0.0) for k, v in self._period_stage_s.items()}
+        status = HealthStatus.OK
+        if final_error:
+            status = HealthStatus.ERROR
+        elif self._stalled or self.errors:
+            status = HealthStatus.DEGRADED
+        drops = {"source": int(getattr(self.source, "drops", 0) or 0)}
+        msg = Health(src=self.rsu_id, seq=self._seq["health"], stamp=max(now, 0.0), role=Role.RSU, status=status,
+                     uptime_s=max(now - self._start_s, 0.0),
+                     rates_hz={"frames": n / period if n else 0.0},
+                     latency_ms=latency_ms, drops=drops,
+                     rejected={"frame_errors": self.errors, "stalls": self.stalls},
+                     detail=self.last_error[:256])
+        self.transport.publish(self.health_key, msg)
+        self._seq["health"] += 1
+        self._period_frames = 0
+        self._period_start_s = now
+        self._period_stage_s = dict.fromkeys(STAGES, 0.0)

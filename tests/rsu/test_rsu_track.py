@@ -1,0 +1,177 @@
+"""SortTracker: equality with the reference SORT, id behaviour, frameworks A/B."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.sort_reference import HAVE_FILTERPY, ReferenceSort
+from rsu.evaluate import mot_result_lines, read_mot_detections, synthetic_scene
+from rsu.track import FrameworkTracker, SortTracker, iou_matrix
+
+
+def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
+    ours = SortTracker(max_age, min_hits, iou_threshold)
+    ref = ReferenceSort(max_age, min_hits, iou_threshold, use_filterpy=use_filterpy)
+    n_reported = 0
+    for k, f in enumerate(frames):
+        dets = np.hstack([f.det_boxes, f.det_scores[:, None]])
+        a = ours.update(f.det_boxes, f.det_scores).as_mot()
+        b = ref.update(dets)
+        assert a.shape == b.shape, f"frame {k}: {len(a)} tracks vs reference {len(b)}"
+        np.testing.assert_array_equal(a[:, 4], b[:, 4], err_msg=f"frame {k}: ids differ")
+        np.testing.assert_allclose(a[:, :4], b[:, :4], rtol=0, atol=1e-6, err_msg=f"frame {k}")
+        n_reported += len(a)
+        # the live (also unreported) tracks agree in state and full 7x7 covariance
+        assert len(ours) == len(ref.trackers)
+        if len(ours):
+            np.testing.assert_allclose(ours.x, np.hstack([t.kf.x for t in ref.trackers]).T, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(ours.covariance, np.stack([t.kf.P for t in ref.trackers]),
+                                       rtol=1e-9, atol=1e-9)
+    return n_reported
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("max_age,min_hits,iou_threshold", [(1, 3, 0.3), (3, 1, 0.3), (5, 3, 0.5), (2, 0, 0.1)])
+def test_same_tracks_as_reference(seed, max_age, min_hits, iou_threshold):
+    # misses, false positives, births, deaths and crossing targets
+    frames = synthetic_scene(n_frames=120, n_targets=15, seed=seed, miss_prob=0.15, false_pos_per_frame=1.0,
+                             mean_life_frames=40.0)
+    assert _run_both(frames, max_age, min_hits, iou_threshold) > 500
+
+
+@pytest.mark.skipif(not HAVE_FILTERPY, reason="filterpy not installed: reference with filterpy's KalmanFilter skipped")
+def test_same_tracks_as_reference_with_filterpy():
+    frames = synthetic_scene(n_frames=100, n_targets=20, seed=7, miss_prob=0.1, false_pos_per_frame=0.5)
+    assert _run_both(frames, 1, 3, 0.3, use_filterpy=True) > 500
+    assert _run_both(frames, 4, 2, 0.3, use_filterpy=True) > 500
+
+
+def test_mot_det_format_gives_the_reference_output(tmp_path):
+    frames = synthetic_scene(n_frames=60, n_targets=10, seed=3, miss_prob=0.1)
+    rows = []
+    for k, f in enumerate(frames, start=1):
+        for b, s in zip(f.det_boxes, f.det_scores, strict=True):
+            rows.append(f"{k},-1,{b[0]:.3f},{b[1]:.3f},{b[2] - b[0]:.3f},{b[3] - b[1]:.3f},{s:.4f},-1,-1,-1")
+    det_file = tmp_path / "det.txt"
+    det_file.write_text("\n".join(rows) + "\n")
+    per_frame = read_mot_detections(str(det_file))
+    ours, ref = SortTracker(), ReferenceSort()
+    out_ours, out_ref = [], []
+    for frame, dets in per_frame.items():
+        out_ours += mot_result_lines(frame, ours.update_mot(dets))
+        out_ref += mot_result_lines(frame, ref.update(dets))
+    assert len(out_ref) > 300
+    assert out_ours == out_ref
+
+
+def _box(cx, cy, w=40.0, h=30.0):
+    return [cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2]
+
+
+def test_constant_velocity_targets_keep_ids_through_a_missed_frame():
+    trk = SortTracker(max_age=3, min_hits=3, iou_threshold=0.3)
+    ids_seen = {0: set(), 1: set()}
+    for k in range(40):
+        boxes = [_box(100 + 6 * k, 100), _box(600 - 5 * k, 300)]
+        keep = [0, 1]
+        if k in (10, 25):
+            keep = [1]  # target 0 missed for one frame
+        if k == 18:
+            keep = [0]  # target 1 missed for one frame
+        out = trk.update(np.array([boxes[i] for i in keep]))
+        for tid, di in zip(out.track_ids, out.det_indices, strict=True):
+            ids_seen[keep[di]].add(int(tid))
+    assert ids_seen == {0: {1}, 1: {2}}
+
+
+def test_track_lost_for_longer_than_max_age_gets_a_new_id():
+    trk = SortTracker(max_age=1, min_hits=1)
+    ids = []
+    for k in range(20):
+        if 8 <= k < 11:  # three frames missing > max_age = 1
+            trk.update(np.empty((0, 4)))
+            continue
+        out = trk.update(np.array([_box(100 + 3 * k, 100)]))
+        ids += [int(t) for t in out.track_ids]
+    assert set(ids) == {1, 2} and ids[0] == 1 and ids[-1] == 2
+
+
+def test_crossing_targets_keep_their_ids():
+    # two cars in adjacent lanes passing each other: their boxes overlap for several frames
+    trk = SortTracker(max_age=2, min_hits=2)
+    rng = np.random.default_rng(0)
+    labels: dict[int, set[int]] = {0: set(), 1: set()}
+    for k in range(60):
+        gt = np.array([_box(100 + 8 * k, 200, 80, 50), _box(580 - 8 * k, 215, 80, 50)])
+        det = gt + rng.normal(0, 1.0, gt.shape)
+        order = rng.permutation(2)
+        out = trk.update(det[order])
+        for tid, di in zip(out.track_ids, out.det_indices, strict=True):
+            labels[int(order[di])].add(int(tid))
+    overlap = iou_matrix(np.array([_box(100 + 8 * 30, 200, 80, 50)]), np.array([_box(580 - 8 * 30, 215, 80, 50)]))
+    assert overlap[0, 0] > 0.5  # they really cross
+    assert labels == {0: {1}, 1: {2}} or labels == {0: {2}, 1: {1}}
+
+
+def test_no_duplicate_ids_and_ids_never_reused():
+    frames = synthetic_scene(n_frames=150, n_targets=20, seed=11, miss_prob=0.1, false_pos_per_frame=1.0)
+    trk = SortTracker(max_age=3, min_hits=2)
+    retired: set[int] = set()
+    previous: set[int] = set()
+    for f in frames:
+        out = trk.update(f.det_boxes, f.det_scores)
+        ids = [int(t) for t in out.track_ids]
+        assert len(ids) == len(set(ids))
+        assert not set(ids) & retired
+        live = {int(t) for t in trk.track_ids}
+        retired |= previous - live
+        previous = live
+    assert max(previous | retired) > 20
+
+
+def test_outputs_carry_detection_index_score_and_class():
+    trk = SortTracker(min_hits=0)
+    boxes = np.array([_box(100, 100), _box(300, 100)])
+    out = trk.update(boxes, np.array([0.9, 0.6]), np.array([0, 1]))
+    by_det = {int(d): i for i, d in enumerate(out.det_indices)}
+    assert set(by_det) == {0, 1}
+    i = by_det[1]
+    assert out.scores[i] == pytest.approx(0.6) and out.class_ids[i] == 1
+    np.testing.assert_allclose(out.boxes[i], boxes[1])
+
+
+def test_empty_frames_and_bad_arguments():
+    trk = SortTracker()
+    assert len(trk.update(np.empty((0, 4)))) == 0
+    assert len(trk.update_mot(np.empty((0, 5)))) == 0
+    with pytest.raises(ValueError):
+        SortTracker(iou_threshold=1.5)
+    with pytest.raises(ValueError):
+        SortTracker(max_age=-1)
+    with pytest.raises(ValueError):
+        FrameworkTracker("C")
+
+
+def test_framework_a_resets_the_id_on_a_misclassified_frame_b_does_not():
+    def run(framework):
+        trk = FrameworkTracker(framework, max_age=3, min_hits=1)
+        ids = []
+        for k in range(20):
+            cls = 1 if k == 10 else 0  # one frame classified EV
+            out = trk.update(np.array([_box(100 + 4 * k, 100)]), np.array([0.9]), np.array([cls]))
+            ids += [int(t) for t in out.track_ids]
+        return ids
+
+    ids_b = run("B")
+    assert set(ids_b) == {1}
+    ids_a = run("A")
+    assert len(set(ids_a)) >= 2  # the class flip started another track (thesis 2.2)
+    assert ids_a[10] != ids_a[9]
+
+
+def test_framework_a_ids_unique_across_classes():
+    trk = FrameworkTracker("A", min_hits=0)
+    out = trk.update(np.array([_box(100, 100), _box(300, 100), _box(500, 100)]), None, np.array([0, 1, 0]))
+    assert sorted(out.track_ids.tolist()) == [1, 2, 3]
+    assert sorted(out.det_indices.tolist()) == [0, 1, 2]
