@@ -15,7 +15,9 @@ Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) eve
 Only the DDM may therefore send a ``PathSwitchCommand``; vehicles also verify its signature
 (protocol/security.py).
 
-    iea deploy acl [--corridor FILE] --out DIR   # router-acl.json5, users.txt, one credentials file per service
+    iea deploy acl [--corridor FILE] --out DIR [--mtls]
+        router config, and per service either a user/password credentials file or (--mtls) a
+        certificate from a private CA and a TLS client config
 """
 
 from __future__ import annotations
@@ -42,9 +44,12 @@ def service_publish_keys(corridor: Corridor) -> dict[str, list[str]]:
     return out
 
 
-def router_config(corridor: Corridor, dictionary_file: str, listen: list[str] | None = None,
-                  tls: dict[str, str] | None = None) -> dict[str, Any]:
-    """A Zenoh router config (JSON-compatible dict) enforcing the table in the module docstring."""
+def router_config(corridor: Corridor, dictionary_file: str | None, listen: list[str] | None = None,
+                  tls: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A Zenoh router config (JSON-compatible dict) enforcing the table in the module docstring.
+
+    Services are identified by user name (``dictionary_file``, user/password authentication) or, with
+    ``tls`` (mutual TLS), by the common name of their certificate (see ``deploy/certs.py``)."""
     c = corridor.corridor_id
     publish = service_publish_keys(corridor)
     rules: list[dict[str, Any]] = [
@@ -58,19 +63,55 @@ def router_config(corridor: Corridor, dictionary_file: str, listen: list[str] | 
     for user, key_exprs in publish.items():
         rules.append({"id": f"publish-{user}", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
                       "key_exprs": key_exprs})
-        subjects.append({"id": f"user-{user}", "usernames": [user]})
+        who = {"cert_common_names": [user]} if tls and tls.get("enable_mtls") else {"usernames": [user]}
+        subjects.append({"id": f"user-{user}", **who})
         policies.append({"id": f"policy-{user}", "rules": [f"publish-{user}"], "subjects": [f"user-{user}"]})
     config: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": listen or ["tcp/0.0.0.0:7447"]},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"auth": {"usrpwd": {"dictionary_file": dictionary_file}}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": dictionary_file}}} if dictionary_file else {},
         "access_control": {"enabled": True, "default_permission": "deny", "rules": rules,
                            "subjects": subjects, "policies": policies},
     }
     if tls:
         config["transport"]["link"] = {"tls": tls}
     return config
+
+
+def tls_link(pki_dir: str, name: str) -> dict[str, Any]:
+    """The ``transport/link/tls`` section for service ``name`` with mutual TLS (certs from deploy/certs.py)."""
+    return {
+        "root_ca_certificate": f"{pki_dir}/ca.pem",
+        "enable_mtls": True,
+        "listen_private_key": f"{pki_dir}/{name}.key",
+        "listen_certificate": f"{pki_dir}/{name}.pem",
+        "connect_private_key": f"{pki_dir}/{name}.key",
+        "connect_certificate": f"{pki_dir}/{name}.pem",
+    }
+
+
+def write_mtls_bundle(corridor: Corridor, out_dir: Path, listen: list[str] | None = None,
+                      pki_dir_in_services: str | None = None, hosts: list[str] | None = None) -> dict[str, Path]:
+    """A private CA, a certificate per service, the mTLS router config with the ACL, and per-service
+    client configs (``--zenoh-config``). ``pki_dir_in_services`` is where the files are mounted
+    (e.g. in containers); by default the absolute output path."""
+    from deploy.certs import make_pki
+
+    users = list(service_publish_keys(corridor))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    make_pki(["router", *users], out_dir, hosts=hosts)
+    where = pki_dir_in_services or str(out_dir.resolve())
+    cfg = router_config(corridor, None, listen or ["tls/0.0.0.0:7447"], tls=tls_link(where, "router"))
+    router = out_dir / "router-mtls.json5"
+    router.write_text(json.dumps(cfg, indent=2) + "\n", encoding="utf-8")
+    written = {"router": router}
+    for user in users:
+        client = out_dir / f"{user}-mtls.json5"
+        client.write_text(json.dumps({"transport": {"link": {"tls": tls_link(where, user)}}}, indent=2) + "\n",
+                          encoding="utf-8")
+        written[user] = client
+    return written
 
 
 def write_acl_bundle(corridor: Corridor, out_dir: Path, listen: list[str] | None = None,

@@ -127,15 +127,21 @@ def _deploy(argv: list[str]) -> int:
     acl.add_argument("--listen", action="append", default=None, help="router endpoint(s) (default tcp/0.0.0.0:7447)")
     acl.add_argument("--dictionary-path", default=None,
                      help="path of users.txt as the router will see it (e.g. inside a container)")
+    acl.add_argument("--mtls", action="store_true",
+                     help="mutual TLS instead of passwords: a private CA and a certificate per service")
+    acl.add_argument("--pki-path", default=None, help="with --mtls: where services will find the files")
     args = ap.parse_args(argv)
     try:
         corridor = load_corridor(args.corridor)
     except CorridorError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    from deploy.acl import write_acl_bundle
+    from deploy.acl import write_acl_bundle, write_mtls_bundle
 
-    written = write_acl_bundle(corridor, Path(args.out), args.listen, args.dictionary_path)
+    if args.mtls:
+        written = write_mtls_bundle(corridor, Path(args.out), args.listen, args.pki_path)
+    else:
+        written = write_acl_bundle(corridor, Path(args.out), args.listen, args.dictionary_path)
     for name, path in written.items():
         print(f"{name:<10} {path}")
     print("start the router with `iea router --config ROUTER` and each service with "

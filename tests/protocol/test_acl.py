@@ -80,3 +80,44 @@ def test_unknown_user_cannot_join(spawn, tmp_path):
         assert "connect" in str(exc).lower()
     else:
         raise AssertionError("a wrong password was accepted")
+
+
+def test_mutual_tls_router_with_acl(spawn, tmp_path, corridor_id):
+    from deploy.acl import write_mtls_bundle
+    from protocol.corridor import DEFAULT_CORRIDOR
+
+    corridor_file = tmp_path / "corridor.toml"
+    corridor_file.write_text(DEFAULT_CORRIDOR.read_text().replace('id = "rellis"', f'id = "{corridor_id}"', 1))
+    ep = f"tls/localhost:{_free_port()}"
+    written = write_mtls_bundle(load_corridor(corridor_file), tmp_path / "pki", [ep])
+    router = spawn("-m", "deploy", "router", "--config", str(written["router"]), "--duration-s", "30")
+    assert "router ready" in router.stdout.readline()
+
+    def join(user: str) -> ZenohTransport:
+        return ZenohTransport(ZenohSettings(mode="client", connect=[ep], config_file=str(written[user])))
+
+    watcher, ddm, rsu1 = join("rsu4"), join("ddm"), join("rsu1")
+    try:
+        got: list[str] = []
+        cmd_key = keys.vehicle_key(corridor_id, "av1", "cmd")
+        watcher.subscribe(keys.corridor_expr(corridor_id), lambda k, m: got.append(m.src) if k == cmd_key else None)
+        time.sleep(0.5)
+        cmd = example_messages(corridor_id)[3][1]
+        for _ in range(3):
+            ddm.publish(cmd_key, cmd.model_copy(update={"src": "ddm"}))
+            rsu1.publish(cmd_key, cmd.model_copy(update={"src": "rsu1"}))
+            time.sleep(0.2)
+        time.sleep(0.5)
+        assert set(got) == {"ddm"}
+    finally:
+        for t in (watcher, ddm, rsu1):
+            t.close()
+    # a client without a certificate from the corridor's CA is refused
+    plain = tmp_path / "nocert.json5"
+    plain.write_text('{transport: {link: {tls: {root_ca_certificate: "%s"}}}}' % (tmp_path / "pki" / "ca.pem"))
+    try:
+        ZenohTransport(ZenohSettings(mode="client", connect=[ep], config_file=str(plain)))
+    except Exception as exc:
+        assert "connect" in str(exc).lower()
+    else:
+        raise AssertionError("a client without a certificate joined an mTLS router")
