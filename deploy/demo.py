@@ -1,45 +1,293 @@
-"""`iea demo`: run what the corridor can do so far, as separate processes over Zenoh on loopback.
+"""`iea demo`: the main scenario end to end, every service a separate process over Zenoh on loopback.
 
-Today this starts two processes that exchange every message kind of the protocol over Zenoh
-(peer mode, no router) and prints what crossed; it grows into the full rellis_ev_yield scenario
-(simulator, 4 RSUs, DDM, vehicle) as those services land.
+Starts the vehicle (av1), the DDM, one RSU per camera of the corridor (frames rendered from the
+simulator's ground truth by each RSU's SimCamera; perception sees pixels only) and the simulator
+running ``rellis_ev_yield`` in real time, all in Zenoh peer mode (no router). While it runs it prints
+the scenario time, what each service is doing, and the EV alert and the command when they happen;
+then a summary table. The run folder (``runs/demo-<time>/``) holds ``metrics.json``, each service's
+log, the vehicle's run and its plots, and the annotated video of the RSU that saw the EV first.
+
+Evaluation (this module, not the services) reads the simulator's ground truth to score the run.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 import uuid
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass
+class RunMonitor:
+    """Listens to every key of the corridor and records the events and figures of a run."""
+
+    corridor_id: str
+    vehicle_id: str = "av1"
+    events: dict[str, float] = field(default_factory=dict)
+    facts: dict[str, Any] = field(default_factory=dict)
+    sim_time_s: float = 0.0
+    sim_offset_s: float | None = None
+    """wall stamp - sim time, to put sim events on the wall clock."""
+    av: Any = None
+    ev: Any = None
+    vehicle_state: Any = None
+    alerts: list[tuple[float, str, int]] = field(default_factory=list)
+    commands: list[tuple[float, str, str]] = field(default_factory=list)
+    acks: list[tuple[float, str, str]] = field(default_factory=list)
+    min_gap_m: float = math.inf
+    min_ttc_s: float = math.inf
+    ev_min_speed_mps: float = math.inf
+    ev_max_speed_mps: float = 0.0
+    counts: dict[str, int] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def mark(self, name: str, t: float) -> None:
+        self.events.setdefault(name, t)
+
+    def on_message(self, key: str, msg: Any) -> None:
+        now = time.time()
+        kind = msg.KIND
+        with self.lock:
+            self.counts[kind] = self.counts.get(kind, 0) + 1
+            if kind == "WorldSnapshot":
+                self._on_world(msg)
+            elif kind == "EvAlert" and msg.state.value == "active":
+                if not self.alerts:
+                    self.mark("first_ev_alert", msg.stamp)
+                    self.facts["first_alert_rsu"] = msg.rsu_id
+                    self.facts["first_alert_received"] = now
+                self.alerts.append((msg.stamp, msg.rsu_id, msg.object_id))
+            elif kind == "PathSwitchCommand":
+                if not any(c[1] == msg.command_id for c in self.commands):
+                    self.commands.append((msg.stamp, msg.command_id, msg.manoeuvre.value))
+                    if msg.manoeuvre.value != "resume":
+                        self.mark("command_published", msg.issued_at)
+                        self.facts.setdefault("command", f"{msg.manoeuvre.value}: {msg.reason}")
+            elif kind == "CommandAck":
+                self.acks.append((msg.stamp, msg.command_id, msg.status.value))
+                if msg.status.value == "accepted" and self.commands:
+                    self.mark("command_acked", msg.stamp)
+            elif kind == "VehicleState" and msg.vehicle_id == self.vehicle_id:
+                self.vehicle_state = msg
+                if msg.mode.value == "manoeuvre":
+                    self.mark("manoeuvre_start", msg.stamp)
+                if msg.mode.value in ("stopped", "minimal_risk") and msg.speed_mps < 0.05 and "stopped" not in self.events:
+                    self.mark("stopped", msg.stamp)
+                    self.facts["stop_position_m"] = (round(msg.pos_x_m, 2), round(msg.pos_y_m, 2))
+                    self.facts["stop_lane"] = msg.lane
+                    self.facts["stop_mode"] = msg.mode.value
+                self.facts["max_abs_lateral_error_m"] = max(self.facts.get("max_abs_lateral_error_m", 0.0),
+                                                            abs(msg.lateral_error_m))
+
+    def _on_world(self, snap: Any) -> None:
+        self.sim_time_s = snap.sim_time_s
+        if self.sim_offset_s is None:
+            self.sim_offset_s = snap.stamp - snap.sim_time_s
+        av = next((a for a in snap.actors if a.kind.value == "av"), None)
+        ev = next((a for a in snap.actors if a.kind.value == "ev"), None)
+        self.av, self.ev = av, ev
+        if ev is not None:
+            self.ev_min_speed_mps = min(self.ev_min_speed_mps, ev.speed_mps)
+            self.ev_max_speed_mps = max(self.ev_max_speed_mps, ev.speed_mps)
+            if ev.light_bar is not None and ev.light_bar.on:
+                self.mark("lights_on", snap.stamp)
+        if av is None:
+            return
+        if ev is not None and ev.pos_x_m > av.pos_x_m + av.length_m / 2 + ev.length_m / 2:
+            self.mark("ev_passed_av", snap.stamp)
+        for other in snap.actors:
+            if other is av or other.kind.value == "debris":
+                continue
+            dx, dy = other.pos_x_m - av.pos_x_m, other.pos_y_m - av.pos_y_m
+            lateral_clear = abs(dy) - (av.width_m + other.width_m) / 2
+            longitudinal_clear = abs(dx) - (av.length_m + other.length_m) / 2
+            gap = max(lateral_clear, longitudinal_clear)
+            self.min_gap_m = min(self.min_gap_m, gap)
+            if lateral_clear < 0 and longitudinal_clear > 0:  # same lane: time to collision
+                closing = av.speed_mps - other.speed_mps if dx > 0 else other.speed_mps - av.speed_mps
+                if closing > 0.1:
+                    self.min_ttc_s = min(self.min_ttc_s, longitudinal_clear / closing)
+
+    def progress_line(self) -> str:
+        with self.lock:
+            v = self.vehicle_state
+            parts = [f"t={self.sim_time_s:5.1f}s"]
+            if self.ev is not None:
+                lit = self.ev.light_bar is not None and self.ev.light_bar.on
+                parts.append(f"EV x={self.ev.pos_x_m:6.1f} {self.ev.speed_mps:4.1f}m/s lights {'ON ' if lit else 'off'}")
+            if v is not None:
+                parts.append(f"AV x={v.pos_x_m:6.1f} lane={v.lane if v.lane is not None else '-'} "
+                             f"{v.speed_mps:4.1f}m/s {v.mode.value}")
+            parts.append(f"alerts={len(self.alerts)} cmds={len(self.commands)} acks={len(self.acks)}")
+            return " | ".join(parts)
+
+    def metrics(self) -> dict[str, Any]:
+        with self.lock:
+            ev = dict(self.events)
+            base = ev.get("lights_on")
+            rel = {k: (round(t - base, 3) if base is not None else None) for k, t in ev.items()}
+            hop = {}
+            pairs = [("lights_on", "first_ev_alert", "lights_on_to_alert_s"),
+                     ("first_ev_alert", "command_published", "alert_to_command_s"),
+                     ("command_published", "command_acked", "command_to_ack_s"),
+                     ("lights_on", "manoeuvre_start", "lights_on_to_manoeuvre_s"),
+                     ("lights_on", "stopped", "lights_on_to_stop_s")]
+            for a, b, name in pairs:
+                if a in ev and b in ev:
+                    hop[name] = round(ev[b] - ev[a], 3)
+            stopped_before_pass = "stopped" in ev and ("ev_passed_av" not in ev or ev["stopped"] <= ev["ev_passed_av"])
+            return {
+                "corridor_id": self.corridor_id,
+                "events_since_lights_on_s": rel,
+                "latency_s": hop,
+                "first_alert_rsu": self.facts.get("first_alert_rsu"),
+                "command": self.facts.get("command"),
+                "stop_position_m": self.facts.get("stop_position_m"),
+                "stop_lane": self.facts.get("stop_lane"),
+                "stop_mode": self.facts.get("stop_mode"),
+                "stopped_before_ev_passed": stopped_before_pass,
+                "max_abs_lateral_error_m": self.facts.get("max_abs_lateral_error_m"),
+                "min_gap_to_any_vehicle_m": None if math.isinf(self.min_gap_m) else round(self.min_gap_m, 2),
+                "min_time_to_collision_s": None if math.isinf(self.min_ttc_s) else round(self.min_ttc_s, 2),
+                "collision": self.min_gap_m < 0.0,
+                "ev_speed_min_max_mps": (None if math.isinf(self.ev_min_speed_mps)
+                                         else [round(self.ev_min_speed_mps, 2), round(self.ev_max_speed_mps, 2)]),
+                "messages_seen": dict(self.counts),
+                "alerts": len(self.alerts),
+                "commands": [{"id": c[1], "manoeuvre": c[2]} for c in self.commands],
+                "acks": [{"id": a[1], "status": a[2]} for a in self.acks],
+            }
+
+
+def _start(name: str, args: list[str], run_dir: Path, env: dict[str, str]) -> subprocess.Popen:
+    log = open(run_dir / "logs" / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
+    return subprocess.Popen([sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
+                            start_new_session=True)
+
+
+def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
+             corridor_id: str | None = None, quiet: bool = False, detector: str = "motion") -> dict[str, Any]:
+    from protocol import keys
+    from protocol.corridor import load_corridor
+    from protocol.transport import ZenohTransport
+
+    corridor = load_corridor()
+    cid = corridor_id or f"rellis-{uuid.uuid4().hex[:6]}"
+    run_dir = (run_root or ROOT / "runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), PYTHONUNBUFFERED="1")
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    say(f"[demo] corridor {cid}, scenario {scenario}, {duration_s:.0f} s; run folder {run_dir}")
+
+    monitor = RunMonitor(cid)
+    transport = ZenohTransport()
+    transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
+    common = ["--corridor-id", cid]
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        procs["vehicle"] = _start("vehicle", ["-m", "vehicle", "run", *common, "--record", str(run_dir / "vehicle"),
+                                              "--duration", str(duration_s + 4)], run_dir, env)
+        procs["ddm"] = _start("ddm", ["-m", "ddm", "run", *common], run_dir, env)
+        for rsu in corridor.rsus:
+            procs[rsu.rsu_id] = _start(rsu.rsu_id, ["-m", "rsu", "--rsu", rsu.rsu_id, "--source", "sim", *common,
+                                                    "--detector", detector,
+                                                    "--annotate", str(run_dir / f"{rsu.rsu_id}.mp4")], run_dir, env)
+        time.sleep(2.0)  # let every session discover the others before the world starts
+        procs["sim"] = _start("sim", ["-m", "sim", "run", scenario, *common, "--duration", str(duration_s)],
+                              run_dir, env)
+        say("[demo] started: " + ", ".join(f"{k} (pid {p.pid})" for k, p in procs.items()))
+        deadline = time.monotonic() + duration_s + 30
+        last_alerts = last_cmds = 0
+        reported: set[str] = set()
+        while procs["sim"].poll() is None and time.monotonic() < deadline:
+            time.sleep(1.0)
+            say("  " + monitor.progress_line())
+            with monitor.lock:
+                if len(monitor.alerts) > last_alerts and last_alerts == 0:
+                    say(f"  >> EV alert from {monitor.facts.get('first_alert_rsu')}")
+                if len(monitor.commands) > last_cmds:
+                    say(f"  >> command {monitor.commands[-1][1]}: {monitor.commands[-1][2]}")
+                last_alerts, last_cmds = len(monitor.alerts), len(monitor.commands)
+            for name, p in procs.items():
+                if name != "sim" and name not in reported and p.poll() is not None and p.returncode != 0:
+                    reported.add(name)
+                    say(f"  !! {name} exited with code {p.returncode}; see {run_dir / 'logs' / (name + '.log')}")
+        time.sleep(1.0)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in procs.values():
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+        transport.close()
+
+    metrics = monitor.metrics()
+    first = metrics.get("first_alert_rsu")
+    for rsu in corridor.rsus:  # keep the video of the RSU that saw the EV first
+        video = run_dir / f"{rsu.rsu_id}.mp4"
+        if video.exists() and first is not None and rsu.rsu_id != first:
+            video.unlink()
+    if (run_dir / "vehicle").exists():
+        subprocess.run([sys.executable, "-m", "vehicle", "plot", str(run_dir / "vehicle")], env=env, cwd=ROOT,
+                       capture_output=True, timeout=120)
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    metrics["run_dir"] = str(run_dir)
+    return metrics
+
+
+def print_summary(m: dict[str, Any]) -> None:
+    rows = [
+        ("EV lights on -> first EvAlert", m["latency_s"].get("lights_on_to_alert_s"), "s"),
+        ("EvAlert -> command published", m["latency_s"].get("alert_to_command_s"), "s"),
+        ("command -> accepted by the vehicle", m["latency_s"].get("command_to_ack_s"), "s"),
+        ("lights on -> manoeuvre start", m["latency_s"].get("lights_on_to_manoeuvre_s"), "s"),
+        ("lights on -> stopped", m["latency_s"].get("lights_on_to_stop_s"), "s"),
+        ("first alert from", m.get("first_alert_rsu"), ""),
+        ("command", m.get("command"), ""),
+        ("stop position (x, y)", m.get("stop_position_m"), "m"),
+        ("stop lane (None: shoulder)", m.get("stop_lane"), ""),
+        ("stopped before the EV passed", m.get("stopped_before_ev_passed"), ""),
+        ("max |lateral error|", m.get("max_abs_lateral_error_m"), "m"),
+        ("min gap to any vehicle", m.get("min_gap_to_any_vehicle_m"), "m"),
+        ("min time to collision", m.get("min_time_to_collision_s"), "s"),
+        ("collision", m.get("collision"), ""),
+        ("EV speed min / max", m.get("ev_speed_min_max_mps"), "m/s"),
+    ]
+    print("\n summary")
+    for name, value, unit in rows:
+        v = "-" if value is None else (f"{value:.3f}" if isinstance(value, float) else str(value))
+        print(f"  {name:<36} {v} {unit}")
+    print(f"  run folder: {m.get('run_dir')}")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="iea demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rounds", type=int, default=5, help="rounds of messages to exchange")
+    ap.add_argument("--scenario", default="rellis_ev_yield", help="scenario name (iea-sim list)")
+    ap.add_argument("--duration-s", type=float, default=30.0, help="scenario time to run")
+    ap.add_argument("--detector", choices=["motion", "onnx"], default="motion", help="RSU detector")
+    ap.add_argument("--runs", default=str(ROOT / "runs"), help="where run folders go")
     args = ap.parse_args(argv)
-    corridor = f"demo{uuid.uuid4().hex[:6]}"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    base = [sys.executable, "-m", "protocol.loopback"]
-    print(f"[demo] corridor {corridor}: starting a receiver and a sender process over Zenoh (peer mode, loopback)")
-    recv = subprocess.Popen([*base, "receive", "--corridor-id", corridor, "--expect", str(args.rounds),
-                             "--timeout-s", "30"], stdout=subprocess.PIPE, text=True, env=env)
-    assert recv.stdout is not None
-    recv.stdout.readline()
-    send = subprocess.run([*base, "send", "--corridor-id", corridor, "--rounds", str(args.rounds + 1)],
-                          capture_output=True, text=True, env=env, timeout=60)
-    out, _ = recv.communicate(timeout=60)
-    result = json.loads(out.strip().splitlines()[-1])
-    print(f"{'message kind':<20}{'received':>10}")
-    for kind, n in sorted(result["kinds"].items()):
-        print(f"{kind:<20}{n:>10}")
-    print(f"[demo] rejected inputs: {result['rejected'] or 'none'}; complete: {result['complete']}")
-    return 0 if result["complete"] and send.returncode == 0 else 1
+    m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector)
+    print_summary(m)
+    ok = bool(m.get("stopped_before_ev_passed")) and not m.get("collision")
+    print(f"\n[demo] {'PASS' if ok else 'FAIL'}: the AV {'moved right and stopped before the EV passed' if ok else 'did not complete the pull-over safely'}")
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
