@@ -26,94 +26,14 @@ from typing import Any
 
 import numpy as np
 
+from protocol.tomlfields import FieldReader
+
 EARTH_RADIUS_M = 6_378_137.0
 DEFAULT_CORRIDOR = Path(__file__).resolve().parent.parent / "deploy" / "corridors" / "rellis.toml"
 
 
 class CorridorError(ValueError):
     """A corridor file that cannot be used; the message says where and why."""
-
-
-# ----------------------------------------------------------------------------- reading helpers
-class _Reader:
-    def __init__(self, source: str, data: dict[str, Any], path: str = "") -> None:
-        self.source, self.data, self.path = source, data, path
-
-    def _where(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def fail(self, key: str, expected: str, got: Any = None) -> CorridorError:
-        got_s = "" if got is None else f", got {got!r}"
-        return CorridorError(f"{self.source}: field '{self._where(key)}': expected {expected}{got_s}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def num(self, key: str, default: float | None = None, *, lo: float | None = None,
-            hi: float | None = None, positive: bool = False) -> float:
-        if key not in self.data:
-            if default is None:
-                raise self.fail(key, "a number (missing)")
-            return float(default)
-        v = self.data[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise self.fail(key, "a finite number", v)
-        if positive and not v > 0:
-            raise self.fail(key, "a number > 0", v)
-        if lo is not None and v < lo or hi is not None and v > hi:
-            raise self.fail(key, f"a number in [{lo}, {hi}]", v)
-        return float(v)
-
-    def integer(self, key: str, default: int | None = None, *, lo: int = 0, hi: int = 10**9) -> int:
-        if key not in self.data:
-            if default is None:
-                raise self.fail(key, "an integer (missing)")
-            return default
-        v = self.data[key]
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise self.fail(key, f"an integer in [{lo}, {hi}]", v)
-        return v
-
-    def text(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
-             ident: bool = False) -> str:
-        if key not in self.data:
-            if default is None:
-                raise self.fail(key, "a string (missing)")
-            return default
-        v = self.data[key]
-        if not isinstance(v, str) or not v:
-            raise self.fail(key, "a non-empty string", v)
-        if choices is not None and v not in choices:
-            raise self.fail(key, f"one of {list(choices)}", v)
-        if ident and not all(c.isalnum() or c in "_-." for c in v):
-            raise self.fail(key, "an id of letters, digits, '_', '-', '.'", v)
-        return v
-
-    def table(self, key: str, required: bool = True) -> _Reader:
-        if key not in self.data:
-            if required:
-                raise self.fail(key, "a table (missing)")
-            return _Reader(self.source, {}, self._where(key))
-        v = self.data[key]
-        if not isinstance(v, dict):
-            raise self.fail(key, "a table", type(v).__name__)
-        return _Reader(self.source, v, self._where(key))
-
-    def tables(self, key: str, required: bool = True) -> list[_Reader]:
-        if key not in self.data:
-            if required:
-                raise self.fail(key, "an array of tables (missing)")
-            return []
-        v = self.data[key]
-        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
-            raise self.fail(key, "an array of tables ([[...]])", type(v).__name__)
-        return [_Reader(self.source, x, f"{self._where(key)}[{i}]") for i, x in enumerate(v)]
-
-    def str_list(self, key: str) -> list[str]:
-        v = self.data.get(key, [])
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-            raise self.fail(key, "a list of strings", v)
-        return list(v)
 
 
 # ----------------------------------------------------------------------------- road geometry
@@ -357,7 +277,7 @@ class Corridor:
 
 
 # ----------------------------------------------------------------------------- loading
-def _load_road(r: _Reader) -> Road:
+def _load_road(r: FieldReader) -> Road:
     segs = []
     for sr in r.tables("segments"):
         kind = sr.text("kind", choices=("straight", "arc"))
@@ -383,7 +303,7 @@ def _load_road(r: _Reader) -> Road:
     )
 
 
-def _load_camera(c: _Reader, x: float, y: float) -> CameraConfig:
+def _load_camera(c: FieldReader, x: float, y: float) -> CameraConfig:
     width = c.integer("width_px", 1280, lo=64, hi=8192)
     height = c.integer("height_px", 720, lo=48, hi=8192)
     fx = c.num("fx_px", positive=True)
@@ -404,7 +324,7 @@ def _load_camera(c: _Reader, x: float, y: float) -> CameraConfig:
     )
 
 
-def _load_calibration(r: _Reader) -> tuple[tuple[float, float, float, float], ...]:
+def _load_calibration(r: FieldReader) -> tuple[tuple[float, float, float, float], ...]:
     pts = r.data.get("calibration", [])
     if not isinstance(pts, list):
         raise r.fail("calibration", "a list of [u_px, v_px, x_m, y_m]", type(pts).__name__)
@@ -418,7 +338,7 @@ def _load_calibration(r: _Reader) -> tuple[tuple[float, float, float, float], ..
 
 
 def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor:
-    top = _Reader(source, data)
+    top = FieldReader(source, data, error=CorridorError)
     c = top.table("corridor")
     corridor_id = c.text("id", ident=True)
     road = _load_road(top.table("road"))

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.corridor import DEFAULT_CORRIDOR, Corridor, CorridorError, load_corridor
+from protocol.tomlfields import FieldReader
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 CORRIDOR_DIR = DEFAULT_CORRIDOR.parent
@@ -110,66 +111,6 @@ class Scenario:
                        lighting=self.lighting if lighting is None else lighting)
 
 
-class _R:
-    def __init__(self, source: str, data: dict[str, Any], path: str) -> None:
-        self.source, self.data, self.path = source, data, path
-
-    def fail(self, key: str, expected: str, got: Any = None) -> ScenarioError:
-        where = f"{self.path}.{key}" if self.path else key
-        got_s = "" if got is None else f", got {got!r}"
-        return ScenarioError(f"{self.source}: field '{where}': expected {expected}{got_s}")
-
-    def num(self, key: str, default: float | None = None, lo: float | None = None, hi: float | None = None) -> float:
-        if key not in self.data:
-            if default is None:
-                raise self.fail(key, "a number (missing)")
-            return float(default)
-        v = self.data[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or v != v or v in (float("inf"), float("-inf")):
-            raise self.fail(key, "a finite number", v)
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            raise self.fail(key, f"a number in [{lo}, {hi}]", v)
-        return float(v)
-
-    def integer(self, key: str, default: int, lo: int = 0, hi: int = 2**31) -> int:
-        v = self.data.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise self.fail(key, f"an integer in [{lo}, {hi}]", v)
-        return v
-
-    def text(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
-        if key not in self.data:
-            if default is None:
-                raise self.fail(key, "a string (missing)")
-            return default
-        v = self.data[key]
-        if not isinstance(v, str) or not v:
-            raise self.fail(key, "a non-empty string", v)
-        if choices and v not in choices:
-            raise self.fail(key, f"one of {list(choices)}", v)
-        return v
-
-    def table(self, key: str) -> _R | None:
-        if key not in self.data:
-            return None
-        v = self.data[key]
-        if not isinstance(v, dict):
-            raise self.fail(key, "a table", type(v).__name__)
-        return _R(self.source, v, f"{self.path}.{key}" if self.path else key)
-
-    def tables(self, key: str) -> list[_R]:
-        v = self.data.get(key, [])
-        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
-            raise self.fail(key, "an array of tables ([[...]])", type(v).__name__)
-        return [_R(self.source, x, f"{key}[{i}]") for i, x in enumerate(v)]
-
-    def check_keys(self, allowed: set[str]) -> None:
-        unknown = sorted(set(self.data) - allowed)
-        if unknown:
-            raise ScenarioError(f"{self.source}: unknown field(s) {unknown} in '{self.path or 'top level'}'; "
-                                f"allowed: {sorted(allowed)}")
-
-
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
     """A scenario name (``rellis_ev_yield``) or a path to a TOML file."""
     p = Path(name_or_path)
@@ -205,9 +146,9 @@ def load_scenario(name_or_path: str | Path, corridor: Corridor | None = None) ->
 
 
 def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: Corridor | None = None) -> Scenario:
-    top = _R(source, data, "")
+    top = FieldReader(source, data, error=ScenarioError)
     top.check_keys({"scenario", "traffic", "av", "ev", "hazard", "distractor"})
-    sc = top.table("scenario")
+    sc = top.optional_table("scenario")
     if sc is None:
         raise top.fail("scenario", "a [scenario] table (missing)")
     sc.check_keys({"name", "description", "corridor", "duration_s", "seed", "lighting"})
@@ -222,11 +163,11 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
     road = corridor.road
     lanes = road.lanes
 
-    def lane_of(r: _R, key: str, default: int) -> int:
+    def lane_of(r: FieldReader, key: str, default: int) -> int:
         return r.integer(key, default, lo=0, hi=lanes - 1)
 
     traffic = TrafficSpec()
-    tr = top.table("traffic")
+    tr = top.optional_table("traffic")
     if tr is not None:
         tr.check_keys(set(TrafficSpec.__dataclass_fields__))
         d = TrafficSpec()
@@ -250,14 +191,14 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
             raise tr.fail("van_fraction", "van + truck + bus fractions <= 1")
 
     av = None
-    avr = top.table("av")
+    avr = top.optional_table("av")
     if avr is not None:
         avr.check_keys({"id", "start_s_m", "lane", "speed_mps"})
         av = AvSpec(vehicle_id=avr.text("id", "av1"), start_s_m=avr.num("start_s_m", 100.0, 0.0, road.length_m),
                     lane=lane_of(avr, "lane", min(1, lanes - 1)), speed_mps=avr.num("speed_mps", 13.4, 0.0, 40.0))
 
     ev = None
-    evr = top.table("ev")
+    evr = top.optional_table("ev")
     if evr is not None:
         evr.check_keys({"start_offset_m", "start_s_m", "lane", "speed_mps", "lights_on_at_s", "pattern",
                         "frequency_hz", "body"})
@@ -274,14 +215,14 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
                     body=evr.text("body", "ambulance", EV_BODIES))
 
     hazards = []
-    for hr in top.tables("hazard"):
+    for hr in top.tables("hazard", required=False):
         hr.check_keys(set(HazardSpec.__dataclass_fields__))
         hazards.append(HazardSpec(s_m=hr.num("s_m", None, 0.0, road.length_m), lane=lane_of(hr, "lane", 0),
                                   length_m=hr.num("length_m", 0.8, 0.1, 5.0), width_m=hr.num("width_m", 0.7, 0.1, 3.0),
                                   height_m=hr.num("height_m", 0.35, 0.05, 2.0),
                                   offset_m=hr.num("offset_m", 0.0, -2.0, 2.0)))
     distractors = []
-    for dr in top.tables("distractor"):
+    for dr in top.tables("distractor", required=False):
         dr.check_keys(set(DistractorSpec.__dataclass_fields__))
         distractors.append(DistractorSpec(kind=dr.text("kind", None, DISTRACTOR_TYPES),
                                           s_m=dr.num("s_m", None, 0.0, road.length_m), lane=lane_of(dr, "lane", 0),
