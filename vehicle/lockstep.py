@@ -200,6 +200,14 @@ def compute_metrics(sc: Scenario, sim: SimulatedVehicle, rec: RunRecord, acks: l
         # after settling: RMS of the true error from 1 s past the end of the lane change to the stop
         "settled_lateral_error_m": float(np.sqrt(np.mean(lat[settle] ** 2))) if settle.any() else math.nan,
         "settled_lateral_max_m": float(lat[settle].max()) if settle.any() else math.nan,
+        # the settled error split: mean (bias) and standard deviation (noise) of the signed true error,
+        # and the estimator's share, the RMS of (true - estimated) lateral error over the same window
+        "settled_lateral_mean_m": float(np.mean(c["lateral_error_m"][settle])) if settle.any() else math.nan,
+        "settled_lateral_std_m": float(np.std(c["lateral_error_m"][settle])) if settle.any() else math.nan,
+        "settled_estimate_error_m": float(np.sqrt(np.mean((c["lateral_error_m"][settle]
+                                                           - c["est_lateral_error_m"][settle]) ** 2)))
+        if settle.any() else math.nan,
+        "settled_from_s": float(t[settle][0]) if settle.any() else math.nan,
         "max_yaw_error_rad": float(np.abs(c["yaw_error_rad"][moving]).max()) if moving.any() else math.nan,
         "max_yaw_rate_error_rps": float(np.abs(c["yaw_rate_error_rps"][moving]).max()) if moving.any() else math.nan,
         "stop_error_m": None if stop_err is None else float(abs(stop_err)),
