@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from vehicle.lateral import LateralController, LateralGains, closed_loop_eigenvalues, stability_margin  # noqa: E402
+from vehicle.localisation import lateral_error_floor_m  # noqa: E402
 from vehicle.lockstep import field_test_scenario, run_scenario  # noqa: E402
 from vehicle.longitudinal import LongitudinalController  # noqa: E402
 from vehicle.plant import VehicleParams  # noqa: E402
@@ -57,20 +58,6 @@ def controller_step_us(iterations: int = 20000) -> float:
             lon.step(13.4, 13.4, path.stop_s_m - out.s_m)
         samples.append((time.perf_counter() - t0) / len(range(chunk, iterations, 5)) * 1e6)
     return statistics.median(samples)
-
-
-def estimator_floor_m(speed_mps: float, sigma_m: float = 0.2, rate_hz: float = 10.0,
-                      gyro_sigma_rps: float = 0.002, dt_s: float = 0.01) -> float:
-    """Steady lateral standard deviation of any GNSS + gyro estimate of a car at this speed.
-
-    Heading is a random walk of density q_psi = gyro_sigma^2 dt (white gyro noise at the control
-    rate), so the lateral position is a double integrator driven by v^2 q_psi; GNSS fixes are a
-    continuous measurement of density r = sigma^2 / rate. The Kalman steady state of that model is
-    P_yy = sqrt(2) (v^2 q_psi)^(1/4) r^(3/4).
-    """
-    q = speed_mps ** 2 * gyro_sigma_rps ** 2 * dt_s
-    r = sigma_m ** 2 / rate_hz
-    return math.sqrt(math.sqrt(2.0) * q ** 0.25 * r ** 0.75)
 
 
 def settling_split(seeds: int) -> dict:
@@ -105,7 +92,7 @@ def settling_split(seeds: int) -> dict:
         worst = {k: max(abs(m[k]) for m in ms) for k in ("settled_lateral_error_m", "settled_lateral_max_m",
                                                           "settled_lateral_mean_m", "settled_lateral_std_m")}
         est = float(np.mean([m["settled_estimate_error_m"] for m in ms]))
-        floor = estimator_floor_m(v)
+        floor = lateral_error_floor_m(v)
         name = "line" if radius is None else f"R{radius:g}"
         print(f"{name:>6} {v:6.1f} {ms[0]['settled_lateral_error_m']:6.3f} {worst['settled_lateral_error_m']:6.3f} "
               f"{ms[0]['settled_lateral_max_m']:6.3f} {worst['settled_lateral_max_m']:6.3f} "
@@ -122,7 +109,7 @@ def settling_split(seeds: int) -> dict:
         out[f"{tag}_clean_settled_lateral_max_m"] = round(clean["settled_lateral_max_m"], 4)
     print("('rms'/'max': seed 0; '.w': worst seed; 'est.rms': RMS of true - estimated lateral error in the window; "
           "'EKF sd': the filter's own lateral sd there;\n 'floor': steady sd of any GNSS + gyro estimate "
-          "(estimator_floor_m); 'clean': sigma 0, the controller's share; 'eq4.13': clean, constant-speed "
+          "(vehicle.localisation.lateral_error_floor_m); 'clean': sigma 0, the controller's share; 'eq4.13': clean, constant-speed "
           "feedforward)\n")
     return out
 
