@@ -7,7 +7,14 @@ noise and latency, the stability margin of the gain schedule, and the controller
 
 Reference case (the issue's): 13.4 m/s, left lane, change one lane right (3.7 m) and stop; GNSS
 sigma 0.2 m at 10 Hz with 100 ms latency. Baseline measured in the same run: the plain thesis
-controller (eqs. 4.13-4.15 with the curvature at the car, no preview, no sideslip term).
+controller (eqs. 4.13-4.15 with the curvature at the car, no preview, no sideslip or acceleration
+term).
+
+Settled error split (13.4 and 25 m/s, straight and R = 200 m): RMS and max over the settled
+window, its mean (bias) and standard deviation, the estimator's share (RMS of true minus
+estimated lateral error), the same run without GNSS noise (the controller's share) and, on the
+curve, the constant-speed feedforward of eq. 4.13 as the baseline; plus the EKF's own lateral
+standard deviation over the window and the analytic floor of a GNSS + gyro estimate.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from vehicle.lateral import LateralController, LateralGains, closed_loop_eigenvalues, stability_margin  # noqa: E402
+from vehicle.localisation import lateral_error_floor_m  # noqa: E402
 from vehicle.lockstep import field_test_scenario, run_scenario  # noqa: E402
 from vehicle.longitudinal import LongitudinalController  # noqa: E402
 from vehicle.plant import VehicleParams  # noqa: E402
@@ -50,6 +58,60 @@ def controller_step_us(iterations: int = 20000) -> float:
             lon.step(13.4, 13.4, path.stop_s_m - out.s_m)
         samples.append((time.perf_counter() - t0) / len(range(chunk, iterations, 5)) * 1e6)
     return statistics.median(samples)
+
+
+def settling_split(seeds: int) -> dict:
+    """Settled-window figures per case (see the module docstring); returns the JSON figures."""
+    print(f"Settled lateral error split (sigma 0.2 m, 10 Hz, 100 ms; {seeds} seed(s); metres; 'worst' over seeds)")
+    head = (f"{'road':>6} {'v m/s':>6} {'rms':>6} {'rms.w':>6} {'max':>6} {'max.w':>6} {'|bias|w':>7} {'std.w':>6} "
+            f"{'est.rms':>7} {'EKF sd':>6} {'floor':>6} | {'clean rms':>9} {'clean max':>9} | {'eq4.13 rms':>10} "
+            f"{'eq4.13 max':>10}")
+    print(head)
+    print("-" * len(head))
+    out = {}
+    for radius, v in ((None, 13.4), (None, 25.0), (200.0, 13.4), (200.0, 25.0)):
+        ms, sds = [], []
+        for seed in range(seeds):
+            lat_sd: list[tuple[float, float]] = []
+
+            def ekf_sd(sim, now, lat_sd=lat_sd):
+                est = sim.core.estimator
+                n = np.array([-math.sin(est.x[2]), math.cos(est.x[2])])
+                lat_sd.append((now, float(math.sqrt(n @ est.P[:2, :2] @ n))))
+
+            m = run_scenario(field_test_scenario(v, radius_m=radius, seed=seed), ekf_sd).metrics
+            ms.append(m)
+            sds.append(float(np.mean([sd for t, sd in lat_sd if t >= m["settled_from_s"]])))
+        clean = run_scenario(field_test_scenario(v, 0.0, 0.1, radius_m=radius)).metrics
+
+        def constant_speed_ff(sim, now):
+            sim.core.lateral.accel_feedforward = False
+
+        base = run_scenario(field_test_scenario(v, 0.0, 0.1, radius_m=radius), constant_speed_ff).metrics \
+            if radius else None
+        worst = {k: max(abs(m[k]) for m in ms) for k in ("settled_lateral_error_m", "settled_lateral_max_m",
+                                                          "settled_lateral_mean_m", "settled_lateral_std_m")}
+        est = float(np.mean([m["settled_estimate_error_m"] for m in ms]))
+        floor = lateral_error_floor_m(v)
+        name = "line" if radius is None else f"R{radius:g}"
+        print(f"{name:>6} {v:6.1f} {ms[0]['settled_lateral_error_m']:6.3f} {worst['settled_lateral_error_m']:6.3f} "
+              f"{ms[0]['settled_lateral_max_m']:6.3f} {worst['settled_lateral_max_m']:6.3f} "
+              f"{worst['settled_lateral_mean_m']:7.3f} {worst['settled_lateral_std_m']:6.3f} {est:7.3f} "
+              f"{float(np.mean(sds)):6.3f} {floor:6.3f} | {clean['settled_lateral_error_m']:9.3f} "
+              f"{clean['settled_lateral_max_m']:9.3f} | {fmt(base and base['settled_lateral_error_m']):>10} "
+              f"{fmt(base and base['settled_lateral_max_m']):>10}", flush=True)
+        tag = f"{name.lower()}_{format(v, 'g').replace('.', 'p')}mps"
+        out[f"{tag}_settled_lateral_error_m"] = round(ms[0]["settled_lateral_error_m"], 4)
+        out[f"{tag}_settled_lateral_max_m"] = round(ms[0]["settled_lateral_max_m"], 4)
+        out[f"{tag}_settled_lateral_error_worst_m"] = round(worst["settled_lateral_error_m"], 4)
+        out[f"{tag}_settled_lateral_max_worst_m"] = round(worst["settled_lateral_max_m"], 4)
+        out[f"{tag}_settled_estimate_error_m"] = round(est, 4)
+        out[f"{tag}_clean_settled_lateral_max_m"] = round(clean["settled_lateral_max_m"], 4)
+    print("('rms'/'max': seed 0; '.w': worst seed; 'est.rms': RMS of true - estimated lateral error in the window; "
+          "'EKF sd': the filter's own lateral sd there;\n 'floor': steady sd of any GNSS + gyro estimate "
+          "(vehicle.localisation.lateral_error_floor_m); 'clean': sigma 0, the controller's share; 'eq4.13': clean, constant-speed "
+          "feedforward)\n")
+    return out
 
 
 def fmt(v) -> str:
@@ -103,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"(grid: {time.perf_counter() - t_grid:.1f} s; 'settl' = RMS of |e| from 1 s after the lane change to "
           f"the stop, 'stop' = distance to the stop point)\n")
 
+    split = settling_split(seeds)
+
     print("Localisation from the RSU track of the car (sigma 0.3 m, 15 Hz, 200 ms latency, 5% dropouts):")
     rsu = run_scenario(field_test_scenario(13.4, 0.3, 0.2, 15.0, None, 0, source="rsu", dropout_prob=0.05)).metrics
     print(f"  max|e| {rsu['max_lateral_error_m']:.3f} m, settled {rsu['settled_lateral_error_m']:.3f} m, "
@@ -111,9 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     ref_runs = [run_scenario(field_test_scenario(seed=s)) for s in range(seeds)]
     ref = ref_runs[0].metrics
 
-    def plain(sim, now):  # the thesis controller as printed: no preview, no sideslip term
+    def plain(sim, now):  # the thesis controller as printed: no preview, sideslip or acceleration term
         sim.core.lateral.preview_s = 0.0
         sim.core.lateral.sideslip_compensation = False
+        sim.core.lateral.accel_feedforward = False
 
     base = run_scenario(field_test_scenario(seed=0), plain).metrics
     step_us = controller_step_us(4000 if args.quick else 20000)
@@ -139,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
             "stability_max_real_part": round(worst_re, 4),
             "stability_min_damping": round(worst_zeta, 4),
             "sim_step_us": round(ref["sim_step_us"], 2),
+            **split,
         }))
     return 0
 

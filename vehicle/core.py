@@ -86,6 +86,7 @@ class VehicleCore:
         """Increments whenever the reference path changes (for recording)."""
         self._lane_paths: dict[int, ReferencePath] = {}
         self._vy = 0.0
+        self._accel = 0.0
 
     # ------------------------------------------------------------------ setup
     def lane_path(self, lane: int) -> ReferencePath:
@@ -177,6 +178,13 @@ class VehicleCore:
                 self._vy += dvy * dt_s / n
         return self._vy
 
+    def _accel_model(self, dt_s: float) -> float:
+        """The car's longitudinal acceleration: its own last command through the actuator lag."""
+        cmd = 0.0 if self.last is None else self.last.accel_cmd_mps2
+        lag = self.config.params.accel_lag_s
+        self._accel += (cmd - self._accel) * (min(1.0, dt_s / lag) if lag > 0 else 1.0)
+        return self._accel
+
     def control(self, now_s: float, speed_mps: float, yaw_rate_rps: float, dt_s: float,
                 steer_rad: float | None = None) -> ControlOutput:
         """One control step from odometry (and the steering-angle sensor); returns actuator commands and
@@ -190,7 +198,7 @@ class VehicleCore:
             decisions += self._minimal_risk(reason)
         assert self.path is not None
         x, y, yaw = self.estimator.pose
-        lat = self.lateral.step(self.path, x, y, yaw, speed_mps, yaw_rate_rps, dt_s)
+        lat = self.lateral.step(self.path, x, y, yaw, speed_mps, yaw_rate_rps, dt_s, self._accel_model(dt_s))
         dist = None if self.stop_s_m is None else self.stop_s_m - lat.s_m
         if self.mode == VehicleMode.STOPPED:
             dist = 0.0

@@ -2,8 +2,12 @@
 
 - Feedforward (eq. 4.13): delta_ff = L kappa + (m/L)(b/C_f - a/C_r) v_x^2 kappa, with the signed
   curvature kappa = 1/R of the arc fitted a short preview ahead (the actuator lags the command), plus
-  the steady-state sideslip term -k_theta beta_ss(kappa, v_x) so that the yaw-error feedback does not
-  fight the heading a car must hold to corner on the path (zero on a straight road).
+  the sideslip term -k_theta beta(kappa, v_x) so that the yaw-error feedback does not fight the
+  heading a car must hold to corner on the path (zero on a straight road). When the car speeds up or
+  brakes in a bend, (delta, beta) come from eqs. 4.11-4.12 with the longitudinal acceleration
+  (``VehicleParams.cornering_steer``): braking from 25 m/s on R = 200 m the sideslip unwinds, so the
+  heading turns slower than the path and the car needs ~5 % less steering than eq. 4.13; with the
+  weak high-speed feedback (k_e ~ 1/v^2) that mismatch alone held the car 3-7 cm off the path.
 - Feedback (eq. 4.14 as in SPEC.md): delta_fb = -k_e e_lat - k_theta yaw_err - k_omega yaw_rate_err.
 - Steering (eq. 4.15): delta = delta_ff + delta_fb, clipped to the angle limit and rate limited.
 
@@ -73,6 +77,8 @@ class LateralController:
     time constant of the bicycle, I v / (a^2 C_f + b^2 C_r), which is how late the yaw rate follows
     a steering change."""
     sideslip_compensation: bool = True
+    accel_feedforward: bool = True
+    """Include the longitudinal acceleration in the feedforward (off: eq. 4.13 at constant speed)."""
     _hint: int | None = None
     _last_cmd: float = 0.0
 
@@ -86,7 +92,7 @@ class LateralController:
         self._hint = None
 
     def step(self, path: ReferencePath, x_m: float, y_m: float, yaw_rad: float, speed_mps: float,
-             yaw_rate_rps: float, dt_s: float) -> LateralOutput:
+             yaw_rate_rps: float, dt_s: float, accel_mps2: float = 0.0) -> LateralOutput:
         p = self.params
         proj = path.project(x_m, y_m, self._hint)
         self._hint = proj.index
@@ -98,9 +104,9 @@ class LateralController:
         kappa = ahead.curvature_1pm
         k_e, k_theta, k_omega = self.gains.at_wheelbase(speed_mps, p.wheelbase_m)
         # eq. 4.13 with signed curvature
-        ff = p.wheelbase_m * kappa + p.understeer_gradient * speed_mps ** 2 * kappa
+        ff, beta = p.cornering_steer(kappa, speed_mps, accel_mps2 if self.accel_feedforward else 0.0)
         if self.sideslip_compensation:
-            ff -= k_theta * p.steady_sideslip_rad(kappa, speed_mps)
+            ff -= k_theta * beta
         # eq. 4.14 (SPEC.md form) and 4.15
         fb = -k_e * e_lat - k_theta * yaw_err - k_omega * yaw_rate_err
         cmd = min(p.max_steer_rad, max(-p.max_steer_rad, ff + fb))

@@ -68,6 +68,34 @@ class VehicleParams:
         return curvature_1pm * (p.cg_to_rear_m - p.cg_to_front_m * p.mass_kg * speed_mps ** 2
                                 / (p.cornering_rear_npr * p.wheelbase_m))
 
+    def cornering_steer(self, curvature_1pm: float, speed_mps: float,
+                        accel_mps2: float = 0.0) -> tuple[float, float]:
+        """(road-wheel angle, CG sideslip) that hold a path of this curvature at this speed and accel.
+
+        Eqs. 4.11-4.12 solved for (delta, v_y) with the course turning at v_x kappa while the sideslip
+        follows its steady value beta_ss(v_x) = kappa (b - a m v_x^2 / (C_r L)): r = v_x kappa - beta_ss',
+        r' ~ a_x kappa, v_y' = d/dt(v_x beta_ss) = kappa a_x (b - 3 a m v_x^2 / (C_r L)). At a_x = 0 this is eq. 4.13,
+        delta = L kappa + K_us v_x^2 kappa, and beta = beta_ss; braking through a bend needs the yaw
+        moment I r' and the changing sideslip too. Below ``kinematic_below_mps``: the kinematic
+        bicycle (delta = atan(L kappa), beta = b kappa).
+        """
+        p, v, k = self, speed_mps, curvature_1pm
+        if v < p.kinematic_below_mps:
+            return math.atan(p.wheelbase_m * k), p.cg_to_rear_m * k
+        m, iz, a, b = p.mass_kg, p.yaw_inertia_kgm2, p.cg_to_front_m, p.cg_to_rear_m
+        cf, cr, wb = p.cornering_front_npr, p.cornering_rear_npr, p.wheelbase_m
+        # the course (not the heading) turns at v kappa: r = v kappa - beta'
+        beta_dot = -2.0 * k * accel_mps2 * a * m * v / (cr * wb)
+        r, r_dot = v * k - beta_dot, accel_mps2 * k
+        vy_dot = k * accel_mps2 * (b - 3.0 * a * m * v * v / (cr * wb))
+        # [cf, -(cf+cr)/v; a cf, -(a cf - b cr)/v] [delta; v_y] = rhs  (determinant cf cr L / v)
+        rhs1 = m * (vy_dot + v * r) + (a * cf - b * cr) * r / v
+        rhs2 = iz * r_dot + (a * a * cf + b * b * cr) * r / v
+        det = cf * cr * wb / v
+        delta = (-(a * cf - b * cr) / v * rhs1 + (cf + cr) / v * rhs2) / det
+        vy = (cf * rhs2 - a * cf * rhs1) / det
+        return delta, vy / v
+
 
 @dataclass
 class VehicleStateVec:

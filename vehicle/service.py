@@ -17,7 +17,7 @@ import time
 from collections import Counter, deque
 from dataclasses import dataclass
 
-from protocol.clock import Clock
+from protocol.clock import Clock, RateTimer
 from protocol.keys import all_rsus_expr, ddm_health_key, parse_key, vehicle_key
 from protocol.messages import (
     CommandAck,
@@ -40,24 +40,6 @@ log = logging.getLogger(__name__)
 LOCALISATION_MODES = ("gnss", "rsu", "both")
 RSU_FIX_GATE_M = 4.0
 """An RSU object is taken as this car when it lies this close to the predicted pose."""
-
-
-class _Every:
-    """A periodic deadline (like protocol.clock.RateTimer, which can fire twice when float time lands
-    a hair before the deadline: its ``missed`` goes to -1)."""
-
-    def __init__(self, period_s: float) -> None:
-        self.period_s, self._next = period_s, None
-
-    def due(self, now_s: float) -> bool:
-        if self._next is None:
-            self._next = now_s + self.period_s
-            return True
-        if now_s + 1e-9 < self._next:
-            return False
-        missed = max(0, int((now_s - self._next) // self.period_s))
-        self._next += (missed + 1) * self.period_s
-        return True
 
 
 @dataclass(frozen=True)
@@ -95,8 +77,8 @@ class VehicleService:
         self.acks_sent: list[CommandAck] = []
         self.states_sent = 0
         self._next_control_s = self.start_s
-        self._state_timer = _Every(timing.state_period_s)
-        self._health_timer = _Every(timing.health_period_s)
+        self._state_timer = RateTimer(timing.state_period_s)
+        self._health_timer = RateTimer(timing.health_period_s)
         self._ctrl_time_ns, self._ctrl_steps, self._ctrl_steps_total = 0, 0, 0
         self._states_in_period = 0
         self._last_health_s = self.start_s

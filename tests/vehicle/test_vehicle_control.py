@@ -97,3 +97,35 @@ def test_longitudinal_emergency_when_comfort_is_not_enough():
     assert out.emergency and out.accel_cmd_mps2 < -3.0
     calm = LongitudinalController().step(13.4, 13.4, None)
     assert not calm.emergency and calm.accel_cmd_mps2 == pytest.approx(0.0)
+
+
+def test_cornering_steer_is_eq_4_13_and_steady_sideslip_at_constant_speed():
+    p = VehicleParams(cg_to_front_m=1.2, cg_to_rear_m=1.6, cornering_front_npr=120_000.0)
+    for v in (5.0, 15.0, 25.0):
+        delta, beta = p.cornering_steer(0.005, v)
+        assert delta == pytest.approx(p.wheelbase_m * 0.005 + p.understeer_gradient * v * v * 0.005, rel=1e-9)
+        assert beta == pytest.approx(p.steady_sideslip_rad(0.005, v), rel=1e-9)
+    # walking pace: the kinematic bicycle of the plant
+    assert p.cornering_steer(0.1, 1.0) == pytest.approx((math.atan(p.wheelbase_m * 0.1), p.cg_to_rear_m * 0.1))
+
+
+@pytest.mark.parametrize("with_accel, max_dev_m", [(True, 0.03), (False, None)])
+def test_braking_through_a_bend_needs_the_acceleration_term(with_accel, max_dev_m):
+    """Open loop: steer by the feedforward alone while braking 25 -> 5 m/s at 2 m/s^2 on R = 200 m.
+
+    With the acceleration term the car stays on the circle; eq. 4.13 (constant-speed) steers too much
+    as the sideslip unwinds and ends up metres inside it."""
+    p, kappa, v0 = VehicleParams(), 1.0 / 200.0, 25.0
+    d0, b0 = p.cornering_steer(kappa, v0)
+    plant = BicyclePlant(p, VehicleStateVec(x_m=0.0, y_m=-200.0, yaw_rad=-b0, vx_mps=v0, vy_mps=b0 * v0,
+                                            yaw_rate_rps=v0 * kappa, steer_rad=d0, accel_mps2=-2.0))
+    dev = []
+    while plant.state.vx_mps > 5.0:
+        st = plant.state
+        delta, _ = p.cornering_steer(kappa, st.vx_mps, st.accel_mps2 if with_accel else 0.0)
+        plant.step(0.01, delta, -2.0)
+        dev.append(math.hypot(plant.state.x_m, plant.state.y_m) - 200.0)
+    if max_dev_m is not None:
+        assert max(abs(d) for d in dev) < max_dev_m
+    else:
+        assert dev[-1] < -1.0  # metres inside the bend

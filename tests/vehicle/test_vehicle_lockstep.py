@@ -39,9 +39,31 @@ def test_field_test_at_speed_and_on_a_curve(speed, radius):
     assert m["max_lateral_error_m"] <= 0.25
     assert m["max_yaw_error_rad"] <= 0.05
     assert m["stop_error_m"] <= 1.0
-    # RMS after settling: on the straight as in the reference case; on the curve the car also brakes
-    # through the bend and the GNSS-limited estimate wanders more (measured 0.07 / 0.12 worst of 6 seeds)
-    assert m["settled_lateral_error_m"] <= (0.05 if radius is None else 0.15)
+    assert m["settled_lateral_error_m"] <= 0.05  # RMS after settling, as in the reference case
+
+
+@pytest.mark.parametrize("speed, radius", [(13.4, None), (25.0, None), (13.4, 200.0), (25.0, 200.0)])
+def test_settled_error_max_without_gnss_noise(speed, radius):
+    """The controller's own share of the settled error, read as a MAX over the window (sigma = 0,
+    latency 100 ms): <= 0.05 m everywhere. With sigma 0.2 m the estimate itself wanders by ~0.04 m
+    (1 sigma, the EKF's floor with this gyro and GNSS; see bench/control_bench.py), which no
+    controller can see, so the max reading there is the estimator's, not the controller's."""
+    m = run_scenario(field_test_scenario(speed, sigma_m=0.0, latency_s=0.1, radius_m=radius)).metrics
+    assert m["completed"] and m["stopped"]
+    assert m["settled_lateral_max_m"] <= 0.05
+    assert m["settled_lateral_error_m"] <= 0.02
+    assert m["max_lateral_error_m"] <= 0.25 and m["max_yaw_error_rad"] <= 0.05 and m["stop_error_m"] <= 1.0
+
+
+def test_braking_in_the_bend_without_the_acceleration_feedforward_settles_off_the_path():
+    # the check above is not vacuous: with eq. 4.13 at constant speed the car brakes through the
+    # bend 3-7 cm off the path (noise-free)
+    def constant_speed_feedforward(sim, now):
+        sim.core.lateral.accel_feedforward = False
+
+    m = run_scenario(field_test_scenario(25.0, sigma_m=0.0, latency_s=0.1, radius_m=200.0),
+                     constant_speed_feedforward).metrics
+    assert m["settled_lateral_max_m"] > 0.05 and m["settled_lateral_error_m"] > 0.025
 
 
 def test_many_seeds_stay_stable():

@@ -58,6 +58,8 @@ def test_state_at_20_hz_and_health():
     assert st.vehicle_id == "av1" and st.mode == VehicleMode.DRIVING and st.lane == 1
     assert abs(st.speed_mps - 13.4) < 0.3 and st.localisation_age_s < 0.5
     assert [s.seq for s in h.states] == list(range(1, len(h.states) + 1))
+    gaps = [b.stamp - a.stamp for a, b in zip(h.states, h.states[1:], strict=False)]
+    assert min(gaps) > 0.05 - 1e-6  # never twice in one period (protocol.clock.RateTimer)
     assert len(h.health) == 2 and h.health[-1].role == Role.VEHICLE and h.health[-1].rates_hz["control"] > 90
 
 
