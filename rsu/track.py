@@ -64,7 +64,9 @@ Q = np.diag([1.0, 1.0, 1.0, 1.0, 0.01, 0.01, 0.0001])
 # tracks. (u and v have the same P0, Q and R and are always updated together, so their blocks are
 # equal; they are kept as separate columns so that every operation is a plain slice.)
 _R4 = np.array([R[0, 0], R[1, 1], R[2, 2], R[3, 3]])
-_R3 = _R4[:3].copy()
+_Z_OF_STATE = np.array([0, 1, 2, 3, 0, 1, 2])
+"""Measured component (u, v, s, r) that drives each state [u, v, s, r, u', v', s']."""
+_R7 = _R4[_Z_OF_STATE]
 
 
 def block_to_full_covariance(p00: np.ndarray, p01: np.ndarray, p11: np.ndarray) -> np.ndarray:
@@ -204,8 +206,8 @@ def _associate(det_cm: np.ndarray, det_areas: np.ndarray, trk_cm: np.ndarray, io
     free[rows] = False
     if keep.all():
         return rows, cols, np.flatnonzero(free)
-    low_rows = rows[~keep]
-    return rows[keep], cols[keep], np.concatenate([np.flatnonzero(free), low_rows])
+    low_rows = rows.compress(~keep)
+    return rows.compress(keep), cols.compress(keep), np.concatenate([np.flatnonzero(free), low_rows])
 
 
 @dataclass(slots=True)
@@ -257,10 +259,10 @@ _ONE = 17  # constant 1.0 (lets the predict's affine map be one matrix product)
 _AGE, _TSU, _HITS, _STREAK, _ID, _CLASS, _DET = range(18, 25)  # integers; _AGE.._DET contiguous
 _SCORE = 25
 _NCOL = 26
-_N_PREDICT = _TSU + 1
-"""The predict maps the columns [x, p00, p01, p11, one, age, tsu], affinely."""
-_PREDICT_MAP = np.eye(_N_PREDICT)
-"""Right-multiplied: x = F x, per block P = F P F' + Q with F = [[1, 1], [0, 1]], age += 1, tsu += 1."""
+_PREDICT_MAP = np.eye(_NCOL)
+"""Right-multiplied, affine through the ``_ONE`` column: x = F x, per block P = F P F' + Q with
+F = [[1, 1], [0, 1]], age += 1, tsu += 1; the other columns are kept (multiplied by 1, plus exact
+zeros). A row with a non-finite entry becomes all NaN (0 * inf) and is then dropped as NaN."""
 _PREDICT_MAP[4:7, 0:3] += np.eye(3)  # u += u', v += v', s += s'
 for _c in range(3):  # p00 += 2 p01 + p11; p01 += p11
     _PREDICT_MAP[_P01.start + _c, _P00.start + _c] = 2.0
@@ -320,14 +322,19 @@ class SortTracker:
         ``update`` to the matched tracks (after this predict, time_since_update >= 2 exactly when it
         was > 0 before): the streak of an unmatched track is never read before it is matched again.
         """
-        t = self._t
-        t[:, 6] *= t[:, 6] + t[:, 2] > 0  # the reference's area-velocity guard (zeroes s')
-        t[:, :_N_PREDICT] = t[:, :_N_PREDICT] @ _PREDICT_MAP
+        old = self._t
+        t = self._t = old @ _PREDICT_MAP
+        # the reference's guard: s' = 0 before the predict where s + s' <= 0, i.e. where the predicted
+        # area t[:, 2] = s + s' is <= 0 (rare: fixed up after the product, same values)
+        bad = t[:, 2] <= 0.0
+        if bad.any():
+            t[bad, 2] = old[bad, 2]
+            t[bad, 6] = 0.0
         boxes = _x_to_boxes_cm(t)
         if np.isnan(boxes.sum()):  # the reference drops tracks whose predicted box is not a number
             good = ~np.isnan(boxes).any(axis=0)
-            self._t = t[good]
-            boxes = boxes[:, good]
+            self._t = t.compress(good, axis=0)
+            boxes = boxes.compress(good, axis=1)
         return boxes
 
     @staticmethod
@@ -339,17 +346,14 @@ class SortTracker:
         (optimal) gain equals (I-KH) P exactly in algebra: p00 = r k0, p01 = r k1, p11 -= k1 p01
         (the two agree to rounding; the tests compare with filterpy's result).
         """
-        p00, p01 = t[:, _P00], t[:, _P01]
-        s = p00 + _R4
-        k0 = p00 / s
-        k1 = p01 / s[:, 0:3]
-        y = z - t[:, 0:4]
-        t[:, 4:7] += k1 * y[:, 0:3]
-        y *= k0
-        t[:, 0:4] += y
-        t[:, _P11] -= k1 * p01
-        np.multiply(k0, _R4, out=p00)
-        np.multiply(k1, _R3, out=p01)
+        p = t[:, _P00.start:_P01.stop]  # [p00 of u, v, s, r; p01 of u, v, s], aligned with the states
+        s = t[:, _P00] + _R4
+        k = p / s.take(_Z_OF_STATE, axis=1)  # gains [k0 of u, v, s, r; k1 of u, v, s]
+        y = (z - t[:, 0:4]).take(_Z_OF_STATE, axis=1)
+        y *= k
+        t[:, _X] += y
+        t[:, _P11] -= k[:, 4:7] * t[:, _P01]
+        np.multiply(k, _R7, out=p)
 
     def update(self, boxes: np.ndarray, scores: np.ndarray | None = None,
                class_ids: np.ndarray | None = None) -> TrackSet:
@@ -364,37 +368,39 @@ class SortTracker:
             det, trk, new = _associate(boxes_cm, z_cm[2], predicted, self.iou_threshold)
             t = self._t
             if len(det):
-                m = t[trk]
+                # (ndarray.take / .compress: same result as fancy / boolean indexing, several times
+                # faster on arrays this small)
+                m = t.take(trk, axis=0)
                 m[:, _STREAK] *= m[:, _TSU] < 2  # lazy streak reset, see _predict
                 m[:, _HITS:_STREAK + 1] += 1.0
                 m[:, _TSU] = 0.0
                 m[:, _DET] = det
                 if scores is not None:
-                    m[:, _SCORE] = np.asarray(scores).reshape(n)[det]
+                    m[:, _SCORE] = np.asarray(scores, dtype=np.float64).reshape(n).take(det)
                 else:
                     m[:, _SCORE] = 1.0
                 if class_ids is not None:
-                    m[:, _CLASS] = np.asarray(class_ids).reshape(n)[det]
-                self._kalman_update(m, z_cm[:, det].T)
+                    m[:, _CLASS] = np.asarray(class_ids).reshape(n).take(det)
+                self._kalman_update(m, z_cm.take(det, axis=1).T)
                 t[trk] = m
             if len(new):
                 k = len(new)
                 b = np.empty((k, _NCOL))
                 b[:] = _NEW_ROW
-                b[:, 0:4] = z_cm[:, new].T
+                b[:, 0:4] = z_cm.take(new, axis=1).T
                 b[:, _ID] = list(itertools.islice(self._ids, k))
                 b[:, _DET] = new
                 if scores is not None:
-                    b[:, _SCORE] = np.asarray(scores).reshape(n)[new]
+                    b[:, _SCORE] = np.asarray(scores, dtype=np.float64).reshape(n).take(new)
                 else:
                     b[:, _SCORE] = 1.0
                 if class_ids is not None:
-                    b[:, _CLASS] = np.asarray(class_ids).reshape(n)[new]
+                    b[:, _CLASS] = np.asarray(class_ids).reshape(n).take(new)
                 t = self._t = np.concatenate([t, b])
             report = t[:, _TSU] < 1.0
             if self.frame_count > self.min_hits:
                 report &= t[:, _STREAK] >= self.min_hits
-            r = t[np.flatnonzero(report)[::-1]]  # the reference walks its track list backwards
+            r = t.take(np.flatnonzero(report)[::-1], axis=0)  # the reference walks its track list backwards
             ints = r[:, _AGE:_DET + 1].astype(np.int64)
             out = TrackSet(
                 track_ids=ints[:, _ID - _AGE], boxes=x_to_boxes(r), class_ids=ints[:, _CLASS - _AGE],
@@ -403,7 +409,7 @@ class SortTracker:
             )
             alive = t[:, _TSU] <= self.max_age
             if not alive.all():
-                self._t = t[alive]
+                self._t = t.compress(alive, axis=0)
         return out
 
     def update_mot(self, dets: np.ndarray) -> np.ndarray:
