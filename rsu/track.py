@@ -275,10 +275,10 @@ for _c in range(3):  # p00 += 2 p01 + p11; p01 += p11
 _PREDICT_MAP[_ONE, _P00] = np.diag(Q)[0:4]
 _PREDICT_MAP[_ONE, _P11] = np.diag(Q)[4:7]
 _PREDICT_MAP[_ONE, _AGE] = _PREDICT_MAP[_ONE, _TSU] = 1.0
-_NEW_ROW = np.zeros(_NCOL)
-_NEW_ROW[_P00] = np.diag(P0)[0:4]
-_NEW_ROW[_P11] = np.diag(P0)[4:7]
-_NEW_ROW[_ONE] = 1.0
+_NEW_ROW = np.zeros((1, _NCOL))
+_NEW_ROW[0, _P00] = np.diag(P0)[0:4]
+_NEW_ROW[0, _P11] = np.diag(P0)[4:7]
+_NEW_ROW[0, _ONE] = 1.0
 
 
 class SortTracker:
@@ -364,6 +364,10 @@ class SortTracker:
         """Process one frame of detections (N, 4) xyxy; returns the tracks reported on this frame."""
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
         n = len(boxes)
+        if scores is not None:
+            scores = np.asarray(scores, dtype=np.float64).reshape(n)
+        if class_ids is not None:
+            class_ids = np.asarray(class_ids).reshape(n)
         self.frame_count += 1
         with np.errstate(invalid="ignore", divide="ignore"):
             predicted = self._predict()
@@ -379,38 +383,29 @@ class SortTracker:
                 m[:, _HITS:_STREAK + 1] += 1.0
                 m[:, _TSU] = 0.0
                 m[:, _DET] = det
-                if scores is not None:
-                    m[:, _SCORE] = np.asarray(scores, dtype=np.float64).reshape(n).take(det)
-                else:
-                    m[:, _SCORE] = 1.0
+                m[:, _SCORE] = 1.0 if scores is None else scores.take(det)
                 if class_ids is not None:
-                    m[:, _CLASS] = np.asarray(class_ids).reshape(n).take(det)
+                    m[:, _CLASS] = class_ids.take(det)
                 self._kalman_update(m, z_cm.take(det, axis=1).T)
                 t[trk] = m
             if len(new):
                 k = len(new)
-                b = np.empty((k, _NCOL))
-                b[:] = _NEW_ROW
+                b = _NEW_ROW.repeat(k, axis=0)
                 b[:, 0:4] = z_cm.take(new, axis=1).T
                 b[:, _ID] = list(itertools.islice(self._ids, k))
                 b[:, _DET] = new
-                if scores is not None:
-                    b[:, _SCORE] = np.asarray(scores, dtype=np.float64).reshape(n).take(new)
-                else:
-                    b[:, _SCORE] = 1.0
+                b[:, _SCORE] = 1.0 if scores is None else scores.take(new)
                 if class_ids is not None:
-                    b[:, _CLASS] = np.asarray(class_ids).reshape(n).take(new)
+                    b[:, _CLASS] = class_ids.take(new)
                 t = self._t = np.concatenate([t, b])
             report = t[:, _TSU] < 1.0
             if self.frame_count > self.min_hits:
                 report &= t[:, _STREAK] >= self.min_hits
             r = t.take(np.flatnonzero(report)[::-1], axis=0)  # the reference walks its track list backwards
             ints = r[:, _AGE:_DET + 1].astype(np.int64)
-            out = TrackSet(
-                track_ids=ints[:, _ID - _AGE], boxes=x_to_boxes(r), class_ids=ints[:, _CLASS - _AGE],
-                scores=r[:, _SCORE], det_indices=ints[:, _DET - _AGE], hits=ints[:, _HITS - _AGE],
-                age_frames=ints[:, 0], velocity_px=r[:, 4:6],
-            )
+            # (track_ids, boxes, class_ids, scores, det_indices, hits, age_frames, velocity_px)
+            out = TrackSet(ints[:, _ID - _AGE], x_to_boxes(r), ints[:, _CLASS - _AGE], r[:, _SCORE],
+                           ints[:, _DET - _AGE], ints[:, _HITS - _AGE], ints[:, 0], r[:, 4:6])
             alive = t[:, _TSU] <= self.max_age
             if not alive.all():
                 self._t = t.compress(alive, axis=0)
