@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+from scipy.optimize import linear_sum_assignment
 
-from bench.sort_reference import HAVE_FILTERPY, ReferenceSort
+from bench.sort_reference import HAVE_FILTERPY, ReferenceSort, _associate
 from rsu.evaluate import mot_result_lines, read_mot_detections, synthetic_scene
-from rsu.track import FrameworkTracker, SortTracker, iou_matrix
+from rsu.track import FrameworkTracker, SortTracker, associate, iou_matrix
 
 
 def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
@@ -45,6 +48,56 @@ def test_same_tracks_as_reference_with_filterpy():
     frames = synthetic_scene(n_frames=100, n_targets=20, seed=7, miss_prob=0.1, false_pos_per_frame=0.5)
     assert _run_both(frames, 1, 3, 0.3, use_filterpy=True) > 500
     assert _run_both(frames, 4, 2, 0.3, use_filterpy=True) > 500
+
+
+def test_area_velocity_guard_matches_the_reference():
+    # a box shrinking fast, then missed: the predicted area s + s' goes <= 0 and both zero s'
+    boxes = [np.array([_box(200, 200, 120 - 12 * k, 120 - 12 * k)]) if k < 8 else np.empty((0, 4))
+             for k in range(16)]
+    frames = [SimpleNamespace(det_boxes=b, det_scores=np.ones(len(b))) for b in boxes]
+    assert _run_both(frames, 6, 1, 0.1) == 8
+    ours = SortTracker(6, 1, 0.1)
+    fired = []
+    for k, b in enumerate(boxes):
+        if len(ours) and ours.x[0, 2] + ours.x[0, 6] <= 0:
+            fired.append(k)  # this frame's predict applies the guard
+        ours.update(b)
+    assert fired == [7]
+
+
+def test_associate_matches_the_reference_including_its_unique_pairs_shortcut():
+    rng = np.random.default_rng(5)
+    n_shortcut = n_hungarian = 0
+    for _ in range(400):
+        n_det, n_trk = rng.integers(1, 7, size=2)
+        centres = rng.uniform(0, 120, size=(n_det + n_trk, 2))
+        sizes = rng.uniform(20, 60, size=(n_det + n_trk, 2))
+        boxes = np.hstack([centres - sizes / 2, centres + sizes / 2])
+        det, trk = boxes[:n_det], boxes[n_det:]
+        rows, cols, unmatched = associate(det, trk, 0.3)
+        ref_matches, ref_unmatched, _ = _associate(det, trk, 0.3)
+        np.testing.assert_array_equal(np.stack([rows, cols], axis=1).reshape(-1, 2), ref_matches.reshape(-1, 2))
+        np.testing.assert_array_equal(unmatched, ref_unmatched)
+        above = iou_matrix(det, trk) > 0.3
+        if above.any() and above.sum(0).max() == 1 and above.sum(1).max() == 1:
+            n_shortcut += 1
+        else:
+            n_hungarian += 1
+    assert n_shortcut > 50 and n_hungarian > 50  # both paths exercised
+
+
+def test_associate_shortcut_is_the_references_not_hungarians():
+    # only d0-t1 is above 0.3 (0.318): the shortcut matches it, as the reference does; the optimal
+    # assignment d0-t0 + d1-t1 (0.238 + 0.267 = 0.505 > 0.318) would be filtered to no match at all
+    det = np.array([[14.0, 0.0, 30.0, 10.0], [28.0, 0.0, 53.0, 10.0]])
+    trk = np.array([[9.0, 0.0, 19.0, 10.0], [23.0, 0.0, 36.0, 10.0]])
+    iou = iou_matrix(det, trk)
+    r, c = linear_sum_assignment(-iou)
+    assert not (iou[r, c] >= 0.3).any()
+    rows, cols, unmatched = associate(det, trk, 0.3)
+    assert rows.tolist() == [0] and cols.tolist() == [1] and unmatched.tolist() == [1]
+    ref_matches, ref_unmatched, _ = _associate(det, trk, 0.3)
+    assert ref_matches.tolist() == [[0, 1]] and ref_unmatched.tolist() == [1]
 
 
 def test_mot_det_format_gives_the_reference_output(tmp_path):
