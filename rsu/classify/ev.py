@@ -49,7 +49,7 @@ class TrackEvClassifier:
     """Per-track temporal EV classifier (the RSU's classifier hook); see the module docstring."""
 
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
-                 top_fraction: float = 0.4, min_value: int = 200, min_saturation: int = 120,
+                 top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
                  forget_after_s: float = 2.0, max_tracks: int = 512) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
