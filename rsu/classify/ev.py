@@ -3,7 +3,8 @@
 :class:`TrackEvClassifier` is the ``RsuPipeline`` classifier hook ``(frame, tracks) -> {track_id:
 (ev_score, light_state, ev_state)}``. It keeps one :class:`~rsu.classify.temporal.TrackEvidence` per
 track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
-(clipped to the image), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
+(clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
+detector's box can cut the light bar off the roof), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
 callable (a trained CNN or feature classifier; None: lamps only), and forgets tracks unseen for
 ``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
 
@@ -50,12 +51,17 @@ class TrackEvClassifier:
 
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
                  top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
-                 forget_after_s: float = 2.0, max_tracks: int = 512) -> None:
+                 above_fraction: float = 0.0, forget_after_s: float = 2.0, max_tracks: int = 512) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
         self.config = config or EvidenceConfig()
         self.crop_score = crop_score
-        self.lamp_kwargs = dict(top_fraction=top_fraction, min_value=min_value, min_saturation=min_saturation)
+        if not 0.0 <= above_fraction <= 1.0 or not 0.0 < top_fraction <= 1.0:
+            raise ValueError("above_fraction must be in [0, 1] and top_fraction in (0, 1]")
+        self.above_fraction = above_fraction
+        # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
+        band = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
+        self.lamp_kwargs = dict(top_fraction=band, min_value=min_value, min_saturation=min_saturation)
         self.forget_after_s = forget_after_s
         self.max_tracks = max_tracks
         self.tracks: dict[int, TrackInfo] = {}
@@ -65,7 +71,10 @@ class TrackEvClassifier:
 
     def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
         h, w = image.shape[:2]
-        bounds = clip_box(box, w, h)
+        x1, y1, x2, y2 = (float(v) for v in box)
+        if self.above_fraction > 0:  # light bars sit on the roof, often outside a COCO "car" box
+            y1 -= self.above_fraction * (y2 - y1)
+        bounds = clip_box((x1, y1, x2, y2), w, h)
         if bounds is None:
             return LampMeasurement(0.0, 0.0), None
         xa, ya, xb, yb = bounds

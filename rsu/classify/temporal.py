@@ -72,7 +72,7 @@ def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: in
 class EvidenceConfig:
     lamp_on_fraction: float = 0.025
     """A lamp colour counts as on above this fraction of the band's pixels."""
-    lamp_off_ratio: float = 0.35
+    lamp_off_ratio: float = 0.2
     """... and as off below this share of its recent peak."""
     flash_window_s: float = 1.5
     min_on_samples: int = 2

@@ -127,3 +127,10 @@ def test_alert_cleared_when_the_evidence_clears():
     ev1 = m.update(0.0, [obj(4, EvState.CONFIRMED)], lambda tid: None)
     ev2 = m.update(0.1, [obj(4, EvState.CLEARED)], lambda tid: None)
     assert [e.state for e in ev1] == [AlertState.ACTIVE] and [e.state for e in ev2] == [AlertState.CLEARED]
+
+
+def test_above_fraction_sees_a_light_bar_just_above_the_box():
+    img = np.full((240, 480, 3), 90, np.uint8)
+    img[95:100, 110:170] = (0, 0, 255)  # lamp on the roof, above a detector box that starts at y = 100
+    assert TrackEvClassifier().measure(img, BOX_A)[0].red == 0.0
+    assert TrackEvClassifier(above_fraction=0.2).measure(img, BOX_A)[0].red > 0.05
