@@ -180,11 +180,11 @@ def main(argv=None) -> int:
     ap.add_argument("--lamp-min-value", type=int, default=None, help="override measure_lamps min_value")
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="override EvidenceConfig fields (tuning only), e.g. --set lamp_on_fraction=0.02")
-    ap.add_argument("--quick", action="store_true", help="2 scenarios, 1 seed, 12 s each")
+    ap.add_argument("--quick", action="store_true", help="rellis_ev_yield only, 1 seed, 8 s (a smoke run)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.quick:
-        args.scenarios, args.seeds, args.duration_s = ["rellis_ev_yield", "ev_lights_never_on"], args.seeds[:1], 12.0
+        args.scenarios, args.seeds, args.duration_s = ["rellis_ev_yield"], args.seeds[:1], 8.0
     t0 = time.perf_counter()
     runs = []
     kwargs: dict = {} if args.lamp_min_value is None else {"min_value": args.lamp_min_value}

@@ -5,7 +5,8 @@
 track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
 (clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
 detector's box can cut the light bar off the roof), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
-callable (a trained CNN or feature classifier; None: lamps only), and forgets tracks unseen for
+callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
+bar: far vehicles and merged blobs of distant traffic flicker like lamps), and forgets tracks unseen for
 ``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
 
 :class:`EvAlertManager` turns the per-track EV states into ``EvAlert`` events (pure: the caller gives
@@ -51,7 +52,8 @@ class TrackEvClassifier:
 
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
                  top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
-                 above_fraction: float = 0.0, forget_after_s: float = 2.0, max_tracks: int = 512) -> None:
+                 above_fraction: float = 0.0, min_box_px: float = 40.0, forget_after_s: float = 2.0,
+                 max_tracks: int = 512) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
         self.config = config or EvidenceConfig()
@@ -62,6 +64,7 @@ class TrackEvClassifier:
         # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
         band = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
         self.lamp_kwargs = dict(top_fraction=band, min_value=min_value, min_saturation=min_saturation)
+        self.min_box_px = float(min_box_px)
         self.forget_after_s = forget_after_s
         self.max_tracks = max_tracks
         self.tracks: dict[int, TrackInfo] = {}
@@ -94,9 +97,14 @@ class TrackEvClassifier:
             if info is None:
                 info = self.tracks[tid] = TrackInfo(TrackEvidence(self.config), now, now)
             info.last_seen_s = now
-            lamps, score = self.measure(image, box)
             ev = info.evidence
-            state = ev.update(now, lamps, score)
+            if min(box[2] - box[0], box[3] - box[1]) < self.min_box_px:
+                # too few pixels to see a light bar (a far vehicle, or distant traffic merged into
+                # one blob): no measurement this frame, the evidence keeps its state
+                state = ev.state
+            else:
+                lamps, score = self.measure(image, box)
+                state = ev.update(now, lamps, score)
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out

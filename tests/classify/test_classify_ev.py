@@ -134,3 +134,12 @@ def test_above_fraction_sees_a_light_bar_just_above_the_box():
     img[95:100, 110:170] = (0, 0, 255)  # lamp on the roof, above a detector box that starts at y = 100
     assert TrackEvClassifier().measure(img, BOX_A)[0].red == 0.0
     assert TrackEvClassifier(above_fraction=0.2).measure(img, BOX_A)[0].red > 0.05
+
+
+def test_boxes_too_small_to_resolve_a_light_bar_are_not_measured():
+    small = (110.0, 100.0, 140.0, 125.0)  # 30 x 25 px, on the flashing bar
+    clf, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)])
+    assert all(out[5] == (clf.tracks[5].evidence.ev_score, LightState.UNKNOWN, EvState.NONE) for _, out in states)
+    assert clf.tracks[5].evidence.frames == 0
+    _, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)], clf=TrackEvClassifier(min_box_px=20))
+    assert states[-1][1][5][2] == EvState.CONFIRMED
