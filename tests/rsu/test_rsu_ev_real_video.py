@@ -4,7 +4,10 @@ The four traffic videos contain no emergency vehicle: any EvAlert there is a fal
 videos are documented as known misses of the lamp rule (xfail, not strict): the rule is tuned on the
 simulator (lamp pixels V >= 240, S >= 120) and these clips' light bars are washed out by compression
 (S ~ 100-115) and thin against a near-camera box (the escort ambulance is in view with lit lamps for
-about 1 s); the roadside clip is handheld with a yellow body. No clip-specific tuning is done.
+about 1 s). The roadside clip is hopeless for a lamp rule: handheld, a yellow body, and the one alert the
+rule raises there (at 4.2 s) is on a dark car's red tail light shaken by the camera, not on the
+ambulance, so it is left out (a false alert a red-only lamp rule cannot tell from a blink). No
+clip-specific tuning is done.
 """
 
 from __future__ import annotations
@@ -58,7 +61,7 @@ def test_no_ev_alert_on_traffic_videos(video):
 @pytest.mark.slow
 @pytest.mark.xfail(reason="known miss: washed-out, thin light bars in real clips (see module docstring)",
                    strict=False)
-@pytest.mark.parametrize("video", ["india_ambulance_police_escort.mp4", "roadside_ambulance_yellow.mp4"])
+@pytest.mark.parametrize("video", ["india_ambulance_police_escort.mp4"])
 def test_ev_videos_raise_an_alert(video):
     alerts = alerts_on(REAL / "ev_videos" / video)
     assert alerts, f"no EV alert on {video}"
