@@ -1,4 +1,4 @@
-"""``iea-rsu``: run one roadside unit on a video file, camera, stream or image folder."""
+"""``iea-rsu``: run one roadside unit on a video file, camera, stream, image folder or the simulator's camera."""
 
 from __future__ import annotations
 
@@ -10,10 +10,12 @@ from pathlib import Path
 
 from protocol.corridor import CorridorError, load_corridor
 from protocol.transport import ZenohSettings, ZenohTransport
+from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
 from rsu.localize import INTERPOLATIONS, Localizer
 from rsu.service import RsuPipeline, RsuService
+from rsu.sim_source import SimSource
 from rsu.track import FrameworkTracker
 
 
@@ -28,7 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--corridor-id", default=None, help="override the corridor id used in key expressions")
     ap.add_argument("--rsu", required=True, help="RSU id in the corridor file (its camera and calibration are used)")
     ap.add_argument("--source", required=True,
-                    help="video file, camera index, rtsp://... or http://... URL, or a folder of images")
+                    help="video file, camera index, rtsp://... or http://... URL, a folder of images, or 'sim': "
+                         "this RSU's view rendered from the simulator's WorldSnapshot (iea-sim run)")
+    ap.add_argument("--sim-seed", type=int, default=0, help="--source sim: seed of the camera noise")
     ap.add_argument("--fps", type=float, default=None, help="frame rate of an image folder (default: the camera's)")
     ap.add_argument("--realtime", action="store_true", help="play a video file at its own rate, dropping late frames")
     ap.add_argument("--read-timeout-s", type=float, default=5.0, help="a source silent this long is reported stalled")
@@ -50,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--localization", choices=["transform", "reference"], default="transform",
                     help="transform: ray-plane back-projection; reference: interpolate the calibration pairs")
     ap.add_argument("--interpolation", choices=INTERPOLATIONS, default="homography+rbf")
+    ap.add_argument("--ev-classifier", choices=["lamps", "none"], default="lamps",
+                    help="lamps: per-track flashing light bar evidence (rsu.classify.ev), publishes EvAlert; "
+                         "none: no EV classification")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
@@ -78,7 +85,10 @@ def main(argv: list[str] | None = None) -> int:
             detector = MotionDetector()
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
-        if Path(args.source).is_dir():
+        classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
+        if args.source == "sim":
+            source = None  # needs the transport: opened below
+        elif Path(args.source).is_dir():
             source = ImageFolderSource(args.source, args.fps or rsu.camera.fps, source_id=args.rsu)
         else:
             source = VideoSource(args.source, source_id=args.rsu, read_timeout_s=args.read_timeout_s,
@@ -88,7 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"iea-rsu: {exc}", file=sys.stderr)
         return 2
     transport = ZenohTransport(settings)
-    service = RsuService(corridor, args.rsu, source, RsuPipeline(detector, tracker, localizer), transport,
+    if source is None:
+        source = SimSource(corridor, args.rsu, transport, corridor_id=args.corridor_id, seed=args.sim_seed)
+    service = RsuService(corridor, args.rsu, source, RsuPipeline(detector, tracker, localizer, classifier), transport,
                          corridor_id=args.corridor_id, annotate_path=args.annotate, max_frames=args.max_frames,
                          read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())

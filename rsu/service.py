@@ -7,15 +7,21 @@ video and reports health. Frames never queue without bound: live sources keep at
 ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
-Classifier hook: any callable ``(frame, tracks) -> {track_id: (ev_score, light_state | None)}``
-(the EV classifier of its own issue plugs in here); objects with ``ev_score >= ev_threshold`` are
-published as ``obj_type = ev``.
+Classifier hook: any callable ``(frame, tracks) -> {track_id: (ev_score, light_state | None[, ev_state])}``
+(:class:`rsu.classify.ev.TrackEvClassifier` plugs in here). With an ``ev_state`` an object is published
+as ``obj_type = ev`` while its state is ``confirmed``; without one, when ``ev_score >= ev_threshold``.
+
+EV alerts: when the hook also has ``evidence(track_id)`` (the track classifier), the service runs an
+:class:`rsu.classify.ev.EvAlertManager` on the frame times and publishes ``EvAlert`` on
+``iea/{c}/rsu/{rsu}/ev``: ``active`` when a track is confirmed, refreshed at 2 Hz, ``cleared`` when
+its lights go off or it has left the view for ``leave_after_s``. ``alert_id = f"{rsu_id}-ev-{track_id}"``.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -27,6 +33,9 @@ from protocol.corridor import Corridor
 from protocol.keys import rsu_key
 from protocol.messages import (
     DetectedObject,
+    EvAlert,
+    EvEvidence,
+    EvState,
     Health,
     HealthStatus,
     LightState,
@@ -35,6 +44,7 @@ from protocol.messages import (
     Role,
 )
 from protocol.transport import Transport
+from rsu.classify.ev import AlertEvent, EvAlertManager
 from rsu.detect import EV, Detector
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.localize import LocalizedObject, Localizer
@@ -42,7 +52,7 @@ from rsu.track import FrameworkTracker, TrackSet
 
 log = logging.getLogger(__name__)
 
-Classifier = Callable[[Frame, TrackSet], dict[int, tuple[float, LightState | None]]]
+Classifier = Callable[[Frame, TrackSet], dict[int, tuple]]
 STAGES = ("detect", "track", "classify", "localize", "publish")
 
 
@@ -78,13 +88,18 @@ class RsuPipeline:
         stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3)
         return FrameResult(objects, tracks, localized, stage_s)
 
-    def _to_message(self, o: LocalizedObject, ev: tuple[float, LightState | None] | None) -> DetectedObject:
+    def _to_message(self, o: LocalizedObject, ev: tuple | None) -> DetectedObject:
         ev_score = float(np.clip(ev[0], 0.0, 1.0)) if ev else 0.0
-        is_ev = o.class_id == EV or ev_score >= self.ev_threshold
+        ev_state = EvState(ev[2]) if ev and len(ev) > 2 and ev[2] is not None else None
+        if ev_state is not None:
+            is_ev = ev_state == EvState.CONFIRMED
+        else:
+            is_ev = o.class_id == EV or ev_score >= self.ev_threshold
         return DetectedObject(
             object_id=o.track_id, pos_x_m=o.x_m, pos_y_m=o.y_m, lat_deg=o.lat_deg, lon_deg=o.lon_deg,
             bbox_px=o.bbox_px, obj_type=ObjectType.EV if is_ev else ObjectType.VEHICLE,
             obj_type_cfd=float(np.clip(o.score, 0.0, 1.0)), ev_score=ev_score,
+            ev_state=ev_state if ev_state is not None else (EvState.CONFIRMED if is_ev else EvState.NONE),
             light_state=(ev[1] if ev and ev[1] is not None else LightState.UNKNOWN),
             vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps, heading_rad=o.heading_rad,
             pos_cov_m2=(max(o.pos_cov_m2[0], 0.0), o.pos_cov_m2[1], max(o.pos_cov_m2[2], 0.0)),
@@ -124,13 +139,18 @@ class RsuService:
         cid = corridor_id or corridor.corridor_id
         self.objects_key = rsu_key(cid, rsu_id, "objects")
         self.health_key = rsu_key(cid, rsu_id, "health")
+        self.ev_key = rsu_key(cid, rsu_id, "ev")
+        evidence = getattr(pipeline.classifier, "evidence", None)
+        self._info_of = evidence if callable(evidence) else None
+        self.alerts = EvAlertManager() if self._info_of is not None else None
+        self.alerts_published = Counter()
         self.annotate_path = annotate_path
         self.max_frames = max_frames
         self.read_timeout_s = read_timeout_s
         self.max_stall_s = max_stall_s
         self.health_period_s = health_period_s
         self._next_health_s: float | None = None
-        self._seq = {"objects": 0, "health": 0}
+        self._seq = {"objects": 0, "health": 0, "ev": 0}
         self._writer: cv2.VideoWriter | None = None
         self._stop = False
         self.frames = 0
@@ -197,6 +217,9 @@ class RsuService:
                          measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
         self.transport.publish(self.objects_key, msg)
         self._seq["objects"] += 1
+        if self.alerts is not None:
+            for event in self.alerts.update(frame.timestamp_s, result.objects, self._info_of):
+                self._publish_alert(event)
         if self.annotate_path:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
@@ -204,6 +227,21 @@ class RsuService:
             self._period_stage_s[k] += v
         self.frames += 1
         self._period_frames += 1
+
+    def _publish_alert(self, e: AlertEvent) -> None:
+        o = e.obj
+        msg = EvAlert(src=self.rsu_id, seq=self._seq["ev"], stamp=max(self.clock.now(), 0.0),
+                      alert_id=f"{self.rsu_id}-ev-{e.track_id}", state=e.state, rsu_id=self.rsu_id,
+                      object_id=e.track_id, pos_x_m=o.pos_x_m, pos_y_m=o.pos_y_m, lat_deg=o.lat_deg,
+                      lon_deg=o.lon_deg, vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps,
+                      heading_rad=o.heading_rad, lane=o.lane, confidence=float(np.clip(e.confidence, 0.0, 1.0)),
+                      first_seen=max(e.first_seen_s, 0.0),
+                      evidence=EvEvidence(frames=e.frames, flash_hz=e.flash_hz,
+                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0))))
+        self.transport.publish(self.ev_key, msg)
+        self._seq["ev"] += 1
+        self.alerts_published[str(e.state)] += 1
+        log.info("EvAlert %s %s (track %d, lane %s, x %.1f m)", msg.alert_id, e.state, e.track_id, o.lane, o.pos_x_m)
 
     def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
         image = annotate(frame.image, result)

@@ -5,7 +5,8 @@ classifies tracks, not frames). Two cues are combined:
 
 1. **Lamp signal.** In the top band of the box (where a light bar sits when seen from an elevated
    camera) we measure the fraction of pixels that are *bright, saturated* red and blue (lamps, not
-   paint: V >= 200 and S >= 120). Emergency lamps flash at 1-4 Hz, alternating red/blue or strobing;
+   paint: V >= 240 and S >= 120; tuned on simulator renders, seeds 1-2, where sunlit red paint
+   reaches V ~ 239 and lamps saturate). Emergency lamps flash at 1-4 Hz, alternating red/blue or strobing;
    so the lamp signal of an EV *modulates*: it switches between clearly-on and clearly-off within a
    fraction of a second. Brake and tail lights switch once and then stay steady (and sit low on the
    body, mostly outside the band), a red or blue car is steady paint that is rarely lamp-bright. A
@@ -52,7 +53,7 @@ class LampMeasurement:
     blue: float
 
 
-def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 200,
+def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
                   min_saturation: int = 120) -> LampMeasurement:
     """Fractions of the top band's pixels that are lamp-bright saturated red / blue."""
     if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
@@ -69,9 +70,9 @@ def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: in
 
 @dataclass(frozen=True)
 class EvidenceConfig:
-    lamp_on_fraction: float = 0.004
+    lamp_on_fraction: float = 0.025
     """A lamp colour counts as on above this fraction of the band's pixels."""
-    lamp_off_ratio: float = 0.35
+    lamp_off_ratio: float = 0.2
     """... and as off below this share of its recent peak."""
     flash_window_s: float = 1.5
     min_on_samples: int = 2

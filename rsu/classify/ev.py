@@ -1,0 +1,195 @@
+"""The RSU's EV classifier hook and EV alert logic (issue 5; Framework B, thesis 2.3-2.4).
+
+:class:`TrackEvClassifier` is the ``RsuPipeline`` classifier hook ``(frame, tracks) -> {track_id:
+(ev_score, light_state, ev_state)}``. It keeps one :class:`~rsu.classify.temporal.TrackEvidence` per
+track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
+(clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
+detector's box can cut the light bar off the roof), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
+callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
+bar: far vehicles and merged blobs of distant traffic flicker like lamps), and forgets tracks unseen for
+``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
+
+:class:`EvAlertManager` turns the per-track EV states into ``EvAlert`` events (pure: the caller gives
+the frame time): ``active`` when a track becomes confirmed, a refresh every ``refresh_period_s``
+(2 Hz) while active, ``cleared`` when its evidence clears (lights off) or the track has not been seen
+for ``leave_after_s`` (it left the view).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.messages import AlertState, DetectedObject, EvState, LightState
+from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
+
+CropScore = Callable[[np.ndarray], float]
+
+
+def clip_box(box: Iterable[float], width: int, height: int) -> tuple[int, int, int, int] | None:
+    """Integer crop bounds of an xyxy box clipped to the image; None when nothing of it is inside."""
+    x1, y1, x2, y2 = (float(v) for v in box)
+    if not all(np.isfinite((x1, y1, x2, y2))):
+        return None
+    xa, ya = int(np.clip(np.floor(x1), 0, width)), int(np.clip(np.floor(y1), 0, height))
+    xb, yb = int(np.clip(np.ceil(x2), 0, width)), int(np.clip(np.ceil(y2), 0, height))
+    if xb - xa < 2 or yb - ya < 2:
+        return None
+    return xa, ya, xb, yb
+
+
+@dataclass
+class TrackInfo:
+    evidence: TrackEvidence
+    first_seen_s: float
+    last_seen_s: float
+
+
+class TrackEvClassifier:
+    """Per-track temporal EV classifier (the RSU's classifier hook); see the module docstring."""
+
+    def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
+                 top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
+                 above_fraction: float = 0.0, min_box_px: float = 40.0, forget_after_s: float = 2.0,
+                 max_tracks: int = 512) -> None:
+        if forget_after_s <= 0 or max_tracks < 1:
+            raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
+        self.config = config or EvidenceConfig()
+        self.crop_score = crop_score
+        if not 0.0 <= above_fraction <= 1.0 or not 0.0 < top_fraction <= 1.0:
+            raise ValueError("above_fraction must be in [0, 1] and top_fraction in (0, 1]")
+        self.above_fraction = above_fraction
+        # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
+        band = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
+        self.lamp_kwargs = dict(top_fraction=band, min_value=min_value, min_saturation=min_saturation)
+        self.min_box_px = float(min_box_px)
+        self.forget_after_s = forget_after_s
+        self.max_tracks = max_tracks
+        self.tracks: dict[int, TrackInfo] = {}
+
+    def evidence(self, track_id: int) -> TrackInfo | None:
+        return self.tracks.get(int(track_id))
+
+    def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
+        h, w = image.shape[:2]
+        x1, y1, x2, y2 = (float(v) for v in box)
+        if self.above_fraction > 0:  # light bars sit on the roof, often outside a COCO "car" box
+            y1 -= self.above_fraction * (y2 - y1)
+        bounds = clip_box((x1, y1, x2, y2), w, h)
+        if bounds is None:
+            return LampMeasurement(0.0, 0.0), None
+        xa, ya, xb, yb = bounds
+        crop = image[ya:yb, xa:xb]
+        score = None
+        if self.crop_score is not None:
+            score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
+        return measure_lamps(crop, **self.lamp_kwargs), score
+
+    def __call__(self, frame, tracks) -> dict[int, tuple[float, LightState, EvState]]:
+        now = float(frame.timestamp_s)
+        image = frame.image
+        out: dict[int, tuple[float, LightState, EvState]] = {}
+        for tid, box in zip(tracks.track_ids, tracks.boxes, strict=True):
+            tid = int(tid)
+            info = self.tracks.get(tid)
+            if info is None:
+                info = self.tracks[tid] = TrackInfo(TrackEvidence(self.config), now, now)
+            info.last_seen_s = now
+            ev = info.evidence
+            if min(box[2] - box[0], box[3] - box[1]) < self.min_box_px:
+                # too few pixels to see a light bar (a far vehicle, or distant traffic merged into
+                # one blob): no measurement this frame, the evidence keeps its state
+                state = ev.state
+            else:
+                lamps, score = self.measure(image, box)
+                state = ev.update(now, lamps, score)
+            out[tid] = (ev.ev_score, ev.light_state, state)
+        self._forget(now)
+        return out
+
+    def _forget(self, now_s: float) -> None:
+        gone = [tid for tid, i in self.tracks.items() if now_s - i.last_seen_s > self.forget_after_s]
+        for tid in gone:
+            del self.tracks[tid]
+        if len(self.tracks) > self.max_tracks:  # oldest-seen first
+            for tid, _ in sorted(self.tracks.items(), key=lambda kv: kv[1].last_seen_s)[:len(self.tracks) - self.max_tracks]:
+                del self.tracks[tid]
+
+
+@dataclass(frozen=True)
+class AlertEvent:
+    """One EvAlert to publish: state, the alerting track's latest object and its evidence summary."""
+
+    state: AlertState
+    track_id: int
+    obj: DetectedObject
+    first_seen_s: float
+    confidence: float
+    frames: int
+    flash_hz: float | None
+    mean_score: float
+
+
+@dataclass
+class _Active:
+    obj: DetectedObject
+    first_seen_s: float
+    last_seen_s: float
+    last_sent_s: float
+    confidence: float
+    frames: int
+    flash_hz: float | None
+    mean_score: float
+
+
+@dataclass
+class EvAlertManager:
+    """EvAlert life cycle per track (see the module docstring); ``update`` once per processed frame."""
+
+    refresh_period_s: float = 0.5
+    leave_after_s: float = 1.0
+    active: dict[int, _Active] = field(default_factory=dict)
+
+    def update(self, now_s: float, objects: Iterable[DetectedObject],
+               info_of: Callable[[int], TrackInfo | None]) -> list[AlertEvent]:
+        events: list[AlertEvent] = []
+        seen: set[int] = set()
+        for obj in objects:
+            tid = int(obj.object_id)
+            seen.add(tid)
+            info = info_of(tid)
+            a = self.active.get(tid)
+            if obj.ev_state == EvState.CONFIRMED:
+                ev = info.evidence if info is not None else None
+                conf = float(obj.ev_score)
+                frames = ev.frames if ev is not None else 0
+                hz = ev.flash_hz if ev is not None else None
+                mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else conf
+                if a is None:
+                    first = info.first_seen_s if info is not None else now_s
+                    a = self.active[tid] = _Active(obj, first, now_s, now_s, conf, frames, hz, mean)
+                    events.append(self._event(AlertState.ACTIVE, tid, a))
+                else:
+                    a.obj, a.last_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score = (
+                        obj, now_s, conf, frames, hz, mean)
+            elif a is not None:  # evidence cleared (lights off) or fell back
+                a.obj = obj
+                events.append(self._event(AlertState.CLEARED, tid, a))
+                del self.active[tid]
+        for tid, a in list(self.active.items()):
+            if tid not in seen and now_s - a.last_seen_s >= self.leave_after_s:
+                events.append(self._event(AlertState.CLEARED, tid, a))
+                del self.active[tid]
+            elif now_s - a.last_sent_s >= self.refresh_period_s - 1e-9 and not any(
+                    e.track_id == tid for e in events):
+                events.append(self._event(AlertState.ACTIVE, tid, a))
+        for e in events:
+            if e.state == AlertState.ACTIVE:
+                self.active[e.track_id].last_sent_s = now_s
+        return events
+
+    @staticmethod
+    def _event(state: AlertState, tid: int, a: _Active) -> AlertEvent:
+        return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score)

@@ -1,0 +1,41 @@
+"""``SimSource``: the simulator's rendered camera as an RSU frame source (``iea-rsu --source sim``).
+
+A thin adapter from :class:`sim.camera_source.SimCamera` (which subscribes to ``iea/{c}/sim/world`` and
+renders this RSU's view) to the RSU's :class:`rsu.frames.FrameSource` contract, so simulated frames go
+through exactly the code path of a video file. The RSU only ever sees the rendered pixels, the sim time
+stamp and the frame number: the snapshot (ground truth) never leaves ``SimCamera``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from protocol.corridor import Corridor
+from protocol.transport import Transport
+from rsu.frames import Frame, SourceStalled
+
+
+class SimSource:
+    """Frames of one RSU's simulated camera; ``read`` raises :class:`SourceStalled` when no snapshot comes."""
+
+    def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport, *, corridor_id: str | None = None,
+                 seed: int = 0) -> None:
+        from sim.camera_source import SimCamera  # the simulator is only needed for --source sim
+
+        if corridor_id and corridor_id != corridor.corridor_id:
+            # SimCamera subscribes on its corridor's id: give it the overriding id (key expressions only).
+            corridor = dataclasses.replace(corridor, corridor_id=corridor_id)
+        self.camera = SimCamera(corridor, rsu_id, transport, seed=seed)
+        self.fps = float(self.camera.fps)
+        self.source_id = f"sim:{rsu_id}"
+        self.drops = 0
+
+    def read(self, timeout_s: float | None = None) -> Frame | None:
+        timeout = 5.0 if timeout_s is None else float(timeout_s)
+        f = self.camera.read(timeout)
+        if f is None:
+            raise SourceStalled(f"{self.source_id}: no world snapshot for {timeout:.1f} s")
+        return Frame(f.image, f.timestamp_s, f.frame_number, self.source_id)
+
+    def close(self) -> None:
+        self.camera.close()

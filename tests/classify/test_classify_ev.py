@@ -1,0 +1,145 @@
+"""TrackEvClassifier (per-track lamp evidence on box crops) and EvAlertManager (alert life cycle)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocol.messages import AlertState, DetectedObject, EvState, LightState
+from rsu.classify.ev import EvAlertManager, TrackEvClassifier, clip_box
+from rsu.frames import Frame
+from rsu.track import TrackSet
+
+FPS = 15.0
+BOX_A = (100.0, 100.0, 180.0, 160.0)  # the EV
+BOX_B = (300.0, 100.0, 380.0, 160.0)  # a red car
+
+
+def tracks(entries):
+    """TrackSet of (track_id, box) pairs."""
+    if not entries:
+        return TrackSet.empty()
+    ids = np.array([e[0] for e in entries], np.int64)
+    n = len(entries)
+    z = np.zeros(n, np.int64)
+    return TrackSet(ids, np.array([e[1] for e in entries], float), z, np.ones(n), z, z + 5, z + 5, np.zeros((n, 2)))
+
+
+def scene(t, lights_on_at=0.5, freq=2.0):
+    img = np.full((240, 480, 3), 90, np.uint8)
+    img[100:160, 100:180] = (230, 230, 230)            # white ambulance body
+    img[130:150, 110:170] = (40, 40, 200)              # red stripe (paint, not lamp-bright)
+    img[100:160, 300:380] = (30, 30, 190)              # red car
+    if t >= lights_on_at:
+        red_phase = ((t - lights_on_at) * freq) % 1.0 < 0.5
+        img[102:110, 110:135 if red_phase else 110] = (0, 0, 255)
+        if not red_phase:
+            img[102:110, 145:170] = (255, 60, 0)
+    return img
+
+
+def run(n_frames, entries_of=lambda k: [(1, BOX_A), (2, BOX_B)], clf=None, **scene_kw):
+    clf = clf or TrackEvClassifier()
+    states = []
+    for k in range(n_frames):
+        t = k / FPS
+        out = clf(Frame(scene(t, **scene_kw), t, k, "cam"), tracks(entries_of(k)))
+        states.append((t, out))
+    return clf, states
+
+
+def test_clip_box_to_image():
+    assert clip_box((-10, -5, 50, 40), 100, 80) == (0, 0, 50, 40)
+    assert clip_box((90.2, 70.5, 150, 120), 100, 80) == (90, 70, 100, 80)
+    assert clip_box((200, 10, 250, 40), 100, 80) is None
+    assert clip_box((np.nan, 0, 10, 10), 100, 80) is None
+
+
+def test_flashing_light_bar_confirms_fast_and_the_red_car_never():
+    _, states = run(int(6 * FPS))
+    first = next(t for t, out in states if out.get(1, (0, 0, EvState.NONE))[2] == EvState.CONFIRMED)
+    assert 0.5 < first <= 0.5 + 0.6
+    assert all(out[2][2] != EvState.CONFIRMED for _, out in states)
+    score, light, state = states[-1][1][1]
+    assert state == EvState.CONFIRMED and light == LightState.FLASHING and score > 0.9
+    assert states[-1][1][2][1] == LightState.OFF
+
+
+def test_no_lights_no_confirmation():
+    _, states = run(int(5 * FPS), lights_on_at=1e9)
+    assert all(s[2] != EvState.CONFIRMED for _, out in states for s in out.values())
+
+
+def test_crop_score_is_called_on_the_clipped_crop_and_alone_cannot_confirm():
+    seen = []
+
+    def scorer(crop):
+        seen.append(crop.shape)
+        return 0.99
+
+    clf = TrackEvClassifier(crop_score=scorer)
+    _, states = run(int(3 * FPS), entries_of=lambda k: [(7, (-20.0, 100.0, 60.0, 160.0))], clf=clf,
+                    lights_on_at=1e9)
+    assert seen and seen[0] == (60, 60, 3)
+    assert all(out[7][2] != EvState.CONFIRMED for _, out in states)
+
+
+def test_tracks_are_forgotten_when_gone():
+    clf = TrackEvClassifier(forget_after_s=0.5)
+    run(10, clf=clf)
+    assert set(clf.tracks) == {1, 2}
+    run(20, entries_of=lambda k: [(3, BOX_B)], clf=TrackEvClassifier())  # independent instance untouched
+    for k in range(10, 30):
+        clf(Frame(scene(k / FPS), k / FPS, k, "cam"), tracks([(3, BOX_B)]))
+    assert set(clf.tracks) == {3}
+    capped = TrackEvClassifier(max_tracks=4)
+    for k in range(10):
+        capped(Frame(scene(k / FPS), k / FPS, k, "cam"), tracks([(100 + k, BOX_B)]))
+    assert len(capped.tracks) == 4 and max(capped.tracks) == 109
+
+
+def obj(tid, state, x=10.0):
+    return DetectedObject(object_id=tid, pos_x_m=x, pos_y_m=2.0, lat_deg=30.0, lon_deg=-96.0,
+                          bbox_px=(0, 0, 10, 10), ev_score=0.9 if state == EvState.CONFIRMED else 0.1, ev_state=state,
+                          lane=1)
+
+
+def test_alert_life_cycle_active_refresh_2hz_and_cleared_when_gone():
+    m = EvAlertManager()
+    info = lambda tid: None  # noqa: E731
+    events = []
+    for k in range(60):  # 4 s at 15 fps: candidate, then confirmed from frame 5, gone from frame 40
+        t = k / FPS
+        objs = [] if k >= 40 else [obj(4, EvState.CONFIRMED if k >= 5 else EvState.CANDIDATE, x=k)]
+        events += [(t, e) for e in m.update(t, objs, info)]
+    active = [(t, e) for t, e in events if e.state == AlertState.ACTIVE]
+    cleared = [(t, e) for t, e in events if e.state == AlertState.CLEARED]
+    assert active[0][0] == pytest.approx(5 / FPS)
+    gaps = np.diff([t for t, _ in active])
+    assert np.all(gaps >= 0.5 - 1e-6) and np.all(gaps <= 0.5 + 1 / FPS + 1e-6)
+    assert len(cleared) == 1 and cleared[0][0] == pytest.approx(39 / FPS + 1.0, abs=1 / FPS + 1e-6)
+    assert cleared[0][1].obj.pos_x_m == 39  # last known position
+    assert not m.active
+
+
+def test_alert_cleared_when_the_evidence_clears():
+    m = EvAlertManager()
+    ev1 = m.update(0.0, [obj(4, EvState.CONFIRMED)], lambda tid: None)
+    ev2 = m.update(0.1, [obj(4, EvState.CLEARED)], lambda tid: None)
+    assert [e.state for e in ev1] == [AlertState.ACTIVE] and [e.state for e in ev2] == [AlertState.CLEARED]
+
+
+def test_above_fraction_sees_a_light_bar_just_above_the_box():
+    img = np.full((240, 480, 3), 90, np.uint8)
+    img[95:100, 110:170] = (0, 0, 255)  # lamp on the roof, above a detector box that starts at y = 100
+    assert TrackEvClassifier().measure(img, BOX_A)[0].red == 0.0
+    assert TrackEvClassifier(above_fraction=0.2).measure(img, BOX_A)[0].red > 0.05
+
+
+def test_boxes_too_small_to_resolve_a_light_bar_are_not_measured():
+    small = (110.0, 100.0, 140.0, 125.0)  # 30 x 25 px, on the flashing bar
+    clf, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)])
+    assert all(out[5] == (clf.tracks[5].evidence.ev_score, LightState.UNKNOWN, EvState.NONE) for _, out in states)
+    assert clf.tracks[5].evidence.frames == 0
+    _, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)], clf=TrackEvClassifier(min_box_px=20))
+    assert states[-1][1][5][2] == EvState.CONFIRMED
