@@ -256,14 +256,15 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
 
 # ----------------------------------------------------------------------------- train / export
 def train(det_dir: Path, out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
-          seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None) -> nn.Module:
+          seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None,
+          input_hw: tuple[int, int] = INPUT_HW) -> nn.Module:
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     torch.set_num_threads(threads)
     torch.set_flush_denormal(True)
-    images, labels = load_split(det_dir, "train", limit=limit)
+    images, labels = load_split(det_dir, "train", input_hw, limit=limit)
     n_boxes = sum(len(lb) for lb in labels)
-    print(f"train: {len(images)} images, {n_boxes} boxes, input {INPUT_HW}, crops {crop_hw}", flush=True)
+    print(f"train: {len(images)} images, {n_boxes} boxes, input {input_hw}, crops {crop_hw}", flush=True)
     model = TinyYolox()
     n_params = sum(p.numel() for p in model.parameters())
     print(f"model: {n_params / 1e6:.3f} M parameters", flush=True)
@@ -293,12 +294,12 @@ def train(det_dir: Path, out_path: Path, *, iterations: int, batch: int, crop_hw
                   f"cls {parts['cls']:.3f} l1 {parts['l1']:.3f} fg/img {parts['fg']:.1f} lr {sched.get_last_lr()[0]:.2e} "
                   f"{el:.0f} s", flush=True)
         if it % 200 == 199:
-            export_onnx(model, out_path)
+            export_onnx(model, out_path, input_hw)
             model.train()
         if time_budget_s and el > time_budget_s:
             print(f"time budget {time_budget_s:.0f} s reached at iteration {it}", flush=True)
             break
-    export_onnx(model, out_path)
+    export_onnx(model, out_path, input_hw)
     return model
 
 
@@ -318,6 +319,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="models/iea_det_tiny.onnx")
     p.add_argument("--iterations", type=int, default=3000)
     p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--input", type=int, nargs=2, default=INPUT_HW, metavar=("H", "W"),
+                   help="model input (multiples of 32); the frame is letterboxed into it")
     p.add_argument("--crop", type=int, nargs=2, default=(256, 320), metavar=("H", "W"))
     p.add_argument("--lr", type=float, default=4e-3)
     p.add_argument("--seed", type=int, default=0)
@@ -325,10 +328,10 @@ def main(argv=None) -> int:
     p.add_argument("--limit", type=int, default=None, help="use at most this many training images")
     p.add_argument("--time-budget-s", type=float, default=None, help="stop (and export) after this long")
     a = p.parse_args(argv)
-    if a.crop[0] % 32 or a.crop[1] % 32:
-        p.error("--crop sides must be multiples of 32")
+    if a.crop[0] % 32 or a.crop[1] % 32 or a.input[0] % 32 or a.input[1] % 32:
+        p.error("--crop and --input sides must be multiples of 32")
     train(Path(a.data) / "det", Path(a.out), iterations=a.iterations, batch=a.batch, crop_hw=tuple(a.crop), lr=a.lr,
-          seed=a.seed, threads=a.threads, limit=a.limit, time_budget_s=a.time_budget_s)
+          seed=a.seed, threads=a.threads, limit=a.limit, time_budget_s=a.time_budget_s, input_hw=tuple(a.input))
     print(f"exported {a.out} ({Path(a.out).stat().st_size / 1e6:.2f} MB)")
     return 0
 
