@@ -1,0 +1,79 @@
+"""The project's own detector (models/iea_det_tiny.onnx) through the runtime path, on fresh simulator renders.
+
+Renders frames of rellis_ev_yield with a scenario seed never used for training, runs
+``rsu.detect.OnnxDetector`` (its default thresholds, Framework B: both model classes as "vehicle") and
+compares with the simulator's own labels. Skips when the model file is absent (``make models`` builds it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.evaluate_detector import average_precision, iou_matrix, render_held_out
+from rsu.detect import PROJECT_CLASSES, OnnxDetector, yolox_grids
+
+MODEL = Path(__file__).resolve().parents[2] / "models" / "iea_det_tiny.onnx"
+MIN_SIDE_PX = 12.0
+"""Ground truth counted for recall: shorter side >= 12 px in the 1280x720 frame (6 px at the model's input)."""
+
+needs_model = pytest.mark.skipif(not MODEL.is_file(), reason=f"{MODEL} not built (make models)")
+
+
+@pytest.fixture(scope="module")
+def held_out():
+    # seed 900_003: not a training seed (training uses 100_003 + 7919 e + scenario seed, e < 20)
+    return render_held_out("rellis_ev_yield", seeds=(900_003,), stride_s=2.5, t_min_s=4.0, max_frames=24)
+
+
+@needs_model
+def test_model_has_the_project_layout():
+    det = OnnxDetector(MODEL, warmup_runs=0)
+    assert det.layout == "project"
+    assert det.input_hw == (384, 640)
+    out = det.session.get_outputs()[0].shape
+    assert out[-1] == 5 + len(PROJECT_CLASSES)
+    assert out[1] == len(yolox_grids(det.input_hw)[0])
+    assert MODEL.stat().st_size < 5e6
+
+
+@needs_model
+def test_detects_the_simulated_vehicles_of_the_default_scenario(held_out):
+    det = OnnxDetector(MODEL, class_map={0: 0, 1: 0}, intra_op_threads=1)  # default thresholds, Framework B
+    n_gt = hits = n_det = correct = loose = 0
+    for image, truth in zip(held_out.images, held_out.truths, strict=True):
+        boxes, scores, classes = det.detect(image)
+        assert (classes == 0).all() and ((scores >= 0.3) & (scores <= 1)).all()
+        iou = iou_matrix(truth.boxes, boxes)
+        sides = np.minimum(truth.boxes[:, 2] - truth.boxes[:, 0], truth.boxes[:, 3] - truth.boxes[:, 1])
+        counted = ~truth.difficult & (sides >= MIN_SIDE_PX)
+        n_gt += int(counted.sum())
+        hits += int((iou[counted] >= 0.5).any(axis=1).sum()) if len(boxes) else 0
+        n_det += len(boxes)
+        correct += int((iou >= 0.5).any(axis=0).sum()) if len(truth.boxes) else 0  # any labelled vehicle
+        loose += int((iou >= 0.3).any(axis=0).sum()) if len(truth.boxes) else 0
+    assert n_gt >= 30, f"too few ground-truth boxes rendered ({n_gt})"
+    recall, precision = hits / n_gt, correct / max(1, n_det)
+    assert recall >= 0.9, f"recall {recall:.3f} ({hits}/{n_gt}) of vehicles >= {MIN_SIDE_PX} px"
+    # known weakness (models/iea_det_tiny.md): boxes of far vehicles are loose, so precision at IoU 0.5 is
+    # about 0.6 (0.78 at IoU 0.3); these bounds guard against regressions, not the issue target
+    assert loose / max(1, n_det) >= 0.7, f"precision at IoU 0.3 {loose / max(1, n_det):.3f} ({loose}/{n_det})"
+    assert precision >= 0.5, f"precision at IoU 0.5 {precision:.3f} ({correct}/{n_det})"
+
+
+def test_average_precision_all_point_voc():
+    gt = [(np.array([[0, 0, 10, 10], [20, 20, 30, 30]], float), np.array([False, False]))]
+    perfect = [(np.array([[0, 0, 10, 10], [20, 20, 30, 30]], float), np.array([0.9, 0.8]))]
+    assert average_precision(perfect, gt)[0] == pytest.approx(1.0)
+    # a false positive ranked first: precision 0, 1/2, 2/3 at recall 0, 0.5, 1 -> AP = 0.5 * 2/3 + 0.5 * 2/3
+    with_fp = [(np.array([[50, 50, 60, 60], [0, 0, 10, 10], [20, 20, 30, 30]], float), np.array([0.95, 0.9, 0.8]))]
+    assert average_precision(with_fp, gt)[0] == pytest.approx(2 / 3)
+    # a duplicate is a false positive; a detection on a difficult box is ignored
+    dup = [(np.array([[0, 0, 10, 10], [0, 0, 10, 10]], float), np.array([0.9, 0.8]))]
+    ap, n_gt, recall = average_precision(dup, [(gt[0][0][:1], np.array([False]))])
+    assert (ap, n_gt, recall) == (pytest.approx(1.0), 1, 1.0)
+    assert average_precision(dup, [(gt[0][0][:1], np.array([True]))])[1] == 0
+    hard = [(np.array([[20, 20, 30, 30], [0, 0, 10, 10]], float), np.array([0.9, 0.8]))]
+    assert average_precision(hard, [(gt[0][0], np.array([False, True]))])[0] == pytest.approx(1.0)
