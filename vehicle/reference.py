@@ -84,7 +84,7 @@ class ReferencePath:
     def project(self, x_m: float, y_m: float, hint: int | None = None, window: int = 40) -> PathProjection:
         """Nearest point of the path; searches near ``hint`` first (O(window)), globally otherwise."""
         pts = self.points
-        if hint is not None:
+        if hint is not None and 0 <= hint < len(pts):  # a hint from another (longer) path is ignored
             lo, hi = max(0, hint - window), min(len(pts), hint + window + 1)
             d2 = (pts[lo:hi, 0] - x_m) ** 2 + (pts[lo:hi, 1] - y_m) ** 2
             i = lo + int(np.argmin(d2))

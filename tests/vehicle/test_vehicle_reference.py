@@ -59,3 +59,12 @@ def test_watchdog_triggers_latches_and_clears():
     assert wd.healthy(13.0, 1.5) is not None and wd.healthy(13.0, 0.2) is None
     with pytest.raises(ValueError):
         FailsafeConfig(link_timeout_s=0.0)
+
+
+def test_project_ignores_a_hint_from_a_longer_path():
+    """The core keeps its last projection index across a path switch: a hint past the end of the new
+    (shorter) path must fall back to the global search, not crash (seen in the demo on a pull-over)."""
+    short = ReferencePath([(0.0, 0.0), (10.0, 0.0)], step_m=0.5)
+    proj = short.project(4.0, 0.3, hint=10_000)
+    assert proj.s_m == pytest.approx(4.0, abs=1e-6)
+    assert proj.distance_m == pytest.approx(0.3, abs=1e-6)
