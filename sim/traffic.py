@@ -164,8 +164,11 @@ class IdmTraffic:
                 des *= 0.4
             if v.yielding:  # move right first, then slow down at the right edge
                 des *= YIELD_SPEED_FACTOR if road.lane_of_offset(v.d_m) == 0 else 0.8
-            if v.kind == "ev" and v.light_bar_on(t_s):
-                v.idm_time_gap_s = 0.7
+            if v.kind == "ev":
+                if v.light_bar_on(t_s):
+                    v.idm_time_gap_s = 0.7  # on duty: exempt from the limit, follows closely
+                else:
+                    des = min(des, road.speed_limit_mps)  # lights off: an EV is ordinary traffic
             v0[i] = des
         t_gap = np.array([v.idm_time_gap_s for v in vs])
         a_max = np.array([v.idm_max_accel_mps2 for v in vs])
@@ -328,12 +331,21 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
         for _ in range(n_per_lane):
             kind = _kind_for(rng, tr)
             size = random_size(kind, rng)
+            speed = float(max(2.0, rng.normal(tr.speed_mps, tr.speed_spread_mps)))
+            if kind in ("truck", "bus"):
+                speed *= 0.9
             for _attempt in range(20):
                 s0 = float(rng.uniform(tr.spawn_s_min_m, tr.spawn_s_max_m))
                 clear = all(abs(o.s_m - s0) > (o.length_m + size[0]) / 2 + 6.0 or abs(o.d_m - centre(lane)) > 2.0
                             for o in out)
                 if ev_gap is not None and lane == ev_gap[0] and ev_gap[1] - 10.0 < s0 < ev_gap[2] + 10.0:
                     clear = False  # the EV's lane is free up to the AV (thesis test set-up)
+                if av is not None and lane == av.lane and s0 > av.start_s_m - 10.0:
+                    # the AV follows commanded paths only (no onboard car-following): nothing slower ahead
+                    # of it in its lane that it would catch up with during the scenario
+                    catch_up_m = max(0.0, av.speed_mps - speed) * scenario.duration_s + 30.0
+                    if s0 - av.start_s_m < catch_up_m:
+                        clear = False
                 if clear:
                     break
             else:
@@ -348,9 +360,6 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
             if kind == "bus":
                 colour = tuple(int(c) for c in rng.choice([(40, 160, 230), (230, 230, 230), (60, 60, 180)]))
             livery = LIVERY_TWO_TONE if kind in ("van", "truck") and rng.random() < 0.3 else LIVERY_PLAIN
-            speed = float(max(2.0, rng.normal(tr.speed_mps, tr.speed_spread_mps)))
-            if kind in ("truck", "bus"):
-                speed *= 0.9
             out.append(SimVehicle(f"v{k}", kind, s0, centre(lane), speed, lane, *size, colour,
                                   make_style(livery, int(rng.integers(256))), desired_speed_mps=speed,
                                   yields_to_ev=bool(rng.random() < tr.yield_fraction),
