@@ -95,9 +95,10 @@ class HazardConfig:
     vehicle_margin_px: float = 4.0
     stop_window_s: float = 1.5
     stop_px: float = 4.0
+    stop_check_s: float = 0.5
     slow_fraction: float = 0.5
     """A moved track whose bottom-centre moved less than ``stop_px`` or this fraction of its box height
-    over the last ``stop_window_s`` is slow or stopped: new tracks born inside its region are fragments
+    over the last ``stop_check_s`` is slow or stopped: new tracks born inside its region are fragments
     of it, and when the track ends its region is parked."""
     vehicle_grow: float = 0.2
     """A vehicle's held region is the union of its boxes over ``stop_window_s`` grown by this fraction
@@ -198,7 +199,10 @@ class _TrackMemory:
         """A vehicle that has come to rest: its bottom-centre moved less than ``stop_px`` over the window."""
         if not self.moved or len(self.history) < 2:
             return False
-        (_, b0), (_, b1) = self.history[0], self.history[-1]
+        t1, b1 = self.history[-1]
+        b0 = next(b for t, b in self.history if t >= t1 - cfg.stop_check_s - 1e-9)
+        if b0 is b1:
+            return False
         du = (b1[0] + b1[2] - b0[0] - b0[2]) / 2.0
         dv = b1[3] - b0[3]
         return math.hypot(du, dv) < max(cfg.stop_px, cfg.slow_fraction * (b1[3] - b1[1]))
