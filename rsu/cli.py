@@ -13,6 +13,7 @@ from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
+from rsu.hazard import HazardDetector
 from rsu.localize import INTERPOLATIONS, Localizer
 from rsu.service import RsuPipeline, RsuService
 from rsu.sim_source import SimSource
@@ -57,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-classifier", choices=["lamps", "none"], default="lamps",
                     help="lamps: per-track flashing light bar evidence (rsu.classify.ev), publishes EvAlert; "
                          "none: no EV classification")
+    ap.add_argument("--hazards", choices=["static", "none"], default="static",
+                    help="static: report static objects that appear in a lane (rsu.hazard, dual background) as "
+                         "HazardAlert; none: no hazard detection")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
@@ -86,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
         classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
+        hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
+                   if args.hazards == "static" else None)
         if args.source == "sim":
             source = None  # needs the transport: opened below
         elif Path(args.source).is_dir():
@@ -100,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     transport = ZenohTransport(settings)
     if source is None:
         source = SimSource(corridor, args.rsu, transport, corridor_id=args.corridor_id, seed=args.sim_seed)
-    service = RsuService(corridor, args.rsu, source, RsuPipeline(detector, tracker, localizer, classifier), transport,
-                         corridor_id=args.corridor_id, annotate_path=args.annotate, max_frames=args.max_frames,
-                         read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
+    pipeline = RsuPipeline(detector, tracker, localizer, classifier, hazards=hazards)
+    service = RsuService(corridor, args.rsu, source, pipeline, transport, corridor_id=args.corridor_id,
+                         annotate_path=args.annotate, max_frames=args.max_frames, read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     signal.signal(signal.SIGINT, lambda *_: service.stop())
     log.info("RSU %s: %s -> %s on %s", args.rsu, source.source_id, getattr(detector, "name", "detector"),

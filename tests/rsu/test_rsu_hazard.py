@@ -174,3 +174,53 @@ def test_config_is_validated():
         HazardConfig(off_frames=20, on_frames=10)
     with pytest.raises(ValueError):
         HazardConfig(scale=2.0)
+
+
+class _NoDetector:
+    name = "none"
+
+    def detect(self, image):
+        from rsu.detect import Detections
+
+        return Detections.empty()
+
+
+def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
+    from protocol.clock import SimClock
+    from protocol.keys import rsu_key
+    from protocol.messages import HazardAlert
+    from protocol.transport import LocalBus
+    from rsu.frames import ArraySource
+    from rsu.service import RsuPipeline, RsuService
+    from rsu.track import FrameworkTracker
+
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    box = patch_box(rsu, 125.0, y)
+    rng = np.random.default_rng(6)
+    images = [frame_with(base, [box], noise=rng) for _ in range(30)] + [frame_with(base, [], noise=rng)
+                                                                         for _ in range(15)]
+    clock = SimClock()
+
+    class Source(ArraySource):
+        def read(self, timeout_s=None):
+            clock.advance(1 / 15)
+            return super().read(timeout_s)
+
+    bus = LocalBus()
+    got: list[HazardAlert] = []
+    bus.subscribe(rsu_key("rellis", RSU, "hazard"), lambda _k, m: got.append(m))
+    hazards = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(**FAST), camera=rsu.camera)
+    hazards.prime(base)
+    pipe = RsuPipeline(_NoDetector(), FrameworkTracker("B", 1, 3, 0.3), Localizer(corridor, rsu), hazards=hazards)
+    svc = RsuService(corridor, RSU, Source(images, 15.0, "cam"), pipe, bus, clock)
+    assert svc.run() == 0
+    states = [m.state.value for m in got]
+    assert states[0] == "appear" and states[-1] == "clear" and "persist" in states
+    assert {m.hazard_id for m in got} == {f"{RSU}-hz-1"}
+    assert [m.seq for m in got] == list(range(len(got)))
+    first = got[0]
+    assert first.rsu_id == RSU and first.lane == 1 and abs(first.pos_x_m - 125.0) < 1.0
+    lat, lon = corridor.to_latlon(first.pos_x_m, first.pos_y_m)
+    assert first.lat_deg == pytest.approx(lat) and first.lon_deg == pytest.approx(lon)
+    assert svc.hazards_published["appear"] == 1 and svc.hazards_published["clear"] == 1
