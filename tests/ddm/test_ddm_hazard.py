@@ -148,3 +148,71 @@ def test_config_validation():
         HazardConfig(threat_threshold=1.5)
     with pytest.raises(ValueError):
         HazardConfig(min_clearance_m=0.0)
+
+
+# ------------------------------------------------------------------------------------------------ service
+def _rig_with_hazard(x_hz: float, lane_hz: int, *, beside: bool = False):
+    from ddm_rig import Rig
+
+    from protocol.keys import rsu_key
+
+    rig = Rig()
+    rig.add("av1", 40.0, 1, 13.4)
+    if beside:
+        rig.add("car", 112.0, 0, 0.0)  # stopped in lane 0 beside the hazard (a queue): no gap there
+    state = {"on": True, "n": 0}
+
+    def publish_hazard():
+        if not state["on"]:
+            return
+        state["n"] += 1
+        if state["n"] % 10 == 1:  # 1 Hz at the rig's 10 Hz
+            rig.bus.publish(rsu_key(rig.c, "rsu3", "hazard"),
+                            alert("rsu3-hz-1", x_hz, lane_y(lane_hz), "appear" if state["n"] == 1 else "persist",
+                                  length=1.2, width=0.9).model_copy(update={"stamp": rig.clock.now()}))
+
+    rig.hooks.append(publish_hazard)
+    return rig, state
+
+
+def test_service_lane_change_around_a_hazard_then_resume_with_clearance():
+    rig, _ = _rig_with_hazard(120.0, 1)
+    clearances = []
+    for _ in range(90):  # 9 s: the AV drives from x = 40 m past the hazard
+        rig.run(0.1)
+        av = rig.cars["av1"]
+        if abs(av.x - 120.0) < (4.9 + 1.2) / 2:
+            clearances.append(abs(av.y - lane_y(1)) - (1.9 + 0.9) / 2)
+    assert rig.manoeuvres()[:2] == ["lane_change", "resume"]
+    assert rig.svc.counters["hazard_alerts"] >= 5 and len(rig.svc.hazards.hazards) == 1
+    assert clearances and min(clearances) >= HCFG.min_clearance_m
+    assert rig.cars["av1"].x > 130.0
+    first = next(c for c in rig.commands if c.manoeuvre == Manoeuvre.LANE_CHANGE)
+    assert first.target_lane == 0 and "hazard" in first.reason
+
+
+def test_service_stops_before_a_hazard_without_a_gap_and_resumes_when_cleared():
+    rig, state = _rig_with_hazard(120.0, 1, beside=True)
+    rig.run(10.0)
+    assert rig.manoeuvres()[0] == "stop_in_lane"
+    av = rig.cars["av1"]
+    assert av.vx == 0.0 and 120.0 - 0.6 - av.x - 2.45 >= HCFG.stop_gap_m - 0.5  # stopped before it
+    state["on"] = False
+    rig.bus.publish(rsu_key_of(rig), alert("rsu3-hz-1", 120.0, lane_y(1), "clear").model_copy(
+        update={"stamp": rig.clock.now()}))
+    rig.run(1.0)
+    assert rig.manoeuvres()[-1] == "resume"
+
+
+def rsu_key_of(rig):
+    from protocol.keys import rsu_key
+
+    return rsu_key(rig.c, "rsu3", "hazard")
+
+
+def test_service_rejects_a_hazard_alert_from_the_wrong_rsu_key():
+    from ddm_rig import Rig
+
+    rig = Rig()
+    rig.bus.publish(rsu_key_of(rig), alert("rsu2-hz-1", 120.0, 5.5, "appear", rsu="rsu2"))
+    assert rig.svc.rejected["rsu_mismatch"] == 1 and not rig.svc.hazards.hazards
