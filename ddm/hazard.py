@@ -341,6 +341,8 @@ def decide_hazard(ego: Ego, hazards: list[HazardTrack], others: list[Track], fra
     lane_e = lane_raw if lane_raw >= 0 else (0 if d_e < 0 else frame.lanes - 1)
     base = dict(ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=v_e)
     lane_d = frame.lane_centre_offset(lane_e)
+    if response.phase == "avoiding" and response.target_lane is not None:
+        lane_d = frame.lane_centre_offset(response.target_lane)  # what blocks is judged in the lane it goes to
     threats = assess_hazards(s_e, d_e, ego.length_m, ego.width_m, lane_d, hazards, frame, cfg)
     known = {h.hazard_id for h in hazards}
     need = cfg.min_clearance_m + cfg.position_margin_m

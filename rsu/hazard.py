@@ -107,6 +107,8 @@ class HazardConfig:
     """A stopped vehicle's region is held at most this long after its track ended."""
     parked_release_fraction: float = 0.25
     """... and released once less than this fraction of it is static foreground (it drove off)."""
+    min_width_m: float = 0.2
+    """Narrower static components (a sliver along a lane line, a shadow edge) are not reported."""
     max_width_m: float = 3.0
     """Wider static components are not debris (and not a lane-blocking object one lane can pass)."""
     max_length_m: float = 8.0
@@ -232,6 +234,7 @@ class HazardStats:
     too_large: int = 0
     unlocalised: int = 0
     ghosts: int = 0
+    too_small: int = 0
     vehicle_parts: int = 0
     extra: dict = field(default_factory=dict)
 
@@ -492,6 +495,9 @@ class HazardDetector:
             width = float(np.ptp(across)) if len(across) > 1 else 0.0
             if width > cfg.max_width_m or length > cfg.max_length_m:
                 self.stats.too_large += 1
+                continue
+            if width < cfg.min_width_m:
+                self.stats.too_small += 1
                 continue
             road_w = self.road.lanes * self.road.lane_width_m
             if d_c + width / 2.0 <= 0.0 or d_c - width / 2.0 >= road_w:

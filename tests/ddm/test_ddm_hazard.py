@@ -216,3 +216,13 @@ def test_service_rejects_a_hazard_alert_from_the_wrong_rsu_key():
     rig = Rig()
     rig.bus.publish(rsu_key_of(rig), alert("rsu2-hz-1", 120.0, 5.5, "appear", rsu="rsu2"))
     assert rig.svc.rejected["rsu_mismatch"] == 1 and not rig.svc.hazards.hazards
+
+
+def test_a_second_hazard_beside_the_first_does_not_repeat_the_lane_change():
+    box, rock = hz(1, 150.0, 1), hz(2, 153.7, 1, y_off=0.6, length=0.6, width=0.5)
+    resp = HazardResponse()
+    d = decide(ego(), [box, rock])
+    assert d.action == Manoeuvre.LANE_CHANGE and d.target_lane == 0
+    resp.commit(d, 0.0)
+    assert decide(ego(x=110.0, lane=1), [box, rock], [], resp).action == "hold"  # still changing lanes
+    assert decide(ego(x=163.0, lane=0), [box, rock], [], resp).action == Manoeuvre.RESUME
