@@ -46,6 +46,8 @@ EV_REACT_BEHIND_M = 90.0
 EV_PASSED_AHEAD_M = 15.0
 YIELD_SPEED_FACTOR = 0.35
 YIELD_EDGE_SHIFT_M = 0.7
+HAZARD_RUN_UP_M = 40.0
+"""No background vehicle starts this close behind debris that lies in its lane at t = 0."""
 DEBRIS_COLOURS = {"box": (60, 75, 95), "rock": (105, 110, 112), "barrel": (30, 90, 200), "pallet": (120, 165, 195),
                   "pipe": (150, 150, 145), "tyre": (28, 28, 30)}
 """BGR body colour of each debris kind (wooden box, grey rock, orange oil barrel, pale pallet wood, steel
@@ -357,6 +359,9 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                             for o in out)
                 if ev_gap is not None and lane == ev_gap[0] and ev_gap[1] - 10.0 < s0 < ev_gap[2] + 10.0:
                     clear = False  # the EV's lane is free up to the AV (thesis test set-up)
+                if any(h.appear_s <= 0.0 and road.lane_of_offset(centre(h.lane) + h.offset_m) == lane
+                       and h.s_m - HAZARD_RUN_UP_M < s0 < h.s_m for h in scenario.hazards):
+                    clear = False  # debris already on the road: traffic arrives from upstream, not parked behind it
                 if clear:
                     break
             else:
