@@ -8,6 +8,8 @@ import signal
 import sys
 from pathlib import Path
 
+import cv2
+
 from protocol.corridor import CorridorError, load_corridor
 from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.ev import TrackEvClassifier
@@ -61,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--hazards", choices=["static", "none"], default="static",
                     help="static: report static objects that appear in a lane (rsu.hazard, dual background) as "
                          "HazardAlert; none: no hazard detection")
+    ap.add_argument("--hazard-background", metavar="IMAGE", default=None,
+                    help="a frame of the empty road from this camera: the hazard detector starts from it instead of "
+                         "learning the road over its first seconds (debris already there at start is then found)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
@@ -92,6 +97,12 @@ def main(argv: list[str] | None = None) -> int:
         classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
         hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
                    if args.hazards == "static" else None)
+        if hazards is not None and args.hazard_background:
+            empty = cv2.imread(args.hazard_background, cv2.IMREAD_COLOR)
+            if empty is None or empty.shape[:2] != (rsu.camera.height_px, rsu.camera.width_px):
+                raise ValueError(f"--hazard-background {args.hazard_background!r}: not a "
+                                 f"{rsu.camera.width_px}x{rsu.camera.height_px} image")
+            hazards.prime(empty)
         if args.source == "sim":
             source = None  # needs the transport: opened below
         elif Path(args.source).is_dir():
