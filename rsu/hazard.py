@@ -16,7 +16,8 @@ moving. Moving traffic differs from both. An evidence image ``E`` counts static-
 (unchanged) while something moves over it or a tracked vehicle covers it; clipped to ``[0, evidence_max]``.
 
 Tracked vehicles are not hazards: a track whose box centre has *moved* (more than ``moved_px`` and
-``moved_fraction`` of its box since it began) is a vehicle, and its region, the union of its boxes over
+``moved_fraction`` of its box since it began), or whose localised speed stayed above
+``moving_speed_mps`` for ``moving_frames`` frames, is a vehicle, and its region, the union of its boxes over
 the last ``stop_window_s`` grown by ``vehicle_grow`` (a slow car's uniform body looks static while a
 background detector's box of it shrinks), is held. A slow or stopped vehicle's region catches new tracks
 born inside it (fragments of it), and when its track ends while stopped (a queue: a background-subtraction
@@ -92,6 +93,10 @@ class HazardConfig:
     """Smallest component (working-scale pixels) considered at all."""
     moved_px: float = 12.0
     moved_fraction: float = 0.25
+    moving_speed_mps: float = 2.0
+    moving_frames: int = 5
+    """... or whose localised speed (when the caller gives speeds) was at least ``moving_speed_mps`` for
+    ``moving_frames`` frames in a row (a slow car far away moves a few pixels a second)."""
     """A track whose box centre moved more than ``moved_px`` (full-scale pixels) and this fraction of its
     smaller box side since it began is a vehicle (a car entering at the image edge grows from the edge:
     its centre moves though its bottom stays on the border)."""
@@ -119,7 +124,8 @@ class HazardConfig:
     """Narrower static components (a sliver along a lane line, a shadow edge) are not reported."""
     max_width_m: float = 3.0
     """Wider static components are not debris (and not a lane-blocking object one lane can pass)."""
-    max_length_m: float = 8.0
+    max_length_m: float = 6.0
+    """Longer static components are not debris (a slow car far away smears to ~7 m)."""
     match_m: float = 2.0
     """A component within this distance of a known hazard (or overlapping its box) is that hazard."""
     clear_after_s: float = 1.0
@@ -202,6 +208,7 @@ class _TrackMemory:
     box: np.ndarray
     moved: bool = False
     last_s: float = 0.0
+    fast_frames: int = 0
     history: deque = field(default_factory=deque)
     """(t_s, box) of the last ``stop_window_s``."""
 
@@ -400,7 +407,8 @@ class HazardDetector:
         self.last_components: list[_Component] = []
 
     # ------------------------------------------------------------------ vehicles
-    def _vehicle_boxes(self, t_s: float, track_ids, boxes) -> list[np.ndarray]:
+    def _vehicle_boxes(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None = None
+                       ) -> list[np.ndarray]:
         cfg = self.cfg
         ids = [int(t) for t in np.asarray(track_ids).reshape(-1)]
         boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
@@ -422,9 +430,13 @@ class HazardDetector:
             mem.history.append((t_s, b.copy()))
             while mem.history and t_s - mem.history[0][0] > cfg.stop_window_s:
                 mem.history.popleft()
+            if speeds is not None:
+                fast = speeds.get(tid, 0.0) >= cfg.moving_speed_mps
+                mem.fast_frames = mem.fast_frames + 1 if fast else 0
             if not mem.moved:
                 moved = math.hypot(uv[0] - mem.first_uv[0], uv[1] - mem.first_uv[1])
-                mem.moved = moved > max(cfg.moved_px, cfg.moved_fraction * min(b[2] - b[0], b[3] - b[1]))
+                mem.moved = (moved > max(cfg.moved_px, cfg.moved_fraction * min(b[2] - b[0], b[3] - b[1]))
+                             or mem.fast_frames >= cfg.moving_frames)
             if mem.moved:
                 out.append(mem.hold_box(cfg))
         for tid in [t for t in self._tracks if t not in present]:
@@ -528,12 +540,14 @@ class HazardDetector:
         self.fg.prime(self.fg.small(empty_road))
 
     # ------------------------------------------------------------------ per frame
-    def update(self, image: np.ndarray, t_s: float, track_ids=(), boxes=()) -> list[HazardEvent]:
-        """One frame (BGR, full size) at time ``t_s`` with this frame's track ids and xyxy boxes."""
+    def update(self, image: np.ndarray, t_s: float, track_ids=(), boxes=(),
+               speeds: dict[int, float] | None = None) -> list[HazardEvent]:
+        """One frame (BGR, full size) at time ``t_s`` with this frame's track ids and xyxy boxes (and,
+        optionally, each track's localised speed in m/s by track id)."""
         cfg = self.cfg
         self.stats.frames += 1
         small = self.fg.small(image)
-        vboxes = self._vehicle_boxes(t_s, track_ids, boxes)
+        vboxes = self._vehicle_boxes(t_s, track_ids, boxes, speeds)
         hold = self._box_mask(small.shape[:2], vboxes)
         self._hold = hold
         if not self.fg.update(small, hold):

@@ -94,7 +94,8 @@ class RsuPipeline:
         localized = self.localizer.update(tracks, frame.timestamp_s)
         objects = [self._to_message(o, ev.get(o.track_id)) for o in localized]
         t4 = time.perf_counter()
-        hazards = (self.hazards.update(frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes)
+        hazards = (self.hazards.update(frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,
+                                       {o.track_id: o.speed_mps for o in localized})
                    if self.hazards is not None else [])
         t5 = time.perf_counter()
         stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3, hazard=t5 - t4)

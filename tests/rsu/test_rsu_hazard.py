@@ -224,3 +224,20 @@ def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
     lat, lon = corridor.to_latlon(first.pos_x_m, first.pos_y_m)
     assert first.lat_deg == pytest.approx(lat) and first.lon_deg == pytest.approx(lon)
     assert svc.hazards_published["appear"] == 1 and svc.hazards_published["clear"] == 1
+
+
+def test_slow_far_vehicle_is_masked_by_its_localised_speed(scene):
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(240.0, corridor.road.lane_centre_offset_m(0))[1])
+    rng = np.random.default_rng(7)
+    # 60 m ahead, 1.5 m/s: its box centre moves ~5 px over the run (less than moved_px), its body looks static
+    boxes = [patch_box(rsu, 160.0 + 1.5 * k / 15, y, 4.5, 1.8, 1.5) for k in range(30)]
+    frames = [frame_with(base, [b], colour=(200, 200, 200), noise=rng) for b in boxes]
+    cfg = dict(FAST, moving_speed_mps=1.0)
+    det = detector(corridor, rsu, loc, base, **cfg)
+    assert run(det, frames, tracks=lambda k: ([7], [boxes[k]])) != []  # pixels alone: it looks parked
+    det = detector(corridor, rsu, loc, base, **cfg)
+    events = []
+    for k, img in enumerate(frames):
+        events += det.update(img, k / 15, [7], [boxes[k]], {7: 1.5})
+    assert events == []
