@@ -46,6 +46,7 @@ from protocol.transport import DsrcLink, LocalBus, Transport
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import Frame
+from rsu.hazard import HazardDetector
 from rsu.localize import Localizer
 from rsu.service import RsuPipeline, RsuService
 from rsu.track import FrameworkTracker
@@ -78,6 +79,8 @@ class LockstepConfig:
     """Write every RSU's annotated video here."""
     realtime: bool = False
     """Pace the simulated clock to the wall clock (for watching); the default runs as fast as it can."""
+    hazards: bool = True
+    """RSUs run the static-object hazard detector (``rsu.hazard``, issue 10), started from the empty road."""
 
 
 class _Task:
@@ -147,11 +150,18 @@ class CorridorLockstep:
         r = self.corridor.rsu(rsu_id)
         cam = SimCamera(self.corridor, rsu_id, seed=self.scenario.seed)
         det = self._make_detector()
+        empty = None
+        if isinstance(det, MotionDetector) or self.config.hazards:
+            empty = cam.render(self.sim.world.snapshot().model_copy(update={"actors": []})).image
         if isinstance(det, MotionDetector):
-            empty = self.sim.world.snapshot().model_copy(update={"actors": []})
             for _ in range(MOTION_WARMUP_FRAMES):
-                det.detect(cam.render(empty).image)
-        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), Localizer(self.corridor, r), TrackEvClassifier())
+                det.detect(empty)
+        loc = Localizer(self.corridor, r)
+        hazards = None
+        if self.config.hazards:  # an RSU that has been running: its background is the empty road
+            hazards = HazardDetector(self.corridor.road, loc.mapper.to_ground, camera=r.camera)
+            hazards.prime(empty)
+        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, TrackEvClassifier(), hazards=hazards)
         annotate = None
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.corridor import Road
-from sim.scenario import Scenario
+from sim.scenario import DEBRIS_KINDS, Scenario
 from sim.vehicles import (
     BLUE_BGR,
     LIVERY_AMBULANCE,
@@ -46,6 +46,12 @@ EV_REACT_BEHIND_M = 90.0
 EV_PASSED_AHEAD_M = 15.0
 YIELD_SPEED_FACTOR = 0.35
 YIELD_EDGE_SHIFT_M = 0.7
+HAZARD_RUN_UP_M = 40.0
+"""No background vehicle starts this close behind debris that lies in its lane at t = 0."""
+DEBRIS_COLOURS = {"box": (60, 75, 95), "rock": (105, 110, 112), "barrel": (30, 90, 200), "pallet": (120, 165, 195),
+                  "pipe": (150, 150, 145), "tyre": (28, 28, 30)}
+"""BGR body colour of each debris kind (wooden box, grey rock, orange oil barrel, pale pallet wood, steel
+pipe, black tyre)."""
 
 
 class TrafficModel(Protocol):
@@ -63,6 +69,12 @@ class TrafficModel(Protocol):
 
     def release_external(self, vehicle_id: str) -> None:
         """The outside driver went quiet: the model drives the vehicle again from where it is."""
+
+    def add(self, v: SimVehicle) -> None:
+        """Put a vehicle or static object on the road (a scenario's debris with ``appear_s``)."""
+
+    def remove(self, vehicle_id: str) -> None:
+        """Take a vehicle or static object off the road (``remove_s``)."""
 
 
 def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, t_gap: np.ndarray,
@@ -110,6 +122,17 @@ class IdmTraffic:
                 v.lane = lane if lane is not None else 0
                 v.target_lane = None
                 return
+
+    def add(self, v: SimVehicle) -> None:
+        """Put a vehicle or object on the road now (debris falling off a truck)."""
+        if any(o.vehicle_id == v.vehicle_id for o in self._vehicles):
+            raise KeyError(f"vehicle {v.vehicle_id!r} is already in the world")
+        self._vehicles.append(v)
+        self._update_pose(v)
+
+    def remove(self, vehicle_id: str) -> None:
+        """Take a vehicle or object off the road (debris cleared)."""
+        self._vehicles = [v for v in self._vehicles if v.vehicle_id != vehicle_id]
 
     # ---------------------------------------------------------------- model
     def _ev_threat(self, t_s: float) -> list[SimVehicle]:
@@ -316,9 +339,11 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                               make_style(livery, detail), desired_speed_mps=dsp.speed_mps,
                               brake_period_s=dsp.brake_period_s, yields_to_ev=False))
     for k, hz in enumerate(scenario.hazards):
+        kind_index = DEBRIS_KINDS.index(hz.kind)
         out.append(SimVehicle(f"hz{k}", "debris", hz.s_m, centre(hz.lane) + hz.offset_m, 0.0, hz.lane, hz.length_m,
-                              hz.width_m, hz.height_m, (60, 75, 95), make_style(LIVERY_PLAIN, k), desired_speed_mps=0.0,
-                              is_static=True))
+                              hz.width_m, hz.height_m, DEBRIS_COLOURS[hz.kind], make_style(kind_index, k),
+                              desired_speed_mps=0.0, is_static=True,
+                              extra={"appear_s": hz.appear_s, "remove_s": hz.remove_s}))
 
     ev_gap = None
     if av is not None and ev is not None and ev.lane == av.lane and ev.start_offset_m < 0:
@@ -346,6 +371,9 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                     catch_up_m = max(0.0, av.speed_mps - speed) * scenario.duration_s + 30.0
                     if s0 - av.start_s_m < catch_up_m:
                         clear = False
+                if any(h.appear_s <= 0.0 and road.lane_of_offset(centre(h.lane) + h.offset_m) == lane
+                       and h.s_m - HAZARD_RUN_UP_M < s0 < h.s_m for h in scenario.hazards):
+                    clear = False  # debris already on the road: traffic arrives from upstream, not parked behind it
                 if clear:
                     break
             else:
