@@ -67,11 +67,22 @@ class MotEvaluator:
     _gt_ids: set[int] = field(default_factory=set)
     _hyp_ids: set[int] = field(default_factory=set)
 
-    def update(self, gt_ids, gt_boxes, hyp_ids, hyp_boxes) -> None:
+    def update(self, gt_ids, gt_boxes, hyp_ids, hyp_boxes, ignore_boxes=None) -> None:
+        """One frame. ``ignore_boxes`` (optional, (k, 4)): ground truth that is not counted (MOTChallenge
+        distractors: barely visible or out of the evaluated zone); a hypothesis that overlaps no counted
+        box with IoU >= ``iou_threshold`` but an ignore box does is removed (neither TP nor FP)."""
         gt_ids = [int(g) for g in np.asarray(gt_ids).reshape(-1)]
         hyp_ids = [int(h) for h in np.asarray(hyp_ids).reshape(-1)]
         gt_boxes = np.asarray(gt_boxes, dtype=float).reshape(-1, 4)
         hyp_boxes = np.asarray(hyp_boxes, dtype=float).reshape(-1, 4)
+        if ignore_boxes is not None and len(hyp_ids):
+            ignore_boxes = np.asarray(ignore_boxes, dtype=float).reshape(-1, 4)
+            if len(ignore_boxes):
+                on_ignored = np.nan_to_num(iou_matrix(hyp_boxes, ignore_boxes)).max(axis=1) >= self.iou_threshold
+                if len(gt_ids):
+                    on_ignored &= np.nan_to_num(iou_matrix(hyp_boxes, gt_boxes)).max(axis=1) < self.iou_threshold
+                hyp_boxes = hyp_boxes[~on_ignored]
+                hyp_ids = [h for h, drop in zip(hyp_ids, on_ignored, strict=True) if not drop]
         if len(set(hyp_ids)) != len(hyp_ids) or len(set(gt_ids)) != len(gt_ids):
             raise ValueError("ids must be unique within a frame")
         m = self._m

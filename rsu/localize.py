@@ -121,6 +121,8 @@ class ReferenceInterpolator:
             self._rbf = RBFInterpolator(self.pixels, target, kernel="thin_plate_spline", smoothing=smoothing)
 
     def _apply_homography(self, uv: np.ndarray) -> np.ndarray:
+        if len(uv) == 0:  # cv2.perspectiveTransform returns None for no points
+            return np.zeros((0, 2))
         return cv2.perspectiveTransform(uv.reshape(-1, 1, 2).astype(np.float64), self.homography).reshape(-1, 2)
 
     def to_ground(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -52,3 +52,19 @@ def test_synthetic_scene_is_deterministic_and_keeps_its_population():
     assert all(np.array_equal(x.det_boxes, y.det_boxes) for x, y in zip(a, b, strict=True))
     assert all(len(f.gt_ids) == 12 for f in a)
     assert len({int(i) for f in a for i in f.gt_ids}) > 12  # targets die and are replaced
+
+
+def test_hypotheses_on_ignored_ground_truth_are_neither_true_nor_false_positives():
+    far = [100, 100, 106, 105]  # e.g. a vehicle beyond the RSU's zone: ignored ground truth
+    ev = MotEvaluator()
+    ev.update([1], [A], [7, 8, 9], [A, far, [300, 300, 320, 320]], ignore_boxes=[far])
+    m = ev.result()
+    assert (m.true_positives, m.false_positives, m.false_negatives, m.num_hyp) == (1, 1, 0, 2)
+    # a hypothesis that matches a counted box stays a true positive even if it also overlaps an ignore box
+    ev = MotEvaluator()
+    ev.update([1], [A], [7], [A], ignore_boxes=[A])
+    assert (ev.result().true_positives, ev.result().false_positives) == (1, 0)
+    # without ignore boxes the same hypothesis is a false positive
+    ev = MotEvaluator()
+    ev.update([1], [A], [7, 8], [A, far])
+    assert ev.result().false_positives == 1
