@@ -247,3 +247,16 @@ def test_localisation_of_rendered_vehicles_at_60_m_and_with_a_pose_error():
         xy, _, _ = Localizer(CORRIDOR, bad, method="transform").localize_boxes(box)
         off.append(np.hypot(*(xy[0] - truth)))
     assert float(np.median(off)) > errors["reference"] + 0.2, (float(np.median(off)), errors)
+
+
+def test_tracks_are_measured_at_their_matched_detection_when_given():
+    near, truth = _vehicle_box(RSU, RSU.camera.x_m - ROAD.start_x_m + 60.0, ROAD.lane_centre_offset_m(0))
+    lagging = near + [0, -6, 0, -6]  # a filtered box 6 px higher: about 1.7 m too far at 60 m
+    dets = np.array([[0, 0, 5, 5], near])  # the track matched detection 1
+    ts = TrackSet(np.array([3]), lagging[None], np.zeros(1, np.int64), np.ones(1), np.array([1]), np.full(1, 5),
+                  np.full(1, 5), np.zeros((1, 2)))
+    (with_det,) = Localizer(CORRIDOR, RSU).update(ts, 0.0, dets)
+    (without,) = Localizer(CORRIDOR, RSU).update(ts, 0.0)
+    assert math.hypot(with_det.x_m - truth[0], with_det.y_m - truth[1]) < 0.3
+    assert math.hypot(without.x_m - truth[0], without.y_m - truth[1]) > 1.0
+    assert with_det.bbox_px == tuple(lagging)  # the published box stays the track's
