@@ -57,7 +57,7 @@ from protocol.corridor import load_corridor  # noqa: E402
 from rsu.detect import Detector, MotionDetector, OnnxDetector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
-from rsu.localize import Localizer  # noqa: E402
+from rsu.localize import GroundProjector, Localizer  # noqa: E402
 from rsu.track import FrameworkTracker, SortTracker, iou_matrix  # noqa: E402
 from sim.camera_source import Frame, SimCamera  # noqa: E402
 from sim.render import MIN_VISIBLE_FRACTION  # noqa: E402
@@ -259,6 +259,23 @@ def sim_detectors() -> dict[str, Callable[[], Detector]]:
     return dets
 
 
+def beyond_zone(hyp_boxes: np.ndarray, counted_boxes: np.ndarray, camera, margin_m: float = 10.0) -> np.ndarray:
+    """Hypotheses outside the evaluated region: matching no counted vehicle (IoU < 0.5) and standing
+    (bottom-centre of the box back-projected to the road with the true camera) more than ``ZONE_M +
+    margin_m`` from the camera, where no counted vehicle can be (a counted vehicle's centre is within
+    ``ZONE_M``, its near edge nearer still). Tracks of far vehicles, which no RSU evaluates here."""
+    if not len(hyp_boxes):
+        return np.zeros(0, bool)
+    uv = np.column_stack([(hyp_boxes[:, 0] + hyp_boxes[:, 2]) / 2, hyp_boxes[:, 3]])
+    xy, valid = GroundProjector(camera).to_ground(uv)
+    c = camera.centre_world
+    with np.errstate(invalid="ignore"):
+        far = ~valid | (np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) > ZONE_M + margin_m)
+    if len(counted_boxes):
+        far &= np.nan_to_num(iou_matrix(hyp_boxes, counted_boxes)).max(axis=1) < 0.5
+    return far
+
+
 def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corridor) -> dict[str, float]:
     """MOTA/IDF1 (``rsu.evaluate.MotEvaluator``, IoU 0.5, ignore boxes as distractors) of detector ->
     ``FrameworkTracker('B')`` (the RSU defaults: max_age 1, min_hits 3, IoU 0.3) over the clips, and
@@ -267,16 +284,20 @@ def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corrido
     counted vehicle 55-65 m from the camera."""
     ev = MotEvaluator()
     loc_err: dict[str, list[float]] = {"transform": [], "reference": []}
+    out_of_zone = 0
     for clip in clips:
         detector, tracker = make_detector(), FrameworkTracker("B")
         localizers = {m: Localizer(corridor, clip.rsu_id, method=m) for m in loc_err}
+        camera = corridor.rsu(clip.rsu_id).camera
         for frame, truth in zip(clip.frames, clip.truths, strict=True):
             det = detector.detect(frame.image)
             tracks = tracker.update(det.boxes, det.scores, det.classes)
             objects = {m: loc.update(tracks, frame.timestamp_s, det.boxes) for m, loc in localizers.items()}
             if frame.timestamp_s < WARMUP_S:
                 continue
-            ev.update(truth.ids, truth.boxes, tracks.track_ids, tracks.boxes, truth.ignore_boxes)
+            keep = ~beyond_zone(tracks.boxes, truth.boxes, camera)
+            out_of_zone += int((~keep).sum())
+            ev.update(truth.ids, truth.boxes, tracks.track_ids[keep], tracks.boxes[keep], truth.ignore_boxes)
             near60 = np.flatnonzero(np.abs(truth.range_m - 60.0) <= 5.0)
             for method, objs in objects.items():
                 if not len(near60) or not objs:
@@ -288,6 +309,7 @@ def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corrido
                 ok = iou[np.arange(len(near60)), best] >= 0.5
                 loc_err[method].extend(np.hypot(*(xy[best[ok]] - truth.centres_xy[near60[ok]]).T).tolist())
     out: dict[str, float] = dict(ev.result().as_dict())
+    out["hyp_beyond_zone_not_scored"] = out_of_zone
     for method, errs in loc_err.items():
         out[f"loc_err_60m_median_m_{method}"] = float(np.median(errs)) if errs else float("nan")
         out[f"loc_err_60m_n_{method}"] = len(errs)

@@ -55,11 +55,13 @@ def test_synthetic_scene_is_deterministic_and_keeps_its_population():
 
 
 def test_hypotheses_on_ignored_ground_truth_are_neither_true_nor_false_positives():
-    far = [100, 100, 106, 105]  # e.g. a vehicle beyond the RSU's zone: ignored ground truth
+    far = [100, 100, 110, 108]  # e.g. a vehicle beyond the RSU's zone: ignored ground truth
     ev = MotEvaluator()
-    ev.update([1], [A], [7, 8, 9], [A, far, [300, 300, 320, 320]], ignore_boxes=[far])
+    loose = [103, 102, 112, 110]  # IoU 0.47 with it, but 7/9 of its area inside it: ignored too (KITTI)
+    wide = [95, 95, 125, 120]  # mostly background around it: a false positive
+    ev.update([1], [A], [7, 8, 9, 10, 11], [A, far, loose, wide, [300, 300, 320, 320]], ignore_boxes=[far])
     m = ev.result()
-    assert (m.true_positives, m.false_positives, m.false_negatives, m.num_hyp) == (1, 1, 0, 2)
+    assert (m.true_positives, m.false_positives, m.false_negatives, m.num_hyp) == (1, 2, 0, 3)
     # a hypothesis that matches a counted box stays a true positive even if it also overlaps an ignore box
     ev = MotEvaluator()
     ev.update([1], [A], [7], [A], ignore_boxes=[A])
