@@ -16,9 +16,11 @@ Figures (all measured in this run, on one core: onnxruntime, OpenCV and BLAS lim
 - MOTA / IDF1 (``rsu.evaluate``, IoU 0.5) of the whole pipeline (detector -> ``FrameworkTracker('B')``
   with the RSU's defaults) on simulator ground truth: ``MOT_SCENARIO`` with a held-out seed, every camera,
   ``Renderer.labels`` as truth. Counted: vehicles >= 30 % visible within the RSU's 100 m zone
-  (``models.evaluate_detector.ZONE_M``); the other labelled vehicles are ignore boxes (MOTChallenge
-  distractors). The first 2 s of each clip are not scored (MOG2's background warm-up). ``mota``/``idf1``
-  are the project detector's, ``mot_by_detector`` has every detector's;
+  (``models.evaluate_detector.ZONE_M``); the other labelled vehicles are ignore boxes (a track at least
+  half inside one and matching no counted vehicle is not scored, KITTI's DontCare rule), and so is a
+  track standing beyond 110 m that matches no counted vehicle (``beyond_zone``; counted in
+  ``hyp_beyond_zone_not_scored``). The first 2 s of each clip are not scored (MOG2's background
+  warm-up). ``mota``/``idf1`` are the project detector's, ``mot_by_detector`` has every detector's;
 - localisation error at 60 m (vehicles 55-65 m from the camera) on the same renders, ray-plane and
   reference interpolation: of the pipeline's tracks (per detector) and of the label boxes themselves,
   plus ray-plane with a 0.15 deg camera-pitch error;
