@@ -287,7 +287,8 @@ def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corrido
     ev = MotEvaluator()
     loc_err: dict[str, list[float]] = {"transform": [], "reference": []}
     out_of_zone = 0
-    for clip in clips:
+    for n_clip, clip in enumerate(clips):
+        id_offset = 1_000_000 * n_clip  # one evaluator for all clips: ids of different clips must not meet
         detector, tracker = make_detector(), FrameworkTracker("B")
         localizers = {m: Localizer(corridor, clip.rsu_id, method=m) for m in loc_err}
         camera = corridor.rsu(clip.rsu_id).camera
@@ -299,7 +300,8 @@ def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corrido
                 continue
             keep = ~beyond_zone(tracks.boxes, truth.boxes, camera)
             out_of_zone += int((~keep).sum())
-            ev.update(truth.ids, truth.boxes, tracks.track_ids[keep], tracks.boxes[keep], truth.ignore_boxes)
+            ev.update(truth.ids + id_offset, truth.boxes, tracks.track_ids[keep] + id_offset, tracks.boxes[keep],
+                      truth.ignore_boxes)
             near60 = np.flatnonzero(np.abs(truth.range_m - 60.0) <= 5.0)
             for method, objs in objects.items():
                 if not len(near60) or not objs:
