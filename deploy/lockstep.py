@@ -144,7 +144,10 @@ class CorridorLockstep:
         det = self.config.detector
         if det == "motion":
             return MotionDetector()
-        return OnnxDetector(det, intra_op_threads=1)
+        detector = OnnxDetector(det, intra_op_threads=1)
+        if detector.layout == "project":  # Framework B: every vehicle one class (as iea-rsu does)
+            detector.class_map = {0: 0, 1: 0}
+        return detector
 
     def _add_rsu(self, rsu_id: str) -> None:
         r = self.corridor.rsu(rsu_id)
