@@ -14,6 +14,12 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   active command the service does not know (issued by its predecessor) has it adopted: the service
   treats the vehicle as yielding, sends nothing that contradicts it while an EV approaches, and
   supersedes it with RESUME once no EV needs yielding to.
+- Security (issue 9): with a ``signer`` every ``PathSwitchCommand`` is signed on publication
+  (``protocol.security.SecureTransport``; deterministic, so retransmissions are identical); when the
+  corridor trusts RSU keys, EvAlerts/HazardAlerts must carry a valid RSU signature (refusals counted
+  as ``decode_auth_<reason>``). Whatever a peer sends, the picture stays bounded: at most
+  ``MAX_VEHICLES`` vehicles, ``MAX_RSUS`` RSUs, ``MAX_ALERTS`` alerts and about ``MAX_TRACKS`` tracks
+  (refusals counted as ``*_limit``).
 - Rejected or expired commands are logged with their reason, the vehicle's response memory is
   rolled back, and the decision is re-planned after ``replan_backoff_s``.
 """
@@ -47,18 +53,34 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
 
 log = logging.getLogger("ddm")
 
 NEIGHBOUR_RADIUS_M = 150.0
 """Tracks within this distance of an AV are considered for its gap checks."""
+MAX_VEHICLES = 64
+MAX_RSUS = 64
+MAX_ALERTS = 256
+MAX_TRACKS = 4096
+"""Caps on what a peer can make the DDM remember (a corridor has a handful of RSUs and AVs, tens of
+cars; a peer inventing ids gets refused beyond these)."""
 
 
 class DdmService:
     def __init__(self, transport: Transport, clock: Clock, corridor: Corridor, config: DdmConfig | None = None,
-                 *, corridor_id: str | None = None, ddm_id: str = "ddm") -> None:
+                 *, corridor_id: str | None = None, ddm_id: str = "ddm", signer: Signer | None = None,
+                 verify_alerts: bool | None = None) -> None:
+        """``signer``: signs every command. ``verify_alerts``: refuse alerts without a valid RSU signature
+        (default: when the corridor's trust list names RSU keys)."""
         self.config = cfg = config or DdmConfig()
+        trust = TrustList.from_corridor(corridor)
+        if verify_alerts is None:
+            verify_alerts = trust.has_role("rsu")
+        if signer is not None or verify_alerts:
+            transport = SecureTransport(transport, clock, signer=signer,
+                                        verifier=Verifier(trust) if verify_alerts else None)
         self.transport = transport
         self.clock = clock
         self.corridor = corridor
@@ -111,6 +133,9 @@ class DdmService:
             return
         now = self.clock.now()
         with self._lock:
+            if node not in self.world._rsu_index and len(self.world.rsu_ids) >= MAX_RSUS:
+                self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
+                return
             if isinstance(msg, ObjectList):
                 if msg.rsu_id != node:
                     self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
@@ -118,12 +143,18 @@ class DdmService:
                 if msg.measurement_time > now + self.config.max_future_s:
                     self._reject("future_stamp", f"{key} measurement_time {msg.measurement_time} > now {now}")
                     return
+                if self.world.track_count >= MAX_TRACKS:
+                    self._reject("track_limit", f"{key}: already {MAX_TRACKS} tracks")
+                    return
                 self.world.ingest_objects(msg, now)
                 self.counters["object_lists"] += 1
                 self.counters["object_updates"] += len(msg.objects)
             elif isinstance(msg, EvAlert):
                 if msg.rsu_id != node:
                     self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
+                    return
+                if msg.alert_id not in self.world.alerts and len(self.world.alerts) >= MAX_ALERTS:
+                    self._reject("alert_limit", f"{key}: already {MAX_ALERTS} alerts")
                     return
                 self.world.ingest_ev_alert(msg, now)
                 self.counters["ev_alerts"] += 1
@@ -141,6 +172,9 @@ class DdmService:
         now = self.clock.now()
         with self._lock:
             first = msg.vehicle_id not in self.world.vehicles
+            if first and len(self.world.vehicles) >= MAX_VEHICLES:
+                self._reject("vehicle_limit", f"{key}: already {MAX_VEHICLES} vehicles")
+                return
             self.world.ingest_vehicle_state(msg, now)
             self.counters["vehicle_states"] += 1
             if first:

@@ -15,6 +15,9 @@ EV alerts: when the hook also has ``evidence(track_id)`` (the track classifier),
 :class:`rsu.classify.ev.EvAlertManager` on the frame times and publishes ``EvAlert`` on
 ``iea/{c}/rsu/{rsu}/ev``: ``active`` when a track is confirmed, refreshed at 2 Hz, ``cleared`` when
 its lights go off or it has left the view for ``leave_after_s``. ``alert_id = f"{rsu_id}-ev-{track_id}"``.
+
+Signing (issue 9): with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
+Ed25519 signature (``protocol.security.SecureTransport`` wraps the transport).
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from protocol.messages import (
     ObjectType,
     Role,
 )
+from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent, EvAlertManager
 from rsu.detect import EV, Detector
@@ -131,11 +135,13 @@ class RsuService:
                  transport: Transport, clock: Clock | None = None, *, corridor_id: str | None = None,
                  annotate_path: str | None = None, max_frames: int | None = None,
                  read_timeout_s: float = 5.0, max_stall_s: float | None = None,
-                 health_period_s: float = 1.0) -> None:
+                 health_period_s: float = 1.0, signer: Signer | None = None) -> None:
         self.corridor = corridor
         self.rsu_id = rsu_id
-        self.source, self.pipeline, self.transport = source, pipeline, transport
         self.clock = clock or WallClock()
+        if signer is not None:  # alerts are signed on publication
+            transport = SecureTransport(transport, self.clock, signer=signer)
+        self.source, self.pipeline, self.transport = source, pipeline, transport
         cid = corridor_id or corridor.corridor_id
         self.objects_key = rsu_key(cid, rsu_id, "objects")
         self.health_key = rsu_key(cid, rsu_id, "health")
