@@ -19,7 +19,8 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   corridor trusts RSU keys, EvAlerts/HazardAlerts must carry a valid RSU signature (refusals counted
   as ``decode_auth_<reason>``). Whatever a peer sends, the picture stays bounded: at most
   ``MAX_VEHICLES`` vehicles, ``MAX_RSUS`` RSUs, ``MAX_ALERTS`` alerts and about ``MAX_TRACKS`` tracks
-  (refusals counted as ``*_limit``).
+  (refusals counted as ``*_limit``), and numbers no real corridor produces (``MAX_ABS_POSITION_M``...)
+  are refused as ``implausible`` before they reach the fusion.
 - Rejected or expired commands are logged with their reason, the vehicle's response memory is
   rolled back, and the decision is re-planned after ``replan_backoff_s``.
 """
@@ -66,6 +67,38 @@ MAX_ALERTS = 256
 MAX_TRACKS = 4096
 """Caps on what a peer can make the DDM remember (a corridor has a handful of RSUs and AVs, tens of
 cars; a peer inventing ids gets refused beyond these)."""
+MAX_ABS_POSITION_M = 1e5
+MAX_SPEED_MPS = 100.0
+MAX_SIZE_M = 50.0
+MAX_POS_VAR_M2 = 1e4
+"""Plausibility limits: the codec lets any finite number through, but a 1e300 m position or velocity
+overflows the fusion's arithmetic (found by fuzzing: the KD-tree of the duplicate merge raised on
+every step). No corridor, car or RSU produces values beyond these."""
+
+
+def implausible(msg) -> str | None:
+    """Why a decoded message's numbers cannot come from a real corridor (None: plausible)."""
+    if isinstance(msg, ObjectList):
+        if not msg.objects:
+            return None
+        a = np.array([(o.pos_x_m, o.pos_y_m, o.vel_x_mps, o.vel_y_mps, o.length_m, o.width_m, *o.pos_cov_m2)
+                      for o in msg.objects])
+        limits = np.array([MAX_ABS_POSITION_M, MAX_ABS_POSITION_M, MAX_SPEED_MPS, MAX_SPEED_MPS, MAX_SIZE_M,
+                           MAX_SIZE_M, MAX_POS_VAR_M2, MAX_POS_VAR_M2, MAX_POS_VAR_M2])
+        bad = np.abs(a) > limits
+        if bad.any():
+            i, j = (int(v) for v in np.argwhere(bad)[0])
+            return f"object {msg.objects[i].object_id} value {a[i, j]:.3g} beyond {limits[j]:.3g}"
+        return None
+    pos = (msg.pos_x_m, msg.pos_y_m)
+    if any(abs(v) > MAX_ABS_POSITION_M for v in pos):
+        return f"position {pos} beyond {MAX_ABS_POSITION_M:g} m"
+    speeds = [getattr(msg, n, 0.0) for n in ("vel_x_mps", "vel_y_mps", "speed_mps")]
+    if any(abs(v) > MAX_SPEED_MPS for v in speeds):
+        return f"speed {max(abs(v) for v in speeds):.3g} m/s beyond {MAX_SPEED_MPS:g}"
+    if max(getattr(msg, "length_m", 0.0), getattr(msg, "width_m", 0.0)) > MAX_SIZE_M:
+        return f"size beyond {MAX_SIZE_M:g} m"
+    return None
 
 
 class DdmService:
@@ -132,6 +165,10 @@ class DdmService:
             self._reject("key", key)
             return
         now = self.clock.now()
+        why = None if isinstance(msg, Health) else implausible(msg)
+        if why is not None:
+            self._reject("implausible", f"{key}: {why}")
+            return
         with self._lock:
             if node not in self.world._rsu_index and len(self.world.rsu_ids) >= MAX_RSUS:
                 self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
@@ -168,6 +205,10 @@ class DdmService:
         node = parse_key(key).node
         if msg.vehicle_id != node:
             self._reject("vehicle_mismatch", f"{key} carries vehicle_id {msg.vehicle_id}")
+            return
+        why = implausible(msg)
+        if why is not None:
+            self._reject("implausible", f"{key}: {why}")
             return
         now = self.clock.now()
         with self._lock:

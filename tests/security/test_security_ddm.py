@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -156,3 +157,19 @@ def test_peers_cannot_grow_the_ddm_without_bound(monkeypatch):
 def test_gate_without_ddm_keys_is_inactive():
     gate = CommandGate.from_trust(TrustList.from_entries([rsu_entry("rsu1-key", RSU1_PUB, "rsu1")]))
     assert not gate.active
+
+
+def test_implausible_numbers_are_refused_before_the_fusion():
+    """1e16 m/s passed the codec (finite) and then made every DDM step raise in the KD-tree merge."""
+    r = Rig()
+    t = r.clock.now()
+    fast = [det(r.corridor, k, 10.0 * k, 5.55, 0.0, 4.1e16) for k in range(3)]
+    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 1, t, fast))
+    far = [dataclasses.replace(det(r.corridor, 9, 10.0, 5.55, 0.0), pos_x_m=1e300)]
+    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 2, t, far))
+    r.bus.publish(vehicle_key(r.c, "av1", "state"), _vehicle_state("av1", t).model_copy(update={"pos_x_m": -1e200}))
+    assert r.svc.rejected["implausible"] == 3 and r.svc.world.track_count == 0
+    for _ in range(5):
+        r.clock.advance(0.05)
+        r.svc.step()
+    assert r.bus.stats.handler_errors == 0
