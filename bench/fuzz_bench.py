@@ -744,6 +744,8 @@ class RsuSnapshotTarget(_BusTarget):
         self.camera = SimCamera(_corridor(), "rsu1", transport=self.bus, seed=0)
         self.n = 0
         super().__init__(rng)
+        for seed in self.mutator.seeds:  # warm the renderer's caches before memory is measured
+            self.camera.render(decode(seed))
 
     def seeds(self) -> list[bytes]:
         return [encode(m) for k, m in example_messages(C, stamp=1.0) if k.endswith("/world")]
