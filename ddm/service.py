@@ -79,16 +79,14 @@ every step). No corridor, car or RSU produces values beyond these."""
 def implausible(msg) -> str | None:
     """Why a decoded message's numbers cannot come from a real corridor (None: plausible)."""
     if isinstance(msg, ObjectList):
-        if not msg.objects:
-            return None
-        a = np.array([(o.pos_x_m, o.pos_y_m, o.vel_x_mps, o.vel_y_mps, o.length_m, o.width_m, *o.pos_cov_m2)
-                      for o in msg.objects])
-        limits = np.array([MAX_ABS_POSITION_M, MAX_ABS_POSITION_M, MAX_SPEED_MPS, MAX_SPEED_MPS, MAX_SIZE_M,
-                           MAX_SIZE_M, MAX_POS_VAR_M2, MAX_POS_VAR_M2, MAX_POS_VAR_M2])
-        bad = np.abs(a) > limits
-        if bad.any():
-            i, j = (int(v) for v in np.argwhere(bad)[0])
-            return f"object {msg.objects[i].object_id} value {a[i, j]:.3g} beyond {limits[j]:.3g}"
+        p, v, z, c = MAX_ABS_POSITION_M, MAX_SPEED_MPS, MAX_SIZE_M, MAX_POS_VAR_M2
+        for o in msg.objects:  # a plain loop: ~4x cheaper than building an array for 30 objects
+            cov = o.pos_cov_m2
+            if (abs(o.pos_x_m) > p or abs(o.pos_y_m) > p or abs(o.vel_x_mps) > v or abs(o.vel_y_mps) > v
+                    or o.length_m > z or o.width_m > z or cov[0] > c or cov[2] > c or abs(cov[1]) > c):
+                return (f"object {o.object_id}: position ({o.pos_x_m:.3g}, {o.pos_y_m:.3g}) m, velocity "
+                        f"({o.vel_x_mps:.3g}, {o.vel_y_mps:.3g}) m/s, size {o.length_m:.3g} x {o.width_m:.3g} m or "
+                        f"covariance {cov} beyond the limits")
         return None
     pos = (msg.pos_x_m, msg.pos_y_m)
     if any(abs(v) > MAX_ABS_POSITION_M for v in pos):
