@@ -50,7 +50,8 @@ LOCALISATION_MODES = ("gnss", "rsu", "both")
 RSU_FIX_GATE_M = 4.0
 """An RSU object is taken as this car when it lies this close to the predicted pose."""
 MAX_INBOX = 1024
-"""Messages queued between two steps (10 ms at 100 Hz); more is a flood: dropped and counted."""
+"""Messages queued between two steps (10 ms at 100 Hz); more is a flood: dropped and counted (the
+DDM's health beats have 16 places more, so a command flood does not trip the link watchdog)."""
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,8 @@ class VehicleService:
 
     # ------------------------------------------------------------------ transport callbacks (queue only)
     def _queue(self, kind: str, msg) -> None:
-        if len(self._inbox) >= MAX_INBOX:
+        # the DDM's heartbeat keeps a little headroom: a command flood must not starve the link watchdog
+        if len(self._inbox) >= MAX_INBOX + (16 if kind == "link" else 0):
             self.rejected["inbox_full"] += 1
             return
         self._inbox.append((kind, msg, self.clock.now()))

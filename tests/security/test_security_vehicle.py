@@ -197,5 +197,7 @@ def test_inbox_is_bounded():
     for _ in range(MAX_INBOX + 500):  # no step in between: a flood
         car.send(cmd)
     assert len(car.svc._inbox) == MAX_INBOX and car.svc.rejected["inbox_full"] == 500
+    car.svc._on_ddm_health(ddm_health_key(C), Health(src="ddm", stamp=car.clock.now(), role=Role.DDM))
+    assert car.svc._inbox[-1][0] == "link"  # the heartbeat still gets in
     car.run(1.0)
     assert car.rejected()["auth_unsigned"] == MAX_INBOX and len(car.svc._inbox) == 0
