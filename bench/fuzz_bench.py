@@ -20,10 +20,13 @@ they reach the command book), ``_on_rsu`` (RSU localisation) and DDM-health watc
 A crash is any exception other than the expected refusal (``ProtocolError`` from ``decode``,
 ``KeyError_`` for an unpublishable key), including one the transport caught and counted in
 ``stats.handler_errors`` and one raised by the service's ``step``. Memory: resident set size growth
-from 10 % of the run to its end (bounded state: ~0), the size of every peer-growable collection at the
-end, and with ``--tracemalloc`` the traced peak per target. Per-input cost: mean and max microseconds.
+from 10 % of the run to its end, the size of every peer-growable collection at the end, and with
+``--tracemalloc`` the traced peak and the traced growth (Python/numpy memory still held at the end
+minus at 10 %: what the target kept; RSS also moves with the allocator's free lists). The LRU caches
+of ``protocol.keys`` (4,096 parsed keys, 16,384 key matches) fill up to their caps when a target
+invents keys. Per-input cost: mean and max microseconds (the max includes scheduler stalls).
 
-    python bench/fuzz_bench.py                 # 100,000 inputs per target (about 25 min on one core)
+    python bench/fuzz_bench.py                 # 100,000 inputs per target (about 15 min on one core)
     python bench/fuzz_bench.py --quick         # 2,000 per target
     python bench/fuzz_bench.py --n 5000 --targets decode_PathSwitchCommand,vehicle_cmd --json
 """
