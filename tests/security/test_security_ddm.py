@@ -159,16 +159,21 @@ def test_gate_without_ddm_keys_is_inactive():
     assert not gate.active
 
 
-def test_implausible_numbers_are_refused_before_the_fusion():
+def test_implausible_numbers_are_kept_from_the_fusion():
     """1e16 m/s passed the codec (finite) and then made every DDM step raise in the KD-tree merge."""
     r = Rig()
     t = r.clock.now()
-    fast = [det(r.corridor, k, 10.0 * k, 5.55, 0.0, 4.1e16) for k in range(3)]
-    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 1, t, fast))
-    far = [dataclasses.replace(det(r.corridor, 9, 10.0, 5.55, 0.0), pos_x_m=1e300)]
-    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 2, t, far))
+    objs = [det(r.corridor, k, 10.0 * k, 5.55, 0.0, 4.1e16) for k in range(3)]
+    objs.append(dataclasses.replace(det(r.corridor, 9, 10.0, 5.55, 0.0), pos_x_m=1e300))
+    objs.append(det(r.corridor, 10, 30.0, 5.55, 110.0))  # a runaway SORT track: real RSU output, kept
+    objs.append(det(r.corridor, 11, 60.0, 1.85, 13.0))
+    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 1, t, objs))
     r.bus.publish(vehicle_key(r.c, "av1", "state"), _vehicle_state("av1", t).model_copy(update={"pos_x_m": -1e200}))
-    assert r.svc.rejected["implausible"] == 3 and r.svc.world.track_count == 0
+    r.bus.publish(rsu_key(r.c, "rsu1", "ev"), EvAlert(
+        src="rsu1", stamp=t, alert_id="x", state=AlertState.ACTIVE, rsu_id="rsu1", object_id=1, pos_x_m=0.0,
+        pos_y_m=5.0, lat_deg=30.0, lon_deg=-96.0, vel_x_mps=1e9, confidence=0.9, first_seen=t))
+    assert r.svc.rejected["implausible_object"] == 4 and r.svc.rejected["implausible"] == 2
+    assert r.svc.world.track_count == 2 and not r.svc.world.alerts and not r.svc.world.vehicles
     for _ in range(5):
         r.clock.advance(0.05)
         r.svc.step()
