@@ -30,6 +30,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rate-hz", type=float, default=DdmConfig.rate_hz, help="decision loop rate (default: 20)")
     r.add_argument("--startup-listen-s", type=float, default=DdmConfig.startup_listen_s,
                    help="listen this long after start before commanding (default: 1.0)")
+    r.add_argument("--key", metavar="PEM", default=None,
+                   help="Ed25519 private key (from `iea keys new`) that signs every command; its [[trust]] entry "
+                        "must be in the corridor file for vehicles to accept the commands")
+    r.add_argument("--key-id", metavar="ID", default=None,
+                   help="key id of --key (default: the corridor trust entry holding its public key)")
+    r.add_argument("--verify-alerts", action=argparse.BooleanOptionalAction, default=None,
+                   help="refuse EV/hazard alerts without a valid RSU signature (default: on when the corridor "
+                        "file trusts RSU keys)")
     r.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(r)
     return p
@@ -43,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     from protocol.clock import WallClock
     from protocol.corridor import CorridorError, load_corridor
     from protocol.keys import all_rsus_expr
+    from protocol.security import TrustList, load_signer
     from protocol.transport import ZenohSettings, ZenohTransport
 
     try:
@@ -50,14 +59,26 @@ def main(argv: list[str] | None = None) -> int:
         config = DdmConfig(rate_hz=args.rate_hz, startup_listen_s=args.startup_listen_s)
         settings = ZenohSettings.from_args(args)
         all_rsus_expr(args.corridor_id or corridor.corridor_id)  # a corridor id that cannot be a key chunk fails here
+        trust = TrustList.from_corridor(corridor)
+        signer = load_signer(args.key, args.key_id, trust) if args.key else None
     except (CorridorError, ValueError) as exc:
         print(f"iea-ddm: {exc}", file=sys.stderr)
         return 2
+    log = logging.getLogger("ddm")
+    if signer is not None:
+        log.info("signing commands with key %r", signer.key_id)
+        if signer.key_id not in trust.keys:
+            log.warning("key %r is not in the corridor's trust list: vehicles will refuse its commands", signer.key_id)
+    elif trust.has_role("ddm"):
+        log.warning("the corridor trusts DDM keys but no --key was given: vehicles will refuse unsigned commands")
+    else:
+        log.warning("commands are NOT signed (no --key)")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     transport = ZenohTransport(settings)
-    service = DdmService(transport, WallClock(), corridor, config, corridor_id=args.corridor_id, ddm_id=args.ddm_id)
+    service = DdmService(transport, WallClock(), corridor, config, corridor_id=args.corridor_id, ddm_id=args.ddm_id,
+                         signer=signer, verify_alerts=args.verify_alerts)
     try:
         service.run(stop)
     finally:

@@ -14,6 +14,14 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   active command the service does not know (issued by its predecessor) has it adopted: the service
   treats the vehicle as yielding, sends nothing that contradicts it while an EV approaches, and
   supersedes it with RESUME once no EV needs yielding to.
+- Security (issue 9): with a ``signer`` every ``PathSwitchCommand`` is signed on publication
+  (``protocol.security.SecureTransport``; deterministic, so retransmissions are identical); when the
+  corridor trusts RSU keys, EvAlerts/HazardAlerts must carry a valid RSU signature (refusals counted
+  as ``decode_auth_<reason>``). Whatever a peer sends, the picture stays bounded: at most
+  ``MAX_VEHICLES`` vehicles, ``MAX_RSUS`` RSUs, ``MAX_ALERTS`` alerts and about ``MAX_TRACKS`` tracks
+  (refusals counted as ``*_limit``), and numbers nothing physical produces (``MAX_ABS_POSITION_M``...)
+  are kept from the fusion: such alerts and vehicle states are refused (``implausible``), such
+  objects dropped from their list (``implausible_object``).
 - Rejected or expired commands are logged with their reason, the vehicle's response memory is
   rolled back, and the decision is re-planned after ``replan_backoff_s``.
 - Hazards (issue 10): ``HazardAlert``s of every RSU are fused in a :class:`ddm.hazard.HazardBook`; while
@@ -52,19 +60,68 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
 
 log = logging.getLogger("ddm")
 
 NEIGHBOUR_RADIUS_M = 150.0
 """Tracks within this distance of an AV are considered for its gap checks."""
+MAX_VEHICLES = 64
+MAX_RSUS = 64
+MAX_ALERTS = 256
+MAX_TRACKS = 4096
+"""Caps on what a peer can make the DDM remember (a corridor has a handful of RSUs and AVs, tens of
+cars; a peer inventing ids gets refused beyond these)."""
+MAX_ABS_POSITION_M = 1e6
+MAX_SPEED_MPS = 1000.0
+MAX_SIZE_M = 1000.0
+MAX_POS_VAR_M2 = 1e8
+"""Plausibility limits, far outside anything physical: the codec lets any finite number through, and
+a 1e16 m/s velocity overflowed the fusion's arithmetic (found by fuzzing: the KD-tree of the
+duplicate merge then raised on every step). The limits are loose on purpose: a SORT track running
+away at 110 m/s, which real RSU output contains, still passes as before."""
+
+
+def implausible(msg) -> str | None:
+    """Why an alert's or a vehicle state's numbers cannot be real (None: plausible)."""
+    pos = (msg.pos_x_m, msg.pos_y_m)
+    if any(abs(v) > MAX_ABS_POSITION_M for v in pos):
+        return f"position {pos} beyond {MAX_ABS_POSITION_M:g} m"
+    speeds = [getattr(msg, n, 0.0) for n in ("vel_x_mps", "vel_y_mps", "speed_mps")]
+    if any(abs(v) > MAX_SPEED_MPS for v in speeds):
+        return f"speed {max(abs(v) for v in speeds):.3g} m/s beyond {MAX_SPEED_MPS:g}"
+    if max(getattr(msg, "length_m", 0.0), getattr(msg, "width_m", 0.0)) > MAX_SIZE_M:
+        return f"size beyond {MAX_SIZE_M:g} m"
+    return None
+
+
+def implausible_objects(msg: ObjectList) -> list[int]:
+    """Indexes of the objects whose numbers cannot be real (a plain loop: ~5 us for 30 objects)."""
+    p, v, z, c = MAX_ABS_POSITION_M, MAX_SPEED_MPS, MAX_SIZE_M, MAX_POS_VAR_M2
+    bad = []
+    for i, o in enumerate(msg.objects):
+        cov = o.pos_cov_m2
+        if (abs(o.pos_x_m) > p or abs(o.pos_y_m) > p or abs(o.vel_x_mps) > v or abs(o.vel_y_mps) > v
+                or o.length_m > z or o.width_m > z or cov[0] > c or cov[2] > c or abs(cov[1]) > c):
+            bad.append(i)
+    return bad
 
 
 class DdmService:
     def __init__(self, transport: Transport, clock: Clock, corridor: Corridor, config: DdmConfig | None = None,
                  *, corridor_id: str | None = None, ddm_id: str = "ddm",
-                 hazard_config: HazardConfig | None = None) -> None:
+                 hazard_config: HazardConfig | None = None, signer: Signer | None = None,
+                 verify_alerts: bool | None = None) -> None:
+        """``signer``: signs every command. ``verify_alerts``: refuse alerts without a valid RSU signature
+        (default: when the corridor's trust list names RSU keys)."""
         self.config = cfg = config or DdmConfig()
+        trust = TrustList.from_corridor(corridor)
+        if verify_alerts is None:
+            verify_alerts = trust.has_role("rsu")
+        if signer is not None or verify_alerts:
+            transport = SecureTransport(transport, clock, signer=signer,
+                                        verifier=Verifier(trust) if verify_alerts else None)
         self.transport = transport
         self.clock = clock
         self.corridor = corridor
@@ -121,7 +178,22 @@ class DdmService:
             self._reject("key", key)
             return
         now = self.clock.now()
+        if isinstance(msg, ObjectList):  # drop the impossible objects, keep the rest of the frame
+            bad = implausible_objects(msg)
+            if bad:
+                self.rejected["implausible_object"] += len(bad)
+                log.debug("%s: dropped %d implausible objects (first: %s)", key, len(bad), msg.objects[bad[0]])
+                drop = set(bad)
+                msg = msg.model_copy(update={"objects": [o for i, o in enumerate(msg.objects) if i not in drop]})
+        elif not isinstance(msg, Health):
+            why = implausible(msg)
+            if why is not None:
+                self._reject("implausible", f"{key}: {why}")
+                return
         with self._lock:
+            if node not in self.world._rsu_index and len(self.world.rsu_ids) >= MAX_RSUS:
+                self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
+                return
             if isinstance(msg, ObjectList):
                 if msg.rsu_id != node:
                     self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
@@ -129,12 +201,18 @@ class DdmService:
                 if msg.measurement_time > now + self.config.max_future_s:
                     self._reject("future_stamp", f"{key} measurement_time {msg.measurement_time} > now {now}")
                     return
+                if self.world.track_count >= MAX_TRACKS:
+                    self._reject("track_limit", f"{key}: already {MAX_TRACKS} tracks")
+                    return
                 self.world.ingest_objects(msg, now)
                 self.counters["object_lists"] += 1
                 self.counters["object_updates"] += len(msg.objects)
             elif isinstance(msg, EvAlert):
                 if msg.rsu_id != node:
                     self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
+                    return
+                if msg.alert_id not in self.world.alerts and len(self.world.alerts) >= MAX_ALERTS:
+                    self._reject("alert_limit", f"{key}: already {MAX_ALERTS} alerts")
                     return
                 self.world.ingest_ev_alert(msg, now)
                 self.counters["ev_alerts"] += 1
@@ -153,9 +231,16 @@ class DdmService:
         if msg.vehicle_id != node:
             self._reject("vehicle_mismatch", f"{key} carries vehicle_id {msg.vehicle_id}")
             return
+        why = implausible(msg)
+        if why is not None:
+            self._reject("implausible", f"{key}: {why}")
+            return
         now = self.clock.now()
         with self._lock:
             first = msg.vehicle_id not in self.world.vehicles
+            if first and len(self.world.vehicles) >= MAX_VEHICLES:
+                self._reject("vehicle_limit", f"{key}: already {MAX_VEHICLES} vehicles")
+                return
             self.world.ingest_vehicle_state(msg, now)
             self.counters["vehicle_states"] += 1
             if first:

@@ -7,6 +7,11 @@ the scenario time, what each service is doing, and the EV alert and the command 
 then a summary table. The run folder (``runs/demo-<time>/``) holds ``metrics.json``, each service's
 log, the vehicle's run and its plots, and the annotated video of the RSU that saw the EV first.
 
+Signatures (issue 9) are on by default: the demo makes throwaway Ed25519 keys in the run folder
+(``keys/``: one for the DDM, one per RSU), writes ``corridor.toml`` there (the default corridor plus
+their ``[[trust]]`` entries) and starts every service on it, so the vehicle refuses any command the
+DDM did not sign and the DDM refuses unsigned EV alerts. ``--unsigned`` runs without them.
+
 Evaluation (this module, not the services) reads the simulator's ground truth to score the run.
 """
 
@@ -77,12 +82,14 @@ class RunMonitor:
             if kind == "WorldSnapshot":
                 self._on_world(msg)
             elif kind == "EvAlert" and msg.state.value == "active":
+                self.facts["alerts_signed"] = self.facts.get("alerts_signed", True) and msg.auth is not None
                 if not self.alerts:
                     self.mark("first_ev_alert", msg.stamp)
                     self.facts["first_alert_rsu"] = msg.rsu_id
                     self.facts["first_alert_received"] = now
                 self.alerts.append((msg.stamp, msg.rsu_id, msg.object_id))
             elif kind == "PathSwitchCommand":
+                self.facts["commands_signed"] = self.facts.get("commands_signed", True) and msg.auth is not None
                 if not any(c[1] == msg.command_id for c in self.commands):
                     self.commands.append((msg.stamp, msg.command_id, msg.manoeuvre.value))
                     if msg.manoeuvre.value != "resume":
@@ -211,6 +218,8 @@ class RunMonitor:
                 "collision": self.min_gap_m < 0.0,
                 "ev_speed_min_max_mps": (None if math.isinf(self.ev_min_speed_mps)
                                          else [round(self.ev_min_speed_mps, 2), round(self.ev_max_speed_mps, 2)]),
+                "commands_signed": self.facts.get("commands_signed"),
+                "alerts_signed": self.facts.get("alerts_signed"),
                 "messages_seen": dict(self.counts),
                 "messages_lost_per_link": dict(self.lost),
                 **self._ev_delay(),
@@ -226,9 +235,45 @@ def _start(name: str, args: list[str], run_dir: Path, env: dict[str, str]) -> su
                             start_new_session=True)
 
 
+def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]:
+    """Throwaway keys (DDM + one per RSU) in ``run_dir/keys`` and a corridor file trusting them."""
+    from protocol.corridor import DEFAULT_CORRIDOR
+    from protocol.security import new_key_pair
+
+    key_dir = run_dir / "keys"
+    key_dir.mkdir(parents=True, exist_ok=True)
+    entries, paths = [], {}
+    for name, extra in [("ddm", 'role = "ddm"\nvehicles = ["*"]'),
+                        *[(r.rsu_id, f'role = "rsu"\nrsu_id = "{r.rsu_id}"') for r in corridor.rsus]]:
+        pem, public = new_key_pair()
+        path = key_dir / f"{name}-demo.pem"
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "wb") as f:
+            f.write(pem)
+        paths[name] = path
+        entries.append(f'[[trust]]\nkey_id = "{name}-demo"\n{extra}\npublic_key = "{public}"\n')
+    corridor_file = run_dir / "corridor.toml"
+    corridor_file.write_text(DEFAULT_CORRIDOR.read_text() + "\n# throwaway demo keys (iea demo)\n" + "\n".join(entries))
+    return corridor_file, paths
+
+
+PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
+
+
+def detector_args(detector: str) -> list[str]:
+    """iea-rsu options for a detector name: ``project`` (the project's ONNX model, models/), ``motion``
+    (MOG2), or the path of an ONNX model."""
+    if detector == "motion":
+        return ["--detector", "motion"]
+    model = PROJECT_MODEL if detector == "project" else Path(detector)
+    if not model.is_file():
+        raise FileNotFoundError(f"detector model {model} not found (use --detector motion, or train it: make models)")
+    return ["--detector", "onnx", "--model", str(model)]
+
+
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
-             corridor_id: str | None = None, quiet: bool = False, detector: str = "motion",
-             seed: int | None = None) -> dict[str, Any]:
+             corridor_id: str | None = None, quiet: bool = False, detector: str = "project",
+             seed: int | None = None, signed: bool = True) -> dict[str, Any]:
     from protocol import keys
     from protocol.transport import ZenohTransport
     from sim.scenario import load_scenario
@@ -246,6 +291,14 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
     common = ["--corridor-id", cid]
+    key_args: dict[str, list[str]] = {}
+    if signed:
+        corridor_file, key_paths = make_demo_keys(run_dir, corridor)
+        common += ["--corridor", str(corridor_file)]
+        key_args = {name: ["--key", str(path)] for name, path in key_paths.items()}
+        say(f"[demo] signed messages: throwaway keys in {run_dir / 'keys'}, trust list in {corridor_file}")
+    else:
+        say("[demo] UNSIGNED: commands and alerts carry no signatures (--unsigned)")
     procs: dict[str, subprocess.Popen] = {}
     try:
         av = []  # the vehicle starts where the scenario puts the AV
@@ -254,10 +307,11 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
                   "--speed", str(sc.av.speed_mps)]
         procs["vehicle"] = _start("vehicle", ["-m", "vehicle", "run", *common, *av, "--record", str(run_dir / "vehicle"),
                                               "--duration", str(duration_s + 4)], run_dir, env)
-        procs["ddm"] = _start("ddm", ["-m", "ddm", "run", *common], run_dir, env)
+        procs["ddm"] = _start("ddm", ["-m", "ddm", "run", *common, *key_args.get("ddm", [])], run_dir, env)
         for rsu in corridor.rsus:
             procs[rsu.rsu_id] = _start(rsu.rsu_id, ["-m", "rsu", "--rsu", rsu.rsu_id, "--source", "sim", *common,
-                                                    "--detector", detector,
+                                                    *key_args.get(rsu.rsu_id, []),
+                                                    *detector_args(detector),
                                                     "--annotate", str(run_dir / f"{rsu.rsu_id}.mp4")], run_dir, env)
         time.sleep(2.0)  # let every session discover the others before the world starts
         seed_arg = [] if seed is None else ["--seed", str(seed)]
@@ -325,6 +379,7 @@ def print_summary(m: dict[str, Any]) -> None:
         ("min gap to any vehicle", m.get("min_gap_to_any_vehicle_m"), "m"),
         ("min time to collision", m.get("min_time_to_collision_s"), "s"),
         ("collision", m.get("collision"), ""),
+        ("commands / alerts signed", f"{m.get('commands_signed')} / {m.get('alerts_signed')}", ""),
         ("EV speed min / max", m.get("ev_speed_min_max_mps"), "m/s"),
         ("EV lowest speed with lights on", m.get("ev_min_speed_lights_on_mps"), "m/s"),
         ("EV delay (time lost vs its top speed)", m.get("ev_delay_s"), "s"),
@@ -342,10 +397,12 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="rellis_ev_yield", help="scenario name (iea-sim list)")
     ap.add_argument("--duration-s", type=float, default=30.0, help="scenario time to run")
-    ap.add_argument("--detector", choices=["motion", "onnx"], default="motion", help="RSU detector")
+    ap.add_argument("--detector", default="project",
+                    help="RSU detector: 'project' (models/iea_det_tiny.onnx, default), 'motion' (MOG2) or an ONNX path")
     ap.add_argument("--runs", default=str(ROOT / "runs"), help="where run folders go")
+    ap.add_argument("--unsigned", action="store_true", help="no signatures (default: throwaway keys, signed)")
     args = ap.parse_args(argv)
-    m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector)
+    m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector, signed=not args.unsigned)
     print_summary(m)
     from deploy.outcome import judge_run
     from sim.scenario import load_scenario

@@ -67,8 +67,8 @@ class LockstepConfig:
     """Scenario seed (traffic, camera noise); None: the scenario file's."""
     duration_s: float | None = None
     """None: the scenario's duration."""
-    detector: str = "motion"
-    """``motion`` (MOG2, no model) or a path to an ONNX detector (YOLOX or project layout)."""
+    detector: str = "project"
+    """``project`` (models/iea_det_tiny.onnx), ``motion`` (MOG2, no model) or a path to an ONNX detector."""
     vehicle_channel: ChannelModel | None = None
     """Radio between the vehicle and the rest (both directions); None: a perfect link."""
     channel_seed: int = 0
@@ -144,6 +144,10 @@ class CorridorLockstep:
         det = self.config.detector
         if det == "motion":
             return MotionDetector()
+        if det == "project":
+            from deploy.demo import PROJECT_MODEL
+
+            det = str(PROJECT_MODEL)
         detector = OnnxDetector(det, intra_op_threads=1)
         if detector.layout == "project":  # Framework B: every vehicle one class (as iea-rsu does)
             detector.class_map = {0: 0, 1: 0}
@@ -324,8 +328,8 @@ def scenario_main(argv: list[str] | None = None) -> int:
                      help="with --inprocess: run as fast as the CPU allows instead of in real time")
     run.add_argument("--seed", type=int, default=None, help="scenario seed (default: the scenario file's)")
     run.add_argument("--duration-s", type=float, default=None, help="scenario time to run (default: the scenario's)")
-    run.add_argument("--detector", default="motion",
-                     help="RSU detector: 'motion' (MOG2) or, --inprocess only, the path of an ONNX model")
+    run.add_argument("--detector", default="project",
+                     help="RSU detector: 'project' (models/iea_det_tiny.onnx), 'motion' (MOG2) or an ONNX model path")
     run.add_argument("--runs", default=None, help="where the run folder goes (default ./runs)")
     run.add_argument("--json", action="store_true", help="print the metrics as one JSON line at the end")
     args = ap.parse_args(argv)
@@ -354,11 +358,7 @@ def scenario_main(argv: list[str] | None = None) -> int:
         write_run_folder(runner, m, run_dir)
         m["run_dir"] = str(run_dir)
     else:
-        if args.detector != "motion":
-            print("iea scenario: --detector PATH needs --inprocess (the RSU processes take --detector onnx "
-                  "--model PATH themselves)", file=sys.stderr)
-            return 2
-        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed)
+        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed, detector=args.detector)
     print_summary(m)
     ok, why = judge_run(m, ev_lights_on=ev_lights_on(sc, args.duration_s))
     print(f"\n[scenario] {sc.name}: {'PASS' if ok else 'FAIL'}: {why}")

@@ -20,7 +20,9 @@ Trust lists come from the corridor file (``[[trust]]`` tables): key id, base64 p
 from __future__ import annotations
 
 import base64
+import logging
 import struct
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,12 +32,19 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
+from protocol.clock import Clock, WallClock
 from protocol.codec import encode
 from protocol.keys import parse_key
 from protocol.messages import EvAlert, HazardAlert, PathSwitchCommand, Signature
+from protocol.transport import MessageCallback, RejectCallback, Subscription, Transport
+
+log = logging.getLogger(__name__)
 
 SIGNED_TYPES = (PathSwitchCommand, EvAlert, HazardAlert)
 _DOMAIN = b"iea-sig-v1\x00"
+ALERT_VALID_FOR_S = 5.0
+"""Validity of an alert's signature after its stamp: alerts repeat at 2 Hz and the DDM forgets one
+after 5 s (``DdmConfig.ev_alert_timeout_s``), so a captured alert cannot be replayed for longer."""
 
 
 class AuthError(ValueError):
@@ -102,9 +111,23 @@ class Signer:
 
     def sign(self, key: str, message: Any, now: float, valid_for_s: float = 30.0, skew_s: float = 1.0) -> Any:
         """A copy of ``message`` carrying a signature valid from ``now - skew_s`` for ``valid_for_s``."""
+        return self._sign(key, message, max(0.0, now - skew_s), now + valid_for_s)
+
+    def sign_message(self, key: str, message: Any, valid_for_s: float = ALERT_VALID_FOR_S,
+                     skew_s: float = 1.0) -> Any:
+        """Sign with a window taken from the message itself, so that signing is deterministic (Ed25519
+        is) and a retransmission carries the very same signature (``ReplayGuard`` calls it a duplicate):
+        a command from ``issued_at - skew_s`` to its ``valid_until``; an alert from ``stamp - skew_s``
+        for ``valid_for_s``."""
+        if isinstance(message, PathSwitchCommand):
+            return self._sign(key, message, max(0.0, message.issued_at - skew_s), message.valid_until)
+        if isinstance(message, EvAlert | HazardAlert):
+            return self._sign(key, message, max(0.0, message.stamp - skew_s), message.stamp + valid_for_s)
+        raise TypeError(f"{type(message).__name__} is not a signed message kind")
+
+    def _sign(self, key: str, message: Any, not_before: float, not_after: float) -> Any:
         if not isinstance(message, SIGNED_TYPES):
             raise TypeError(f"{type(message).__name__} is not a signed message kind")
-        not_before, not_after = max(0.0, now - skew_s), now + valid_for_s
         sig = self.private_key.sign(signed_bytes(key, message, not_before, not_after))
         return message.model_copy(update={"auth": Signature(self.key_id, not_before, not_after, sig)})
 
@@ -154,6 +177,22 @@ class TrustList:
                                   vehicles, rsu_id)
         return cls(out)
 
+    @classmethod
+    def from_corridor(cls, corridor: Any) -> TrustList:
+        """The corridor file's ``[[trust]]`` entries (empty when it has none)."""
+        return cls.from_entries(list(getattr(corridor, "trust", ())), f"{getattr(corridor, 'source', '') or 'corridor'}: trust")
+
+    def has_role(self, role: str) -> bool:
+        return any(k.role == role for k in self.keys.values())
+
+    def key_id_of(self, private_key: Ed25519PrivateKey) -> str | None:
+        """The id under which this private key's public half is trusted (None: not in the list)."""
+        mine = public_key_b64(private_key.public_key())
+        for k in self.keys.values():
+            if public_key_b64(k.public_key) == mine:
+                return k.key_id
+        return None
+
 
 @dataclass
 class Verifier:
@@ -182,7 +221,8 @@ class Verifier:
 
 class ReplayGuard:
     """Refuses replays: an older ``command_seq`` than the newest seen from that signer for that vehicle,
-    or a known command id with different content. An identical copy (a retransmission) is a
+    a known command id with different content, or a copy of a command that a newer one from the same
+    signer has replaced. An identical copy of the newest command (a retransmission) is a
     ``"duplicate"``, to be acknowledged again without acting twice. Bounded to ``capacity`` ids."""
 
     def __init__(self, capacity: int = 4096) -> None:
@@ -199,11 +239,14 @@ class ReplayGuard:
         signer = self._signer(command)
         digest = command.auth.sig if command.auth is not None else encode(command)
         seen = self._seen.get((signer, command.command_id))
-        if seen is not None:
-            if seen == digest:
-                return "duplicate"
-            raise AuthError("replayed", f"command id {command.command_id!r} reused with different content")
         newest = self._newest_seq.get((signer, command.vehicle_id))
+        if seen is not None:
+            if seen != digest:
+                raise AuthError("replayed", f"command id {command.command_id!r} reused with different content")
+            if newest is not None and command.command_seq < newest:
+                raise AuthError("replayed", f"command {command.command_id!r} (seq {command.command_seq}) was "
+                                            f"already replaced by seq {newest}")
+            return "duplicate"
         if newest is not None and command.command_seq < newest:
             raise AuthError("replayed", f"command_seq {command.command_seq} is older than {newest}")
         return "new"
@@ -217,3 +260,69 @@ class ReplayGuard:
         self._newest_seq[k] = max(command.command_seq, self._newest_seq.get(k, -1))
         while len(self._newest_seq) > self.capacity:
             self._newest_seq.popitem(last=False)
+
+
+# ----------------------------------------------------------------------------- transport wrapper
+class SecureTransport(Transport):
+    """Any ``Transport`` with message signatures: ``publish`` signs every unsigned ``PathSwitchCommand``,
+    ``EvAlert`` and ``HazardAlert`` with ``signer`` (``Signer.sign_message``: deterministic, so a
+    retransmission is byte-identical); ``subscribe`` checks those kinds with ``verifier`` before the
+    callback sees them. A refused message is counted in the shared ``stats.rejected`` as
+    ``auth_<reason>`` and passed to ``on_reject``. ``require_signed=False`` lets unsigned messages
+    through (signed ones are still checked). Other kinds pass untouched. Closing it closes ``inner``."""
+
+    def __init__(self, inner: Transport, clock: Clock | None = None, *, signer: Signer | None = None,
+                 verifier: Verifier | None = None, require_signed: bool = True,
+                 alert_valid_for_s: float = ALERT_VALID_FOR_S) -> None:
+        self.inner = inner
+        self.stats = inner.stats  # one set of counters: the service's Health reads them
+        self._stats_lock = getattr(inner, "_stats_lock", threading.Lock())
+        self.clock = clock or WallClock()
+        self.signer, self.verifier, self.require_signed = signer, verifier, require_signed
+        self.alert_valid_for_s = alert_valid_for_s
+
+    def publish_bytes(self, key: str, payload: bytes) -> None:
+        self.inner.publish_bytes(key, payload)
+
+    def subscribe_bytes(self, key_expr: str, callback: Any) -> Subscription:
+        return self.inner.subscribe_bytes(key_expr, callback)
+
+    def publish(self, key: str, message: Any) -> None:
+        if self.signer is not None and isinstance(message, SIGNED_TYPES) and message.auth is None:
+            message = self.signer.sign_message(key, message, self.alert_valid_for_s)
+        self.inner.publish(key, message)
+
+    def subscribe(self, key_expr: str, callback: MessageCallback,
+                  on_reject: RejectCallback | None = None) -> Subscription:
+        if self.verifier is None:
+            return self.inner.subscribe(key_expr, callback, on_reject)
+        verifier = self.verifier
+
+        def checked(key: str, message: Any) -> None:
+            if isinstance(message, SIGNED_TYPES) and (message.auth is not None or self.require_signed):
+                try:
+                    verifier.check(key, message, self.clock.now())
+                except AuthError as exc:
+                    with self._stats_lock:
+                        self.stats.rejected[f"auth_{exc.reason}"] += 1
+                    log.debug("refused %s on %s: %s", type(message).__name__, key, exc)
+                    if on_reject is not None:
+                        on_reject(key, exc)
+                    return
+            callback(key, message)
+
+        return self.inner.subscribe(key_expr, checked, on_reject)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def load_signer(path: str | Path, key_id: str | None = None, trust: TrustList | None = None) -> Signer:
+    """A signer from a PEM file; without ``key_id`` the id is the trust-list entry of its public key."""
+    private = load_private_key(path)
+    if key_id is None:
+        key_id = trust.key_id_of(private) if trust is not None else None
+        if key_id is None:
+            raise ValueError(f"{path}: its public key is not in the corridor's trust list; give --key-id "
+                             "or add the [[trust]] entry printed by `iea keys new`")
+    return Signer(key_id, private)

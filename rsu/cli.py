@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 
 from protocol.corridor import CorridorError, load_corridor
+from protocol.security import TrustList, load_signer
 from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
@@ -67,6 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a frame of the empty road from this camera: the hazard detector starts from it instead of "
                          "learning the road over its first seconds (debris already there at start is then found)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
+    ap.add_argument("--key", metavar="PEM", default=None,
+                    help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
+    ap.add_argument("--key-id", metavar="ID", default=None,
+                    help="key id of --key (default: the corridor trust entry holding its public key)")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
     return ap
@@ -96,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             detector = MotionDetector()
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
+        signer = load_signer(args.key, args.key_id, TrustList.from_corridor(corridor)) if args.key else None
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
         classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
         hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
@@ -122,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
         source = SimSource(corridor, args.rsu, transport, corridor_id=args.corridor_id, seed=args.sim_seed)
     pipeline = RsuPipeline(detector, tracker, localizer, classifier, hazards=hazards)
     service = RsuService(corridor, args.rsu, source, pipeline, transport, corridor_id=args.corridor_id,
-                         annotate_path=args.annotate, max_frames=args.max_frames, read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
+                         annotate_path=args.annotate, max_frames=args.max_frames, read_timeout_s=args.read_timeout_s,
+                         max_stall_s=args.max_stall_s, signer=signer)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     signal.signal(signal.SIGINT, lambda *_: service.stop())
     log.info("RSU %s: %s -> %s on %s", args.rsu, source.source_id, getattr(detector, "name", "detector"),

@@ -19,6 +19,9 @@ its lights go off or it has left the view for ``leave_after_s``. ``alert_id = f"
 Hazards (issue 10): with a :class:`rsu.hazard.HazardDetector` (``RsuPipeline(hazards=...)``), static objects
 in a lane are published as ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``: ``appear``, ``persist`` at 1 Hz,
 ``clear``; ``hazard_id = f"{rsu_id}-hz-{n}"``.
+
+Signing (issue 9): with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
+Ed25519 signature (``protocol.security.SecureTransport`` wraps the transport).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ from protocol.messages import (
     ObjectType,
     Role,
 )
+from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent, EvAlertManager
 from rsu.detect import EV, Detector
@@ -144,11 +148,13 @@ class RsuService:
                  transport: Transport, clock: Clock | None = None, *, corridor_id: str | None = None,
                  annotate_path: str | None = None, max_frames: int | None = None,
                  read_timeout_s: float = 5.0, max_stall_s: float | None = None,
-                 health_period_s: float = 1.0) -> None:
+                 health_period_s: float = 1.0, signer: Signer | None = None) -> None:
         self.corridor = corridor
         self.rsu_id = rsu_id
-        self.source, self.pipeline, self.transport = source, pipeline, transport
         self.clock = clock or WallClock()
+        if signer is not None:  # alerts are signed on publication
+            transport = SecureTransport(transport, self.clock, signer=signer)
+        self.source, self.pipeline, self.transport = source, pipeline, transport
         cid = corridor_id or corridor.corridor_id
         self.objects_key = rsu_key(cid, rsu_id, "objects")
         self.health_key = rsu_key(cid, rsu_id, "health")

@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors")
     run.add_argument("--duration", type=_positive, default=None, metavar="S", help="exit after this many seconds")
     run.add_argument("--record", metavar="DIR", default=None, help="write the run (npz/csv/json) here on exit")
+    run.add_argument("--require-signed", action=argparse.BooleanOptionalAction, default=None,
+                     help="refuse unsigned commands (default: on when the corridor file's [[trust]] entries name a "
+                          "DDM key; commands are then verified against them whatever this flag says)")
     run.add_argument("-v", "--verbose", action="store_true")
     ZenohSettings.add_arguments(run)
 
@@ -76,7 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_run(args: argparse.Namespace) -> int:
     from protocol.clock import WallClock
     from protocol.corridor import CorridorError, load_corridor
+    from protocol.security import TrustList
     from protocol.transport import ZenohTransport
+    from vehicle.commands import CommandGate
     from vehicle.core import CoreConfig
     from vehicle.failsafe import FailsafeConfig
     from vehicle.service import VehicleService
@@ -98,6 +103,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except CorridorError as exc:
         print(f"iea-vehicle: {exc}", file=sys.stderr)
         return 2
+    trust = TrustList.from_corridor(corridor)
+    gate = CommandGate.from_trust(trust, args.require_signed)
+    if args.require_signed and not gate.active:
+        print("iea-vehicle: --require-signed needs [[trust]] entries with role = 'ddm' in the corridor file",
+              file=sys.stderr)
+        return 2
     settings = ZenohSettings.from_args(args)
     config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=args.link_timeout,
                                                 localisation_stale_s=args.localisation_stale))
@@ -105,9 +116,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
     transport = ZenohTransport(settings)
     service = VehicleService(transport, WallClock(), corridor, args.vehicle, config=config,
                              localisation=args.localisation, fix_source=fix, seed=args.seed,
-                             record=args.record is not None)
+                             record=args.record is not None, gate=gate)
+    log = logging.getLogger("iea-vehicle")
+    if gate.active:
+        log.info("commands verified against %d trusted key(s); unsigned commands %s", len(trust.keys),
+                 "refused" if gate.require_signed else "accepted")
+    else:
+        log.warning("no DDM key in the corridor's trust list: commands are NOT authenticated")
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
-    logging.getLogger("iea-vehicle").info("vehicle %s on corridor %s: publishing %s", args.vehicle,
+    log.info("vehicle %s on corridor %s: publishing %s", args.vehicle,
                                           corridor.corridor_id, service.state_key)
     try:
         service.run(args.duration)

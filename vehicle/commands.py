@@ -16,6 +16,11 @@ A duplicate (same ``command_id``) changes nothing and gets the same decision aga
 retries until it hears an ack is answered every time. ``valid_until`` is the acceptance deadline: a
 command already being executed is carried out to the end (a half-done pull-over is not abandoned);
 lost contact during it is the fail-safe's job (``vehicle/failsafe.py``).
+
+Before any of that, ``CommandGate`` authenticates the command (issue 9, after IEEE 1609.2): with a
+trust list it refuses unsigned, unknown-key, wrongly signed, expired, not-yet-valid, out-of-scope and
+replayed commands (``protocol.security.AuthError`` with the reason); a refused command never reaches
+the book, so the car keeps driving on its last valid command.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand
+from protocol.security import ReplayGuard, TrustList, Verifier
 from vehicle.geometry import wrap_angle
 from vehicle.reference import ReferencePath
 
@@ -187,3 +193,43 @@ class CommandBook:
         d = self._record(Decision(self.active.command_id, AckStatus.COMPLETED, reason))
         self.active, self.active_path = None, None
         return d
+
+
+ANSWERED_AUTH_REASONS = frozenset({"expired", "not_yet_valid", "out_of_scope", "replayed"})
+"""Refusals acknowledged ``rejected`` to the DDM: the signature verified, so a trusted DDM sent it and
+should know why it is refused. Unsigned, unknown-key and forged commands get no answer: an unknown
+sender cannot make the car speak (and e.g. reject a command id the real DDM is waiting on)."""
+
+
+class CommandGate:
+    """Authenticates commands against a trust list (pure: the caller passes the time).
+
+    ``verifier`` None: no trust list, every command passes (the pre-signature behaviour).
+    ``require_signed`` False: unsigned commands pass, signed ones are still checked.
+    """
+
+    def __init__(self, verifier: Verifier | None, require_signed: bool = True, replay_capacity: int = 4096) -> None:
+        self.verifier = verifier
+        self.require_signed = require_signed
+        self.replay = ReplayGuard(replay_capacity)
+
+    @classmethod
+    def from_trust(cls, trust: TrustList, require_signed: bool | None = None) -> CommandGate:
+        """Verifies when the trust list names DDM keys; then unsigned commands are refused unless
+        ``require_signed`` is False."""
+        if not trust.has_role("ddm"):
+            return cls(None, False)
+        return cls(Verifier(trust), True if require_signed is None else require_signed)
+
+    @property
+    def active(self) -> bool:
+        return self.verifier is not None
+
+    def admit(self, key: str, cmd: PathSwitchCommand, now_s: float) -> None:
+        """Raise ``AuthError`` unless ``cmd`` may be offered to the ``CommandBook``."""
+        if self.verifier is None or (cmd.auth is None and not self.require_signed):
+            return
+        self.verifier.check(key, cmd, now_s)
+        if self.replay.classify(cmd) == "new":
+            self.replay.remember(cmd)
+

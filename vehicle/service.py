@@ -6,6 +6,12 @@ position fix). Publishes a ``CommandAck`` for every command decision, ``VehicleS
 ``Health`` at 1 Hz. Transport callbacks only queue; ``step(now)`` does all the work, so the same
 service runs in lockstep (``SimClock`` + ``LocalBus``: publish, then ``step``) and in real time
 (``run()`` calls ``step`` at the control rate, 100 Hz).
+
+Commands are authenticated first (``vehicle.commands.CommandGate``; by default from the corridor's
+``[[trust]]`` entries: when they name DDM keys, only commands signed by one of them, in time, in
+scope and not replayed are offered to the command book). Each refusal is counted in Health
+``rejected`` as ``auth_<reason>``; the inbox is bounded (``MAX_INBOX``, overflow counted as
+``inbox_full``).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from dataclasses import dataclass
 from protocol.clock import Clock, RateTimer
 from protocol.keys import all_rsus_expr, ddm_health_key, parse_key, vehicle_key
 from protocol.messages import (
+    AckStatus,
     CommandAck,
     Health,
     HealthStatus,
@@ -30,7 +37,9 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.security import AuthError, TrustList
 from protocol.transport import Transport
+from vehicle.commands import ANSWERED_AUTH_REASONS, CommandGate
 from vehicle.core import CoreConfig, SimulatedVehicle
 from vehicle.localisation import GNSS, Fix, FixSourceConfig
 from vehicle.lockstep import RunRecord, record_step
@@ -40,6 +49,9 @@ log = logging.getLogger(__name__)
 LOCALISATION_MODES = ("gnss", "rsu", "both")
 RSU_FIX_GATE_M = 4.0
 """An RSU object is taken as this car when it lies this close to the predicted pose."""
+MAX_INBOX = 1024
+"""Messages queued between two steps (10 ms at 100 Hz); more is a flood: dropped and counted (the
+DDM's health beats have 16 places more, so a command flood does not trip the link watchdog)."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +67,8 @@ class VehicleService:
     def __init__(self, transport: Transport, clock: Clock, corridor, vehicle_id: str, *,
                  config: CoreConfig = CoreConfig(), localisation: str = "gnss",
                  fix_source: FixSourceConfig = GNSS, seed: int = 0, timing: ServiceTiming = ServiceTiming(),
-                 record: bool = False) -> None:
+                 record: bool = False, gate: CommandGate | None = None) -> None:
+        """``gate``: command authentication (default: from the corridor's trust list, see the module doc)."""
         if localisation not in LOCALISATION_MODES:
             raise ValueError(f"localisation must be one of {LOCALISATION_MODES}, got {localisation!r}")
         self.transport, self.clock, self.corridor = transport, clock, corridor
@@ -72,9 +85,10 @@ class VehicleService:
         self.cmd_key, self.ack_key = vehicle_key(c, vehicle_id, "cmd"), vehicle_key(c, vehicle_id, "ack")
         self.state_key, self.health_key = vehicle_key(c, vehicle_id, "state"), vehicle_key(c, vehicle_id, "health")
         self._inbox: deque[tuple[str, object, float]] = deque()
+        self.gate = gate if gate is not None else CommandGate.from_trust(TrustList.from_corridor(corridor))
         self._seq = Counter()
         self.rejected: Counter = Counter()
-        self.acks_sent: list[CommandAck] = []
+        self.acks_sent: deque[CommandAck] = deque(maxlen=256)  # the latest, for tests and debugging
         self.states_sent = 0
         self._next_control_s = self.start_s
         self._state_timer = RateTimer(timing.state_period_s)
@@ -93,15 +107,22 @@ class VehicleService:
             self._subs.append(transport.subscribe(all_rsus_expr(c), self._on_rsu, on_reject=self._on_reject))
 
     # ------------------------------------------------------------------ transport callbacks (queue only)
+    def _queue(self, kind: str, msg) -> None:
+        # the DDM's heartbeat keeps a little headroom: a command flood must not starve the link watchdog
+        if len(self._inbox) >= MAX_INBOX + (16 if kind == "link" else 0):
+            self.rejected["inbox_full"] += 1
+            return
+        self._inbox.append((kind, msg, self.clock.now()))
+
     def _on_cmd(self, key: str, msg) -> None:
-        self._inbox.append(("cmd", msg, self.clock.now()))
+        self._queue("cmd", msg)
 
     def _on_ddm_health(self, key: str, msg) -> None:
-        self._inbox.append(("link", msg, self.clock.now()))
+        self._queue("link", msg)
 
     def _on_rsu(self, key: str, msg) -> None:
         if isinstance(msg, ObjectList) and parse_key(key).topic == "objects":
-            self._inbox.append(("rsu", msg, self.clock.now()))
+            self._queue("rsu", msg)
 
     def _on_reject(self, key: str, exc: Exception) -> None:
         self.rejected[getattr(exc, "reason", "invalid")] += 1
@@ -119,6 +140,20 @@ class VehicleService:
         if decision.status.value == "rejected":
             self.rejected["command_" + decision.reason.split(":", 1)[0].split(" ", 1)[0]] += 1
         self.transport.publish(self.ack_key, ack)
+
+    def _refuse(self, cmd: PathSwitchCommand, exc: AuthError, now_s: float) -> None:
+        """A command that failed authentication: counted, logged, answered only when a trusted DDM sent it."""
+        name = "auth_" + exc.reason
+        self.rejected[name] += 1
+        n = self.rejected[name]
+        if n == 1 or n % 100 == 0:
+            log.warning("%s: refused command %s (%d so far): %s", self.vehicle_id, cmd.command_id, n, exc)
+        if exc.reason in ANSWERED_AUTH_REASONS:
+            ack = CommandAck(src=self.vehicle_id, seq=self._next_seq(self.ack_key), stamp=now_s,
+                             command_id=cmd.command_id, vehicle_id=self.vehicle_id, status=AckStatus.REJECTED,
+                             reason=str(exc)[:250])
+            self.acks_sent.append(ack)
+            self.transport.publish(self.ack_key, ack)
 
     def state_message(self, now_s: float, *, publish: bool = True) -> VehicleState:
         """The VehicleState of now; ``publish=False`` leaves the key's sequence number untouched (a
@@ -166,6 +201,11 @@ class VehicleService:
             kind, msg, _ = self._inbox.popleft()
             if kind == "cmd":
                 assert isinstance(msg, PathSwitchCommand)
+                try:
+                    self.gate.admit(self.cmd_key, msg, now_s)
+                except AuthError as exc:
+                    self._refuse(msg, exc, now_s)
+                    continue
                 for decision in core.on_command(msg, now_s):
                     self._ack(decision, now_s)
                     if self.record is not None and decision.status.value == "accepted":
