@@ -6,6 +6,7 @@
     iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
     iea demo                    run the main scenario end to end (what `make demo` runs)
+    iea up                      the compose topology as local processes around one router
 """
 
 from __future__ import annotations
@@ -155,6 +156,12 @@ def _demo(argv: list[str]) -> int:
     return demo.main(argv)
 
 
+def _up(argv: list[str]) -> int:
+    from deploy import up
+
+    return up.main(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     commands = {
@@ -164,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
         "deploy": ("generate deployment files (iea deploy acl ...)", _deploy),
         "demo": ("run the main scenario end to end (make demo)", _demo),
+        "up": ("router + every service as local processes (no Docker)", _up),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]

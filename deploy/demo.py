@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import signal
 import subprocess
 import sys
 import threading
@@ -25,6 +23,8 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from deploy.procs import ServiceGroup, child_env, corridor_services
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -171,12 +171,6 @@ class RunMonitor:
             }
 
 
-def _start(name: str, args: list[str], run_dir: Path, env: dict[str, str]) -> subprocess.Popen:
-    log = open(run_dir / "logs" / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-    return subprocess.Popen([sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
-                            start_new_session=True)
-
-
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
              corridor_id: str | None = None, quiet: bool = False, detector: str = "motion") -> dict[str, Any]:
     from protocol import keys
@@ -187,26 +181,22 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     cid = corridor_id or f"rellis-{uuid.uuid4().hex[:6]}"
     run_dir = (run_root or ROOT / "runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), PYTHONUNBUFFERED="1")
+    env = child_env()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     say(f"[demo] corridor {cid}, scenario {scenario}, {duration_s:.0f} s; run folder {run_dir}")
 
     monitor = RunMonitor(cid)
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
-    common = ["--corridor-id", cid]
-    procs: dict[str, subprocess.Popen] = {}
+    group = ServiceGroup(run_dir, env)
+    procs = group.procs
+    specs = corridor_services(corridor, cid, scenario=scenario, duration_s=duration_s, run_dir=run_dir,
+                              detector=detector)
     try:
-        procs["vehicle"] = _start("vehicle", ["-m", "vehicle", "run", *common, "--record", str(run_dir / "vehicle"),
-                                              "--duration", str(duration_s + 4)], run_dir, env)
-        procs["ddm"] = _start("ddm", ["-m", "ddm", "run", *common], run_dir, env)
-        for rsu in corridor.rsus:
-            procs[rsu.rsu_id] = _start(rsu.rsu_id, ["-m", "rsu", "--rsu", rsu.rsu_id, "--source", "sim", *common,
-                                                    "--detector", detector,
-                                                    "--annotate", str(run_dir / f"{rsu.rsu_id}.mp4")], run_dir, env)
+        for spec in specs[:-1]:
+            group.start(spec.name, spec.args)
         time.sleep(2.0)  # let every session discover the others before the world starts
-        procs["sim"] = _start("sim", ["-m", "sim", "run", scenario, *common, "--duration", str(duration_s)],
-                              run_dir, env)
+        group.start(specs[-1].name, specs[-1].args)
         say("[demo] started: " + ", ".join(f"{k} (pid {p.pid})" for k, p in procs.items()))
         deadline = time.monotonic() + duration_s + 30
         last_alerts = last_cmds = 0
@@ -226,14 +216,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
                     say(f"  !! {name} exited with code {p.returncode}; see {run_dir / 'logs' / (name + '.log')}")
         time.sleep(1.0)
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        group.stop_all()
         transport.close()
 
     metrics = monitor.metrics()
