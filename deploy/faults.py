@@ -1,0 +1,288 @@
+"""Fault scenarios of the corridor (issue 8 "Fault tests"), each with a pass/fail outcome and a margin.
+
+Two runners:
+
+- ``run_command_link`` (in process, lockstep): the real ``DdmService`` and ``VehicleService`` on one
+  ``SimClock`` over a ``LocalBus``; every message to and from the vehicle goes through a ``DsrcLink``
+  with the channel under test (latency + jitter, independent loss, scheduled outages). Scripted RSUs
+  stand in for perception: each publishes at 15 Hz the object list of what its camera sees (the AV's
+  true pose, the EV) and, from ``lights_on_s + alert_delay_s``, the EvAlert at 2 Hz. The EV drives in
+  the AV's lane at constant speed. Fast (a few seconds of CPU per run) and deterministic per seed.
+- the process-level faults (an RSU killed, the DDM killed and restarted, the router restarted) run
+  the corridor's real processes over Zenoh on loopback: see ``deploy/process_faults.py``.
+
+Outcome of an EV-yield run, measured from the AV's true pose: the EV *reaches* the AV when its front
+comes within ``reach_gap_m`` of the AV's rear. If the AV has left the EV's lane by then the pull-over
+worked (margin = reach time - time the lane was clear); if it is stopped in the lane it stopped safely
+in lane (margin = reach time - stop time); otherwise it blocked the EV (margin negative: how late).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.channel import ChannelModel
+from protocol.clock import SimClock
+from protocol.corridor import Corridor, load_corridor
+from protocol.keys import all_vehicles_expr, rsu_key
+from protocol.messages import (
+    AlertState,
+    DetectedObject,
+    EvAlert,
+    EvState,
+    ObjectList,
+    ObjectType,
+    PathSwitchCommand,
+    VehicleMode,
+)
+from protocol.transport import DsrcLink, LocalBus
+
+CAMERA_VIEW_M = (18.0, 120.0)
+"""What each RELLIS camera sees along x, relative to its own x (deploy/corridors/rellis.toml)."""
+
+
+@dataclass(frozen=True)
+class FaultOutcome:
+    """One row of the fault table."""
+
+    name: str
+    kind: str
+    passed: bool
+    outcome: str
+    margin_s: float | None
+    """How much earlier than needed the AV was safe (negative: how late); None where not applicable."""
+    runner: str
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def row(self) -> str:
+        m = "-" if self.margin_s is None else f"{self.margin_s:+.2f} s"
+        return f"{self.name:<34} {'PASS' if self.passed else 'FAIL':<5} {self.outcome:<34} {m:>9}"
+
+
+@dataclass(frozen=True)
+class YieldScenario:
+    """The scripted EV approach (the RELLIS field test: EV behind the AV in lane 1, faster)."""
+
+    ev_gap_m: float = 50.0
+    """EV centre this far behind the AV's at t = 0."""
+    ev_speed_mps: float = 17.0
+    lights_on_s: float = 4.0
+    alert_delay_s: float = 0.4
+    """Lights on -> first EvAlert (the RSU's detection latency, measured by iea demo at ~0.4 s)."""
+    frame_rate_hz: float = 15.0
+    duration_s: float = 20.0
+    reach_gap_m: float = 2.0
+    lane_clear_m: float = 0.2
+    """The AV is out of the EV's lane when the lateral gap between their sides exceeds this."""
+
+
+def _detected(corridor: Corridor, oid: int, x: float, y: float, vx: float, vy: float, *, ev: bool,
+              length_m: float, width_m: float) -> DetectedObject:
+    lat, lon = corridor.to_latlon(x, y)
+    return DetectedObject(
+        object_id=oid, pos_x_m=x, pos_y_m=y, lat_deg=lat, lon_deg=lon, bbox_px=(0.0, 0.0, 10.0, 10.0),
+        obj_type=ObjectType.EV if ev else ObjectType.VEHICLE, ev_state=EvState.CONFIRMED if ev else EvState.NONE,
+        ev_score=0.9 if ev else 0.0, vel_x_mps=vx, vel_y_mps=vy, speed_mps=math.hypot(vx, vy),
+        heading_rad=math.atan2(vy, vx) if (vx or vy) else 0.0, length_m=length_m, width_m=width_m,
+        pos_cov_m2=(0.09, 0.0, 0.09), lane=None)
+
+
+@dataclass
+class LinkRunResult:
+    outcome: FaultOutcome
+    events: dict[str, float]
+    counts: dict[str, Any]
+
+
+def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "latency", seed: int = 0,
+                     scenario: YieldScenario = YieldScenario(), outage_after_alert: tuple[float, float] | None = None,
+                     corridor: Corridor | None = None) -> LinkRunResult:
+    """One lockstep run of the EV approach with the vehicle behind ``channel``.
+
+    ``outage_after_alert`` = (start, length): a window of total loss on the vehicle link starting that
+    long after the first EvAlert (the worst moment: the command is in flight).
+    """
+    from ddm.config import DdmConfig
+    from ddm.service import DdmService
+    from vehicle.service import VehicleService
+
+    corridor = corridor or load_corridor()
+    sc = scenario
+    c = corridor.corridor_id
+    bus = LocalBus()
+    t0 = 1000.0
+    clock = SimClock(t0)
+    t_alert = t0 + sc.lights_on_s + sc.alert_delay_s
+    if outage_after_alert is not None:
+        start, length = outage_after_alert
+        start += t_alert - 0.005  # half a step early: the alert goes out on the step nearest t_alert
+        channel = dataclasses.replace(channel, outages=((start, start + length),))
+    ddm = DdmService(bus, clock, corridor, DdmConfig())
+    link = DsrcLink(bus, channel, seed=seed, clock=clock, threaded=False)
+    veh = VehicleService(link, clock, corridor, "av1", seed=seed)
+    vc = corridor.vehicle("av1")
+    road = corridor.road
+    ev_y = road.lane_centre_offset_m(1)
+    ev_len, ev_w = 6.5, 2.4
+
+    # what the DDM sends and hears, on its side of the radio
+    sent: list[PathSwitchCommand] = []
+    acks_at_ddm: list[tuple[float, str, str]] = []
+    bus.subscribe(all_vehicles_expr(c, "cmd"), lambda k, m: sent.append(m))
+    bus.subscribe(all_vehicles_expr(c, "ack"), lambda k, m: acks_at_ddm.append((clock.now(), m.command_id,
+                                                                                 m.status.value)))
+    cams = [(r.rsu_id, r.camera.x_m) for r in corridor.rsus]
+    ev_x = veh.sim.truth.x_m - sc.ev_gap_m
+    events: dict[str, float] = {}
+    activations: dict[str, int] = {}
+    last_active: str | None = None
+    frame, dt = 0, 0.01
+    next_frame, next_alert, next_ddm = t0, t_alert, t0
+    reach: tuple[float, bool, bool] | None = None  # time, overlapping, AV stopped
+    modes_seen: set[str] = set()
+    n_steps = int(round(sc.duration_s / dt))
+    for _ in range(n_steps):
+        now = clock.advance(dt)
+        t = now - t0
+        st = veh.sim.truth
+        lit = t >= sc.lights_on_s
+        if lit:
+            events.setdefault("lights_on", now)
+        # the EV: constant speed, but it cannot drive through the AV
+        av_rear = st.x_m - vc.length_m / 2
+        overlap = abs(st.y_m - ev_y) < (vc.width_m + ev_w) / 2 + sc.lane_clear_m
+        new_ev_x = ev_x + sc.ev_speed_mps * dt
+        if reach is None and new_ev_x + ev_len / 2 >= av_rear - sc.reach_gap_m:
+            reach = (now, overlap, st.vx_mps < 0.1)
+            events["ev_reaches_av"] = now
+        if overlap and new_ev_x + ev_len / 2 > av_rear - sc.reach_gap_m and new_ev_x < st.x_m:
+            new_ev_x = max(ev_x, av_rear - sc.reach_gap_m - ev_len / 2)  # brakes behind it
+        ev_x = new_ev_x
+        if ev_x - ev_len / 2 > st.x_m + vc.length_m / 2:
+            events.setdefault("ev_passed_av", now)
+        if not overlap and "lane_clear" not in events and "manoeuvre" in events:
+            events["lane_clear"] = now
+        link.deliver_due(now)
+        if now + 1e-9 >= next_frame:  # scripted RSUs: object lists at the camera rate
+            next_frame += 1.0 / sc.frame_rate_hz
+            frame += 1
+            for rsu, cx in cams:
+                lo, hi = cx + CAMERA_VIEW_M[0], cx + CAMERA_VIEW_M[1]
+                objs = []
+                if lo <= st.x_m <= hi:
+                    objs.append(_detected(corridor, 1, st.x_m, st.y_m, st.vx_mps * math.cos(st.yaw_rad),
+                                          st.vx_mps * math.sin(st.yaw_rad), ev=False, length_m=vc.length_m,
+                                          width_m=vc.width_m))
+                if lo <= ev_x <= hi:
+                    objs.append(_detected(corridor, 2, ev_x, ev_y, sc.ev_speed_mps, 0.0, ev=now >= t_alert,
+                                          length_m=ev_len, width_m=ev_w))
+                bus.publish(rsu_key(c, rsu, "objects"), ObjectList(src=rsu, seq=frame, stamp=now, rsu_id=rsu,
+                                                                   frame=frame, measurement_time=now, objects=objs))
+        if now + 1e-9 >= next_alert:  # the EvAlert of the first RSU that sees the EV, at 2 Hz
+            next_alert += 0.5
+            rsu = next((r for r, cx in cams if cx + CAMERA_VIEW_M[0] <= ev_x <= cx + CAMERA_VIEW_M[1]), None)
+            if rsu is not None:
+                lat, lon = corridor.to_latlon(ev_x, ev_y)
+                events.setdefault("first_alert", now)
+                bus.publish(rsu_key(c, rsu, "ev"), EvAlert(
+                    src=rsu, stamp=now, alert_id=f"{rsu}-ev", state=AlertState.ACTIVE, rsu_id=rsu, object_id=2,
+                    pos_x_m=ev_x, pos_y_m=ev_y, lat_deg=lat, lon_deg=lon, vel_x_mps=sc.ev_speed_mps,
+                    speed_mps=sc.ev_speed_mps, confidence=0.9, first_seen=t_alert))
+        if sent:
+            events.setdefault("command_sent", sent[0].stamp)
+        veh.step(now)
+        core = veh.sim.core
+        modes_seen.add(core.mode.value)
+        active = None if core.book.active is None else core.book.active.command_id
+        if active is not None and active != last_active:
+            activations[active] = activations.get(active, 0) + 1
+        last_active = active
+        if core.mode == VehicleMode.MANOEUVRE:
+            events.setdefault("manoeuvre", now)
+        if core.mode == VehicleMode.MINIMAL_RISK:
+            events.setdefault("failsafe", now)
+        if core.mode in (VehicleMode.STOPPED, VehicleMode.MINIMAL_RISK) and st.vx_mps < 0.05:
+            events.setdefault("stopped", now)
+        if now + 1e-9 >= next_ddm:
+            next_ddm += 1.0 / ddm.config.rate_hz
+            ddm.step(now)
+        if "ev_passed_av" in events and now - events["ev_passed_av"] > 3.0:
+            break  # the EV is well past: the outcome is known
+    link.close()
+    ddm.close()
+    veh.close()
+    bus.close()
+
+    # -- the outcome
+    rel = {k: round(v - events.get("lights_on", t0), 3) for k, v in events.items()}
+    issued = list(dict.fromkeys(c.command_id for c in sent))
+    manoeuvre_of = {c.command_id: c.manoeuvre.value for c in sent}
+    acked = {cid for _, cid, _ in acks_at_ddm}
+    lost = [cid for i, cid in enumerate(issued) if cid not in acked and not any(x in acked for x in issued[i + 1:])]
+    duplicates = {cid: n for cid, n in activations.items() if n > 1}
+    first_sent = {}
+    for cmd in sent:
+        first_sent.setdefault(cmd.command_id, cmd.stamp)
+    lon = events.get("lights_on", t0)
+    counts = {
+        "commands_issued": len(issued),
+        "manoeuvres": [f"{manoeuvre_of[i]}@{first_sent[i] - lon:.2f}s" for i in issued],
+        "transmissions": len(sent), "acks_at_ddm": len(acks_at_ddm), "lost_commands": lost,
+        "duplicate_activations": duplicates, "ddm_expired": int(ddm.counters["cmd_expired"]),
+        "link": {d: dict(v) for d, v in link.counts.items()}, "modes": sorted(modes_seen),
+    }
+    if reach is None:
+        outcome, margin, ok = "EV never reached the AV", None, True
+    elif "lane_clear" in events and events["lane_clear"] <= reach[0]:
+        outcome, margin, ok = "out of the EV's lane in time", reach[0] - events["lane_clear"], True
+    elif "stopped" in events and events["stopped"] <= reach[0]:
+        outcome, margin, ok = "stopped safely in lane", reach[0] - events["stopped"], True
+    else:
+        late = events.get("lane_clear", clock.now())
+        outcome, margin, ok = "blocked the EV", reach[0] - late, False
+    if "failsafe" in events:
+        outcome += " (fail-safe stop)"
+    if kind == "dropout":
+        ok = ok and not lost and not duplicates and counts["ddm_expired"] == 0
+        if lost:
+            outcome = f"{len(lost)} command(s) lost"
+        elif duplicates:
+            outcome = f"duplicate manoeuvre {sorted(duplicates)}"
+    details = {"events_since_lights_on_s": rel, **counts,
+               "lights_on_to_command_at_vehicle_s": _diff(events, "lights_on", "manoeuvre")}
+    out = FaultOutcome(name or kind, kind, ok, outcome, None if margin is None else round(margin, 3),
+                       "lockstep ddm+vehicle, scripted RSUs", details)
+    return LinkRunResult(out, events, counts)
+
+
+def _diff(ev: dict[str, float], a: str, b: str) -> float | None:
+    return round(ev[b] - ev[a], 3) if a in ev and b in ev else None
+
+
+LATENCIES_S = (0.0, 0.05, 0.1, 0.2, 0.3)
+LOSSES = (0.1, 0.3, 0.5)
+OUTAGES_S = (1.0, 2.0)
+
+
+def latency_channel(latency_s: float) -> ChannelModel:
+    """The latency case: ``latency_s`` each way with a half-normal jitter of a quarter of it."""
+    return ChannelModel(latency_s=latency_s, jitter_s=latency_s / 4)
+
+
+def latency_faults(seed: int = 0) -> list[FaultOutcome]:
+    return [run_command_link(latency_channel(lat), name=f"latency {lat * 1000:.0f} ms +jitter", seed=seed).outcome
+            for lat in LATENCIES_S]
+
+
+def dropout_faults(seed: int = 0) -> list[FaultOutcome]:
+    out = []
+    for p in LOSSES:
+        out.append(run_command_link(ChannelModel(latency_s=0.003, loss=p), name=f"loss {p:.0%}", kind="dropout",
+                                    seed=seed).outcome)
+    for length in OUTAGES_S:
+        out.append(run_command_link(ChannelModel(latency_s=0.003), name=f"{length:.0f} s outage at the alert",
+                                    kind="dropout", seed=seed, outage_after_alert=(0.0, length)).outcome)
+    return out
