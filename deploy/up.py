@@ -68,8 +68,9 @@ class Up:
             log = self.group.log_path(ROUTER).read_text(errors="replace")[-2000:]
             raise RuntimeError(f"the router did not start on {self.endpoint}:\n{log}")
 
-    def start(self, settle_s: float = 2.0, monitor: bool = True) -> None:
-        """Router, then the services, then (after ``settle_s``) the simulator."""
+    def start(self, settle_s: float = 2.0, monitor: bool = True, extra_subscribers: list | None = None) -> None:
+        """Router, then the services, then (after ``settle_s``) the simulator. ``extra_subscribers``:
+        more ``callback(key, message)`` for every message of the corridor (the monitor's session)."""
         from protocol import keys
         from protocol.transport import ZenohSettings, ZenohTransport
 
@@ -77,6 +78,8 @@ class Up:
         if monitor:
             self.transport = ZenohTransport(ZenohSettings(mode="client", connect=[self.endpoint]))
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
+            for cb in extra_subscribers or []:
+                self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
         for spec in self.specs:
             if spec.name == "sim":
                 time.sleep(settle_s)  # every client joins the router before the world starts
