@@ -59,7 +59,7 @@ class FaultOutcome:
 
     def row(self) -> str:
         m = "-" if self.margin_s is None else f"{self.margin_s:+.2f} s"
-        return f"{self.name:<34} {'PASS' if self.passed else 'FAIL':<5} {self.outcome:<34} {m:>9}"
+        return f"{self.name:<34} {'PASS' if self.passed else 'FAIL':<5} {m:>9}  {self.outcome}"
 
 
 @dataclass(frozen=True)
@@ -243,8 +243,10 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     else:
         late = events.get("lane_clear", clock.now())
         outcome, margin, ok = "blocked the EV", reach[0] - late, False
+    if "manoeuvre" in events and "lights_on" in events:
+        outcome += f", starts +{events['manoeuvre'] - events['lights_on']:.2f} s"
     if "failsafe" in events:
-        outcome += " (fail-safe stop)"
+        outcome += ", fail-safe stop"
     if kind == "dropout":
         ok = ok and not lost and not duplicates and counts["ddm_expired"] == 0
         if lost:

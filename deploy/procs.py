@@ -165,10 +165,11 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
 def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: float | None, run_dir: Path,
                       detector: str = "motion", zenoh_args: list[str] | None = None,
                       rsu_ids: list[str] | None = None, annotate: bool = True,
-                      vehicle_extra: list[str] | None = None) -> list[ServiceSpec]:
+                      vehicle_extra: list[str] | None = None, seed: int | None = None) -> list[ServiceSpec]:
     """The corridor topology in start order: vehicle, DDM, RSUs, then the simulator (start it last).
 
     ``duration_s`` bounds the simulator (and the vehicle, 4 s later); None: they run until stopped.
+    ``seed`` overrides the scenario's seed and seeds the vehicle's sensors and the cameras' noise.
     """
     z = list(zenoh_args or [])
     common = ["--corridor-id", corridor_id]
@@ -176,6 +177,8 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     vehicle = ["-m", "vehicle", "run", *common, "--record", str(Path(run_dir) / "vehicle")]
     if duration_s is not None:
         vehicle += ["--duration", str(duration_s + 4)]
+    if seed is not None:
+        vehicle += ["--seed", str(seed)]
     out = [ServiceSpec("vehicle", [*vehicle, *(vehicle_extra or []), *z]),
            ServiceSpec("ddm", ["-m", "ddm", "run", *common, *z])]
     for rsu in rsus:
@@ -183,9 +186,13 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         args = ["-m", "rsu", "--rsu", rsu, "--source", "sim", *common, "--detector", detector]
         if annotate:
             args += ["--annotate", str(Path(run_dir) / f"{rsu}.mp4")]
+        if seed is not None:
+            args += ["--sim-seed", str(seed)]
         out.append(ServiceSpec(rsu, [*args, *z]))
     sim = ["-m", "sim", "run", scenario, *common]
     if duration_s is not None:
         sim += ["--duration", str(duration_s)]
+    if seed is not None:
+        sim += ["--seed", str(seed)]
     out.append(ServiceSpec("sim", [*sim, *z]))
     return out

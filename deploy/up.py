@@ -39,7 +39,7 @@ class Up:
                  scenario: str = "rellis_ev_yield", duration_s: float | None = None, port: int = 7447,
                  run_dir: Path | None = None, detector: str = "motion", rsu_ids: list[str] | None = None,
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
-                 vehicle_extra: list[str] | None = None) -> None:
+                 vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False) -> None:
         from protocol.corridor import load_corridor
 
         self.corridor = load_corridor(corridor_file)
@@ -48,12 +48,14 @@ class Up:
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.run_dir = Path(run_dir or ROOT / "runs" / f"up-{time.strftime('%Y%m%d-%H%M%S')}")
         self.group = ServiceGroup(self.run_dir)
-        zenoh = ["--connect", self.endpoint]
+        self.peer = peer
+        """Peer mode on loopback, no router (the `iea demo` topology): for comparisons."""
+        zenoh = [] if peer else ["--connect", self.endpoint]
         if corridor_file:
             zenoh = ["--corridor", corridor_file, *zenoh]
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
-                                       annotate=annotate, vehicle_extra=vehicle_extra)
+                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         for s in self.specs:
@@ -74,9 +76,11 @@ class Up:
         from protocol import keys
         from protocol.transport import ZenohSettings, ZenohTransport
 
-        self._start_router()
+        if not self.peer:
+            self._start_router()
         if monitor:
-            self.transport = ZenohTransport(ZenohSettings(mode="client", connect=[self.endpoint]))
+            settings = ZenohSettings() if self.peer else ZenohSettings(mode="client", connect=[self.endpoint])
+            self.transport = ZenohTransport(settings)
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
             for cb in extra_subscribers or []:
                 self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
@@ -97,7 +101,7 @@ class Up:
         if self.transport is not None:
             self.transport.close()
             self.transport = None
-        self.group.stop_all(keep_last=1)
+        self.group.stop_all(keep_last=0 if self.peer else 1)
 
     def __enter__(self) -> Up:
         return self
