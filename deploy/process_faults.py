@@ -14,8 +14,8 @@ breaks one thing, and returns a ``FaultOutcome`` measured from what a client of 
   driving on only once that command is completed) or is in its fail-safe stop, and the restarted DDM
   sends no RESUME before the EV has passed the AV. Margin: the EV passed -> the restarted DDM's first
   RESUME (or the end of the run when it sent none).
-- ``router_restarted``: the router is stopped and started again on the same port shortly after the
-  scenario starts. Pass: every service is heard again within ``reconnect_limit_s`` of the router's
+- ``router_restarted``: the router is stopped and started again on the same port once every service
+  has been heard (shortly after the scenario starts). Pass: every service is heard again within ``reconnect_limit_s`` of the router's
   return, with no manual action, and the AV still gets an accepted command. Margin: the limit - the
   slowest reconnection.
 """
@@ -201,8 +201,9 @@ def router_restarted(run_root: Path | None = None, at_s: float = 0.5, down_s: fl
     up, rec = _start("router", run_root, duration_s=20.0, restart="no")
     details: dict[str, Any] = {"run_dir": str(up.run_dir), "down_s": down_s}
     try:
-        _wait(lambda: "sim" in rec.heard, 20.0)
-        time.sleep(at_s)
+        if not _wait(lambda: all(s in rec.heard for s in SERVICES), timeout_s, 0.1):
+            details["never_heard"] = [s for s in SERVICES if s not in rec.heard]
+        time.sleep(at_s)  # every service is connected and publishing: now take the router away
         up.restart_router(down_s)
         t_back = time.time()
         _wait(lambda: all(rec.first_after(s, t_back) is not None for s in SERVICES), reconnect_limit_s, 0.1)

@@ -2,8 +2,9 @@
 
 One Zenoh router (``iea router``, listening on loopback), then the vehicle, the DDM, one RSU per camera
 of the corridor (``--source sim``) and the simulator, every service in client mode against that router
-(``--connect tcp/127.0.0.1:PORT``). Services that crash are restarted (``--restart on-failure``, as in
-the compose file); clients reconnect by themselves when the router comes back. Runs until Ctrl-C (or
+(``--connect tcp/127.0.0.1:PORT``). A service started while the router is down waits for it (Zenoh
+``connect/timeout_ms: -1``), services that crash are restarted (``--restart on-failure``, as in the
+compose file), and clients reconnect by themselves when the router comes back. Runs until Ctrl-C (or
 ``--duration-s``), printing a status line now and then; Ctrl-C stops the services, then the router.
 The run folder (``runs/up-<time>/``) holds ``logs/<service>.log``, the vehicle's run and ``metrics.json``.
 """
@@ -23,6 +24,11 @@ from deploy.demo import RunMonitor, print_summary
 from deploy.procs import ROOT, ServiceGroup, corridor_services
 
 ROUTER = "router"
+CLIENT_CONFIG = "zenoh-client.json5"
+CLIENT_CONFIG_TEXT = """// written by `iea up`: a service waits for its router instead of exiting when the router is not up
+// (yet, or again); once connected, Zenoh clients reconnect by themselves after a router restart.
+{ connect: { timeout_ms: -1 } }
+"""
 
 
 def free_port() -> int:
@@ -50,7 +56,7 @@ class Up:
         self.group = ServiceGroup(self.run_dir)
         self.peer = peer
         """Peer mode on loopback, no router (the `iea demo` topology): for comparisons."""
-        zenoh = [] if peer else ["--connect", self.endpoint]
+        zenoh = [] if peer else ["--connect", self.endpoint, "--zenoh-config", str(self.run_dir / CLIENT_CONFIG)]
         if corridor_file:
             zenoh = ["--corridor", corridor_file, *zenoh]
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
@@ -60,6 +66,9 @@ class Up:
             self.specs = [s for s in self.specs if s.name != "sim"]
         for s in self.specs:
             s.restart = restart if s.name != "sim" else "no"  # the simulator ends with its scenario
+        if not peer:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            (self.run_dir / CLIENT_CONFIG).write_text(CLIENT_CONFIG_TEXT)
         self.monitor = RunMonitor(self.corridor_id)
         self.transport = None
 

@@ -70,3 +70,33 @@ def test_service_group_restarts_on_failure_only(tmp_path):
         assert g.exited()["once"] == 4
     finally:
         g.stop_all(timeout_s=5)
+
+
+@pytest.mark.timeout(90)
+def test_up_services_started_before_the_router_wait_for_it(tmp_path, corridor_id):
+    """A client whose router is not up yet waits for it (connect/timeout_ms -1) instead of exiting."""
+    from deploy.process_faults import Recorder
+    from deploy.up import Up
+    from protocol.keys import corridor_expr
+    from protocol.transport import ZenohSettings, ZenohTransport
+
+    up = Up(corridor_id=corridor_id, port=0, run_dir=tmp_path / "up", rsu_ids=[], with_sim=False, restart="no")
+    rec = Recorder()
+    transport = None
+    try:
+        for spec in up.specs:  # vehicle and DDM first, with no router to join
+            up.group.start(spec.name, spec.args, spec.restart)
+        time.sleep(4.0)
+        assert up.group.exited() == {}, "a service gave up while the router was down"
+        up._start_router()
+        transport = ZenohTransport(ZenohSettings(mode="client", connect=[up.endpoint]))
+        transport.subscribe(corridor_expr(corridor_id), rec.on_message)
+        deadline = time.monotonic() + 40
+        while time.monotonic() < deadline and not {"vehicle", "ddm"} <= set(rec.heard):
+            time.sleep(0.2)
+        assert {"vehicle", "ddm"} <= set(rec.heard), rec.heard.keys()
+    finally:
+        if transport is not None:
+            transport.close()
+        up.stop()
+    assert all(code in (0, -signal.SIGINT) for code in up.group.exited().values()), up.group.exited()
