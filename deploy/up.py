@@ -70,6 +70,7 @@ class Up:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / CLIENT_CONFIG).write_text(CLIENT_CONFIG_TEXT)
         self.monitor = RunMonitor(self.corridor_id)
+        self.health: dict[str, tuple[float, str]] = {}
         self.transport = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -91,6 +92,7 @@ class Up:
             settings = ZenohSettings() if self.peer else ZenohSettings(mode="client", connect=[self.endpoint])
             self.transport = ZenohTransport(settings)
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
+            self.transport.subscribe(keys.corridor_expr(self.corridor_id), self._on_health)
             for cb in extra_subscribers or []:
                 self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
         for spec in self.specs:
@@ -117,6 +119,25 @@ class Up:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def _on_health(self, key: str, msg: Any) -> None:
+        if msg.KIND != "Health":
+            return
+        from protocol.keys import parse_key
+
+        pk = parse_key(key)
+        name = pk.node if pk.domain == "rsu" else ("vehicle" if pk.domain == "vehicle" else pk.domain)
+        stale = f" stale={','.join(msg.stale)}" if msg.stale else ""
+        self.health[name] = (time.time(), f"{msg.status.value}{stale}")
+
+    def health_line(self) -> str:
+        """Each service's last Health (1 Hz): status and how long ago; '?' when never heard."""
+        now = time.time()
+        parts = []
+        for spec in self.specs:
+            h = self.health.get(spec.name)
+            parts.append(f"{spec.name}:?" if h is None else f"{spec.name}:{h[1]}({now - h[0]:.0f}s)")
+        return "health " + " ".join(parts)
 
     def status(self) -> str:
         parts = []
@@ -188,6 +209,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.status_every_s > 0 and time.monotonic() >= next_status:
                 next_status = time.monotonic() + args.status_every_s
                 print("  " + up.monitor.progress_line(), flush=True)
+                print("    " + up.health_line(), flush=True)
     except KeyboardInterrupt:
         print("\n[up] interrupted: stopping the services, then the router", flush=True)
     except RuntimeError as exc:
