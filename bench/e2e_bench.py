@@ -103,7 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         lat = m["latency_s"]
         print(f"  seed {seed}: " + "  ".join(f"{k.removesuffix('_s')}={lat.get(k)}" for k, _ in HOPS)
               + f"  first alert {m.get('first_alert_rsu')}  commands {[c['manoeuvre'] for c in m['commands']]}"
-              + f"  collision {m.get('collision')}  ({time.monotonic() - t:.0f} s)", flush=True)
+              + f"  collision {m.get('collision')}  yield: {m['yield']['outcome']}"
+              + (f" {m['yield']['margin_s']:+.2f} s" if m["yield"]["margin_s"] is not None else "")
+              + f"  ({time.monotonic() - t:.0f} s)", flush=True)
 
     dists = {k: distribution([r["latency_s"][k] for r in runs if r["latency_s"].get(k) is not None]) for k, _ in HOPS}
     print(f"\n {'hop':<36} {'n':>3} {'median':>8} {'p90':>8} {'p99':>8} {'max':>8}")
@@ -115,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     missing = args.runs - tot["n"]
     med_ok = tot["median"] is not None and tot["median"] <= TARGET_MEDIAN_S
     p99_ok = tot["p99"] is not None and tot["p99"] <= TARGET_P99_S and missing == 0
+    n_yield = sum(1 for r in runs if r["yield"]["passed"] and r["yield"]["outcome"] != "EV never reached the AV")
+    print(f" AV out of the EV's lane (or stopped) before the EV reached it: {n_yield}/{len(runs)} runs")
     print(f" targets: median <= {TARGET_MEDIAN_S} s {'met' if med_ok else 'NOT met'}, p99 <= {TARGET_P99_S} s "
           f"{'met' if p99_ok else 'NOT met'}" + (f" ({missing} run(s) without a manoeuvre)" if missing else ""))
 
@@ -148,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             "lights_on_to_alert_p99_s": q("lights_on_to_alert_s", "p99"),
             "alert_to_command_at_vehicle_median_s": q("alert_to_command_at_vehicle_s", "median"),
             "alert_to_command_at_vehicle_p99_s": q("alert_to_command_at_vehicle_s", "p99"),
-            "target_median_met": med_ok, "target_p99_met": p99_ok,
+            "target_median_met": med_ok, "target_p99_met": p99_ok, "runs_yield_ok": n_yield,
             "faults_passed": passed, "faults_total": len(faults),
             "faults": [{"condition": f.name, "passed": f.passed, "outcome": f.outcome, "margin_s": f.margin_s,
                         "runner": f.runner} for f in faults],

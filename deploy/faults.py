@@ -11,10 +11,11 @@ Two runners:
 - the process-level faults (an RSU killed, the DDM killed and restarted, the router restarted) run
   the corridor's real processes over Zenoh on loopback: see ``deploy/process_faults.py``.
 
-Outcome of an EV-yield run, measured from the AV's true pose: the EV *reaches* the AV when its front
-comes within ``reach_gap_m`` of the AV's rear. If the AV has left the EV's lane by then the pull-over
-worked (margin = reach time - time the lane was clear); if it is stopped in the lane it stopped safely
-in lane (margin = reach time - stop time); otherwise it blocked the EV (margin negative: how late).
+Outcome of an EV-yield run, measured from ground truth by ``YieldJudge``: the EV *reaches* the AV when
+it comes within its following distance of the AV's rear (2 m + 1 s x its speed). If the AV has left
+the EV's lane by then the pull-over worked (margin = reach time - time the lane was clear); if it is
+stopped in the lane it stopped safely in lane (margin = reach time - stop time); otherwise it blocked
+the EV (margin negative: how late).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ class YieldScenario:
     duration_s: float = 20.0
     reach_gap_m: float = 2.0
     lane_clear_m: float = 0.2
-    """The AV is out of the EV's lane when the lateral gap between their sides exceeds this."""
+    """The AV is out of the EV's lane when the lateral gap between their sides exceeds this (YieldJudge)."""
 
 
 def _detected(corridor: Corridor, oid: int, x: float, y: float, vx: float, vy: float, *, ev: bool,
@@ -88,6 +89,90 @@ def _detected(corridor: Corridor, oid: int, x: float, y: float, vx: float, vy: f
         ev_score=0.9 if ev else 0.0, vel_x_mps=vx, vel_y_mps=vy, speed_mps=math.hypot(vx, vy),
         heading_rad=math.atan2(vy, vx) if (vx or vy) else 0.0, length_m=length_m, width_m=width_m,
         pos_cov_m2=(0.09, 0.0, 0.09), lane=None)
+
+
+@dataclass
+class YieldJudge:
+    """Scores an EV approach from ground truth (the scripted rig's poses or the simulator's snapshots).
+
+    Road frame (s along the road, d to the left). The EV's lane is where the EV drives when the AV
+    starts to respond (its light bar on / the manoeuvre starting). The EV *reaches* the AV when, still
+    behind it, its front comes within its following distance of the AV's rear (``reach_gap_m`` +
+    ``reach_headway_s`` x its speed: from there an EV still in the AV's lane has to brake for it). The AV
+    is *out of the EV's lane* when the lateral gap between its side and an EV in that lane exceeds
+    ``lane_clear_m``. ``outcome()``: out of the EV's lane in time (margin = reach - out of lane),
+    stopped safely in lane (margin = reach - stop), or blocked the EV (margin = reach - out of lane,
+    negative: how late; None if it never left the lane).
+    """
+
+    reach_gap_m: float = 2.0
+    reach_headway_s: float = 1.0
+    lane_clear_m: float = 0.2
+    events: dict[str, float] = field(default_factory=dict)
+    _reach_overlap: bool = False
+    _clear_since: float | None = None
+    _ev_lane_d: float | None = None
+
+    def following_distance_m(self, ev_speed_mps: float) -> float:
+        return self.reach_gap_m + self.reach_headway_s * max(0.0, ev_speed_mps)
+
+    def update(self, t: float, av: tuple[float, float, float, float, float],
+               ev: tuple[float, float, float, float, float] | None, manoeuvring: bool = True) -> None:
+        """``av`` = (s, d, length, width, speed), ``ev`` = (s, d, length, width, speed) or None."""
+        s, d, length, width, speed = av
+        if speed < 0.05:
+            self.events.setdefault("av_stopped", t)
+        if ev is None:
+            return
+        es, ed, elen, ewid, espeed = ev
+        if self._ev_lane_d is None or not manoeuvring:
+            self._ev_lane_d = ed  # fixed once the response has started
+        overlap = abs(d - self._ev_lane_d) < (width + ewid) / 2 + self.lane_clear_m
+        if overlap:
+            self._clear_since = None
+        elif manoeuvring and self._clear_since is None:
+            self._clear_since = t
+        reached = "ev_reaches_av" in self.events
+        if reached and self._reach_overlap and not overlap:
+            self.events.setdefault("lane_clear_late", t)
+        gap = (s - length / 2) - (es + elen / 2)
+        if not reached and es < s and gap <= self.following_distance_m(espeed):
+            self.events["ev_reaches_av"] = t
+            self._reach_overlap = overlap
+            if self._clear_since is not None:
+                self.events["lane_clear"] = self._clear_since
+        if es - elen / 2 > s + length / 2:
+            self.events.setdefault("ev_passed_av", t)
+
+    def on_snapshot(self, snap, road) -> None:
+        """Feed a ``WorldSnapshot`` (the simulator's ground truth)."""
+        av = next((a for a in snap.actors if a.kind.value == "av"), None)
+        ev = next((a for a in snap.actors if a.kind.value == "ev"), None)
+        if av is None:
+            return
+        if ev is not None and ev.light_bar is not None and ev.light_bar.on:
+            self.events.setdefault("lights_on", snap.sim_time_s)
+        sa, da = road.to_frenet(av.pos_x_m, av.pos_y_m)
+        e = None
+        if ev is not None:
+            se, de = road.to_frenet(ev.pos_x_m, ev.pos_y_m)
+            e = (se, de, ev.length_m, ev.width_m, ev.speed_mps)
+        self.update(snap.sim_time_s, (sa, da, av.length_m, av.width_m, av.speed_mps), e,
+                    manoeuvring="lights_on" in self.events)
+
+    def outcome(self) -> tuple[bool, str, float | None]:
+        ev = self.events
+        reach = ev.get("ev_reaches_av")
+        if reach is None:
+            if "ev_passed_av" in ev:
+                return True, "EV passed without reaching the AV", None
+            return True, "EV never reached the AV", None
+        if not self._reach_overlap and "lane_clear" in ev:
+            return True, "out of the EV's lane in time", reach - ev["lane_clear"]
+        if "av_stopped" in ev and ev["av_stopped"] <= reach:
+            return True, "stopped safely in lane", reach - ev["av_stopped"]
+        late = ev.get("lane_clear_late")
+        return False, "blocked the EV", None if late is None else reach - late
 
 
 @dataclass
@@ -141,30 +226,25 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     last_active: str | None = None
     frame, dt = 0, 0.01
     next_frame, next_alert, next_ddm = t0, t_alert, t0
-    reach: tuple[float, bool, bool] | None = None  # time, overlapping, AV stopped
+    judge = YieldJudge(sc.reach_gap_m, lane_clear_m=sc.lane_clear_m)
     modes_seen: set[str] = set()
     n_steps = int(round(sc.duration_s / dt))
     for _ in range(n_steps):
         now = clock.advance(dt)
         t = now - t0
         st = veh.sim.truth
-        lit = t >= sc.lights_on_s
-        if lit:
+        if t >= sc.lights_on_s:
             events.setdefault("lights_on", now)
-        # the EV: constant speed, but it cannot drive through the AV
+        # the EV: constant speed, but it cannot drive through the AV (it brakes behind it)
         av_rear = st.x_m - vc.length_m / 2
         overlap = abs(st.y_m - ev_y) < (vc.width_m + ev_w) / 2 + sc.lane_clear_m
-        new_ev_x = ev_x + sc.ev_speed_mps * dt
-        if reach is None and new_ev_x + ev_len / 2 >= av_rear - sc.reach_gap_m:
-            reach = (now, overlap, st.vx_mps < 0.1)
-            events["ev_reaches_av"] = now
-        if overlap and new_ev_x + ev_len / 2 > av_rear - sc.reach_gap_m and new_ev_x < st.x_m:
-            new_ev_x = max(ev_x, av_rear - sc.reach_gap_m - ev_len / 2)  # brakes behind it
-        ev_x = new_ev_x
-        if ev_x - ev_len / 2 > st.x_m + vc.length_m / 2:
-            events.setdefault("ev_passed_av", now)
-        if not overlap and "lane_clear" not in events and "manoeuvre" in events:
-            events["lane_clear"] = now
+        ev_x += sc.ev_speed_mps * dt
+        if overlap and ev_x < st.x_m and ev_x + ev_len / 2 > av_rear - sc.reach_gap_m:
+            ev_x = av_rear - sc.reach_gap_m - ev_len / 2  # it may not drive through the AV
+        # RELLIS is straight along +x from y = 0, so (x, y) serve as the road frame's (s, d)
+        judge.update(now, (st.x_m, st.y_m, vc.length_m, vc.width_m, st.vx_mps), (ev_x, ev_y, ev_len, ev_w,
+                                                                                  sc.ev_speed_mps),
+                     manoeuvring="manoeuvre" in events)
         link.deliver_due(now)
         if now + 1e-9 >= next_frame:  # scripted RSUs: object lists at the camera rate
             next_frame += 1.0 / sc.frame_rate_hz
@@ -209,7 +289,7 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
         if now + 1e-9 >= next_ddm:
             next_ddm += 1.0 / ddm.config.rate_hz
             ddm.step(now)
-        if "ev_passed_av" in events and now - events["ev_passed_av"] > 3.0:
+        if "ev_passed_av" in judge.events and now - judge.events["ev_passed_av"] > 3.0:
             break  # the EV is well past: the outcome is known
     link.close()
     ddm.close()
@@ -217,6 +297,8 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     bus.close()
 
     # -- the outcome
+    for k, v in judge.events.items():
+        events.setdefault(k, v)
     rel = {k: round(v - events.get("lights_on", t0), 3) for k, v in events.items()}
     issued = list(dict.fromkeys(c.command_id for c in sent))
     manoeuvre_of = {c.command_id: c.manoeuvre.value for c in sent}
@@ -234,26 +316,21 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
         "duplicate_activations": duplicates, "ddm_expired": int(ddm.counters["cmd_expired"]),
         "link": {d: dict(v) for d, v in link.counts.items()}, "modes": sorted(modes_seen),
     }
-    if reach is None:
-        outcome, margin, ok = "EV never reached the AV", None, True
-    elif "lane_clear" in events and events["lane_clear"] <= reach[0]:
-        outcome, margin, ok = "out of the EV's lane in time", reach[0] - events["lane_clear"], True
-    elif "stopped" in events and events["stopped"] <= reach[0]:
-        outcome, margin, ok = "stopped safely in lane", reach[0] - events["stopped"], True
-    else:
-        late = events.get("lane_clear", clock.now())
-        outcome, margin, ok = "blocked the EV", reach[0] - late, False
+    ok, outcome, margin = judge.outcome()
     if "manoeuvre" in events and "lights_on" in events:
         outcome += f", starts +{events['manoeuvre'] - events['lights_on']:.2f} s"
     if "failsafe" in events:
         outcome += ", fail-safe stop"
-    if kind == "dropout":
-        ok = ok and not lost and not duplicates and counts["ddm_expired"] == 0
+    details_yield = {"passed": ok, "outcome": outcome}
+    if kind == "dropout":  # pass/fail on delivery (issue 8); the yield outcome and margin show the cost
+        ok = not lost and not duplicates and counts["ddm_expired"] == 0
         if lost:
-            outcome = f"{len(lost)} command(s) lost"
+            outcome = f"{len(lost)} command(s) lost; {outcome}"
         elif duplicates:
-            outcome = f"duplicate manoeuvre {sorted(duplicates)}"
-    details = {"events_since_lights_on_s": rel, **counts,
+            outcome = f"duplicate manoeuvre {sorted(duplicates)}; {outcome}"
+        else:
+            outcome = f"every command acked, none executed twice; {outcome}"
+    details = {"events_since_lights_on_s": rel, **counts, "yield": details_yield,
                "lights_on_to_command_at_vehicle_s": _diff(events, "lights_on", "manoeuvre")}
     out = FaultOutcome(name or kind, kind, ok, outcome, None if margin is None else round(margin, 3),
                        "lockstep ddm+vehicle, scripted RSUs", details)
