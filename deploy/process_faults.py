@@ -10,10 +10,12 @@ breaks one thing, and returns a ``FaultOutcome`` measured from what a client of 
   RSU reports the EV afterwards; the DDM does not withdraw the AV's yield (no RESUME) before the EV
   has passed it. Margin: ``stale_limit_s`` - time to the stale report.
 - ``ddm_restarted``: the DDM is SIGKILLed once the AV executes its first command and started again
-  after ``down_s``. Pass: until the EV has passed, the AV keeps its command (manoeuvre / stopped, or
-  driving on only once that command is completed) or is in its fail-safe stop, and the restarted DDM
-  sends no RESUME before the EV has passed the AV. Margin: the EV passed -> the restarted DDM's first
-  RESUME (or the end of the run when it sent none).
+  after ``down_s``. Pass: on its own (until it accepts the restarted DDM's first command, or the EV
+  has passed) the AV keeps its command (manoeuvre / stopped, or driving on only once that command is
+  completed) or is in its fail-safe stop; the restarted DDM is heard again; and the restarted DDM
+  sends no RESUME before the EV has passed the AV (both checked until the end of the run if the EV has
+  not passed by then). Margin: the EV passed -> the restarted DDM's first RESUME (or the end of the
+  run when it sent none).
 - ``router_restarted``: the router is stopped and started again on the same port once every service
   has been heard (shortly after the scenario starts). Pass: every service is heard again within ``reconnect_limit_s`` of the router's
   return, with no manual action, and the AV still gets an accepted command. Margin: the limit - the
@@ -163,8 +165,11 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
     passed_at = _ev_passed(up)
     end = passed_at if passed_at is not None else time.time()
     with rec.lock:
-        modes_between = sorted({m for t, m, _ in rec.modes if t_kill < t < end})
         new_cmds = sorted((t, m, cid) for cid, (t, m, _) in rec.commands.items() if cid not in old_ids)
+        new_ids = {cid for _, _, cid in new_cmds}
+        # the vehicle on its own: from the kill until it accepts the restarted DDM's first command
+        own_end = min([end] + [t for t, cid, st in rec.acks if cid in new_ids and st == "accepted"])
+        modes_between = sorted({m for t, m, _ in rec.modes if t_kill < t < own_end})
         ddm_back = next((t for t, _, _ in rec.ddm_health if t > t_restart), None)
         kept = any(a == active_at_kill for t, m, a in rec.modes if t_kill < t < end)
     contradicting = [(round(t - t_kill, 2), m) for t, m, _ in new_cmds if m == "resume" and t < end]
@@ -173,15 +178,14 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
     ok_modes = ("manoeuvre", "stopped", "minimal_risk") + (("driving",) if completed else ())
     bad_modes = [m for m in modes_between if m not in ok_modes]  # driving: only after the command was done
     first_resume = next((t for t, m, _ in new_cmds if m == "resume"), None)
-    details.update(modes_until_ev_passed=modes_between, kept_active_command=kept, command_completed=completed,
+    details.update(modes_on_its_own=modes_between, on_its_own_s=round(own_end - t_kill, 2), kept_active_command=kept,
+                   command_completed=completed,
                    new_ddm_commands=[(round(t - t_kill, 2), m) for t, m, _ in new_cmds],
                    ddm_heard_again_after_s=None if ddm_back is None else round(ddm_back - t_kill, 2),
                    ev_passed=passed_at is not None, metrics=up.metrics())
-    ok = passed_at is not None and not bad_modes and not contradicting and ddm_back is not None
-    if passed_at is None:
-        outcome = "the EV never passed the AV"
-    elif bad_modes:
-        outcome = f"AV back to {bad_modes} before the EV passed"
+    ok = not bad_modes and not contradicting and ddm_back is not None
+    if bad_modes:
+        outcome = f"AV went to {bad_modes} on its own while the DDM was away"
     elif contradicting:
         outcome = f"restarted DDM sent {contradicting[0][1]} before the EV passed"
     elif ddm_back is None:
@@ -189,6 +193,8 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
     else:
         how = "fail-safe stop" if "minimal_risk" in modes_between else "kept its command"
         outcome = f"AV {how}; DDM back after {ddm_back - t_kill:.1f} s"
+    if passed_at is None:
+        outcome += " (the EV had not passed the AV by the end of the run)"
     margin = None if passed_at is None else round((first_resume or time.time()) - passed_at, 3)
     return FaultOutcome("DDM killed + restarted mid-manoeuvre", "ddm_restart", ok, outcome, margin, RUNNER, details)
 
