@@ -289,8 +289,9 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
         if now + 1e-9 >= next_ddm:
             next_ddm += 1.0 / ddm.config.rate_hz
             ddm.step(now)
-        if "ev_passed_av" in judge.events and now - judge.events["ev_passed_av"] > 3.0:
-            break  # the EV is well past: the outcome is known
+        if "ev_passed_av" in judge.events and now - judge.events["ev_passed_av"] > 3.0 \
+                and ddm.commands.outstanding() == 0 and (not sent or now - sent[-1].stamp > 1.0):
+            break  # the EV is well past and no command is in flight: the outcome is known
     link.close()
     ddm.close()
     veh.close()
@@ -364,4 +365,142 @@ def dropout_faults(seed: int = 0) -> list[FaultOutcome]:
     for length in OUTAGES_S:
         out.append(run_command_link(ChannelModel(latency_s=0.003), name=f"{length:.0f} s outage at the alert",
                                     kind="dropout", seed=seed, outage_after_alert=(0.0, length)).outcome)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# The same faults on the whole corridor in lockstep (deploy/lockstep.py: the simulator, 4 RSUs rendering
+# and processing pixels, the DDM and the vehicle on one SimClock). Slower (every camera frame is
+# rendered: ~2-3x the scenario time on a loaded 2-core machine) but end to end.
+
+LOCKSTEP_RUNNER = "lockstep corridor (sim + 4 RSUs + DDM + vehicle)"
+
+
+def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = None, seed: int | None = None,
+                       duration_s: float = 14.0, outage_after_alert_s: float | None = None,
+                       kill_first_alerting_rsu: bool = False, restart_ddm_after_s: float | None = None
+                       ) -> tuple[FaultOutcome, dict[str, Any]]:
+    """One lockstep run of a scenario with one fault; the outcome is judged on the simulator's ground truth.
+
+    ``outage_after_alert_s``: total loss on the vehicle link for this long from the first EvAlert;
+    ``kill_first_alerting_rsu``: the RSU that raised the first EvAlert stops at once;
+    ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
+    this long after.
+    """
+    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from protocol import keys
+
+    base = channel or ChannelModel()
+    runner = CorridorLockstep(LockstepConfig(duration_s=duration_s, seed=seed, vehicle_channel=base))
+    road = runner.corridor.road
+    judge = YieldJudge()
+    sent: dict[str, tuple[float, str]] = {}
+    acks: list[tuple[float, str, str]] = []
+    facts: dict[str, Any] = {}
+    c = runner.corridor_id
+
+    def on_world(_k: str, snap) -> None:
+        judge.on_snapshot(snap, road)
+
+    def on_alert(_k: str, msg) -> None:
+        if msg.state.value != "active" or "first_alert" in facts:
+            return
+        now = runner.clock.now()
+        facts["first_alert"], facts["first_alert_rsu"] = now, msg.rsu_id
+        if outage_after_alert_s is not None and runner.link is not None:
+            start = now
+            for st in runner.link.state.values():  # the link's channel is immutable: give both directions a new one
+                st.model = dataclasses.replace(st.model, outages=((start, start + outage_after_alert_s),))
+        if kill_first_alerting_rsu:
+            runner.at(now, lambda: runner.kill_rsu(msg.rsu_id))
+
+    def on_state(_k: str, msg) -> None:
+        if restart_ddm_after_s is not None and msg.mode.value == "manoeuvre" and "ddm_killed" not in facts:
+            now = runner.clock.now()
+            facts["ddm_killed"] = now
+            facts["old_commands"] = set(sent)
+            facts["active_at_kill"] = msg.active_command_id
+            runner.at(now, runner.kill_ddm)
+            runner.at(now + restart_ddm_after_s, runner.start_ddm)
+        if "ddm_killed" in facts:
+            facts.setdefault("modes_after_kill", []).append((runner.clock.now(), msg.mode.value))
+
+    health_stale: list[tuple[float, list[str]]] = []
+    runner.bus.subscribe(keys.sim_world_key(c), on_world)
+    runner.bus.subscribe(keys.all_rsus_expr(c).replace("/*/*", "/*/ev"), on_alert)
+    runner.bus.subscribe(keys.all_vehicles_expr(c, "state"), on_state)
+    runner.bus.subscribe(keys.all_vehicles_expr(c, "cmd"),
+                         lambda k, m: sent.setdefault(m.command_id, (runner.clock.now(), m.manoeuvre.value)))
+    runner.bus.subscribe(keys.all_vehicles_expr(c, "ack"),
+                         lambda k, m: acks.append((runner.clock.now(), m.command_id, m.status.value)))
+    runner.bus.subscribe(keys.ddm_health_key(c), lambda k, m: health_stale.append((runner.clock.now(), list(m.stale))))
+    m = runner.run()
+
+    ok, outcome, margin = judge.outcome()
+    lon = judge.events.get("lights_on")
+    acked = {cid for _, cid, _ in acks}
+    issued = sorted(sent, key=lambda i: sent[i][0])
+    lost = [cid for i, cid in enumerate(issued) if cid not in acked and not any(x in acked for x in issued[i + 1:])]
+    details: dict[str, Any] = {
+        "events_sim_s": {k: round(v, 2) for k, v in judge.events.items()},
+        "commands": [f"{sent[i][1]}@{sent[i][0] - (lon or 0):+.2f}s" for i in issued],
+        "lost_commands": lost, "latency_s": m.get("latency_s"), "vehicle_link": m.get("vehicle_link"),
+        "collision": m.get("collision"), "wall_s": m.get("wall_s"), "seed": m.get("seed"),
+    }
+    start = m.get("latency_s", {}).get("lights_on_to_manoeuvre_s")
+    if start is not None:
+        outcome += f", starts +{start:.2f} s"
+    if kind in ("latency", "dropout"):
+        if kind == "dropout":
+            ok = not lost
+            outcome = ("every command acked; " if not lost else f"{len(lost)} command(s) lost; ") + outcome
+    elif kind == "rsu_kill":
+        victim, t_kill = facts.get("first_alert_rsu"), facts.get("first_alert")
+        stale_at = next((t for t, st in health_stale if t_kill is not None and t >= t_kill and victim in st), None)
+        passed_at = judge.events.get("ev_passed_av")
+        early = [i for i in issued if sent[i][1] == "resume" and t_kill is not None and sent[i][0] > t_kill
+                 and (passed_at is None or sent[i][0] < passed_at)]
+        details.update(killed=victim, stale_after_s=None if stale_at is None else round(stale_at - t_kill, 3),
+                       resume_before_ev_passed=len(early))
+        ok = stale_at is not None and not early
+        outcome = (f"{victim} stale after {stale_at - t_kill:.2f} s" if stale_at is not None else
+                   f"{victim} never reported stale") + (f"; {len(early)} early RESUME" if early else "") \
+            + f"; yield: {outcome}"
+        margin = None if stale_at is None else round(2.0 - (stale_at - t_kill), 3)
+    elif kind == "ddm_restart":
+        t_kill = facts.get("ddm_killed")
+        old = facts.get("old_commands", set())
+        new = [i for i in issued if i not in old]
+        first_new_accept = min((t for t, cid, st in acks if cid in new and st == "accepted"), default=math.inf)
+        modes = sorted({md for t, md in facts.get("modes_after_kill", []) if t < first_new_accept})
+        passed_at = judge.events.get("ev_passed_av")
+        contradicting = [i for i in new if sent[i][1] == "resume" and (passed_at is None or sent[i][0] < passed_at)]
+        bad = [md for md in modes if md not in ("manoeuvre", "stopped", "minimal_risk")]
+        details.update(modes_on_its_own=modes, new_ddm_commands=[f"{sent[i][1]}@{sent[i][0] - t_kill:+.2f}s" for i in new]
+                       if t_kill is not None else [])
+        ok = t_kill is not None and not bad and not contradicting
+        outcome = ("no manoeuvre to interrupt" if t_kill is None else
+                   f"vehicle {'fail-safe stop' if 'minimal_risk' in modes else 'kept its command'}"
+                   + ("; restarted DDM sent RESUME before the EV passed" if contradicting else "")
+                   + f"; yield: {outcome}")
+        margin = None
+    return FaultOutcome(name, kind, ok, outcome, None if margin is None else round(margin, 3), LOCKSTEP_RUNNER,
+                        details), m
+
+
+def corridor_faults(seed: int | None = None, quick: bool = False) -> list[FaultOutcome]:
+    """The fault table on the whole corridor in lockstep (``quick``: the extreme cases only)."""
+    lat = (0.0, 0.3) if quick else LATENCIES_S
+    out = [run_corridor_fault(f"latency {x * 1000:.0f} ms +jitter", "latency", channel=latency_channel(x),
+                              seed=seed)[0] for x in lat]
+    losses = (0.5,) if quick else LOSSES
+    out += [run_corridor_fault(f"loss {p:.0%}", "dropout", channel=ChannelModel(latency_s=0.003, loss=p),
+                               seed=seed)[0] for p in losses]
+    for length in ((2.0,) if quick else OUTAGES_S):
+        out.append(run_corridor_fault(f"{length:.0f} s outage at the alert", "dropout", seed=seed,
+                                      channel=ChannelModel(latency_s=0.003), outage_after_alert_s=length)[0])
+    out.append(run_corridor_fault("RSU killed with the EV in view", "rsu_kill", seed=seed,
+                                  kill_first_alerting_rsu=True)[0])
+    out.append(run_corridor_fault("DDM killed + restarted mid-manoeuvre", "ddm_restart", seed=seed,
+                                  restart_ddm_after_s=1.0)[0])
     return out

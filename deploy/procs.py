@@ -175,6 +175,12 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     common = ["--corridor-id", corridor_id]
     rsus = [r.rsu_id for r in corridor.rsus] if rsu_ids is None else list(rsu_ids)
     vehicle = ["-m", "vehicle", "run", *common, "--record", str(Path(run_dir) / "vehicle")]
+    from sim.scenario import load_scenario
+
+    av = load_scenario(scenario, corridor).av
+    if av is not None:  # the vehicle process starts where the scenario puts the AV (as the lockstep runner does)
+        vehicle += ["--vehicle", av.vehicle_id, "--start-s", str(av.start_s_m), "--start-lane", str(av.lane),
+                    "--speed", str(av.speed_mps)]
     if duration_s is not None:
         vehicle += ["--duration", str(duration_s + 4)]
     if seed is not None:
