@@ -363,7 +363,7 @@ def dropout_faults(seed: int = 0) -> list[FaultOutcome]:
         out.append(run_command_link(ChannelModel(latency_s=0.003, loss=p), name=f"loss {p:.0%}", kind="dropout",
                                     seed=seed).outcome)
     for length in OUTAGES_S:
-        out.append(run_command_link(ChannelModel(latency_s=0.003), name=f"{length:.0f} s outage at the alert",
+        out.append(run_command_link(ChannelModel(latency_s=0.003), name=f"{length:.0f} s outage at the command",
                                     kind="dropout", seed=seed, outage_after_alert=(0.0, length)).outcome)
     return out
 
@@ -377,12 +377,13 @@ LOCKSTEP_RUNNER = "lockstep corridor (sim + 4 RSUs + DDM + vehicle)"
 
 
 def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = None, seed: int | None = None,
-                       duration_s: float = 14.0, outage_after_alert_s: float | None = None,
+                       duration_s: float = 14.0, outage_s: tuple[float, float] | None = None,
                        kill_first_alerting_rsu: bool = False, restart_ddm_after_s: float | None = None
                        ) -> tuple[FaultOutcome, dict[str, Any]]:
     """One lockstep run of a scenario with one fault; the outcome is judged on the simulator's ground truth.
 
-    ``outage_after_alert_s``: total loss on the vehicle link for this long from the first EvAlert;
+    ``outage_s`` = (start, length): total loss on the vehicle link in that window of scenario time (the
+    run is deterministic: ``corridor_faults`` starts it when the same run without it sent its first command);
     ``kill_first_alerting_rsu``: the RSU that raised the first EvAlert stops at once;
     ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
     this long after.
@@ -391,6 +392,8 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     from protocol import keys
 
     base = channel or ChannelModel()
+    if outage_s is not None:
+        base = dataclasses.replace(base, outages=((outage_s[0], outage_s[0] + outage_s[1]),))
     runner = CorridorLockstep(LockstepConfig(duration_s=duration_s, seed=seed, vehicle_channel=base))
     road = runner.corridor.road
     judge = YieldJudge()
@@ -407,10 +410,6 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
             return
         now = runner.clock.now()
         facts["first_alert"], facts["first_alert_rsu"] = now, msg.rsu_id
-        if outage_after_alert_s is not None and runner.link is not None:
-            start = now
-            for st in runner.link.state.values():  # the link's channel is immutable: give both directions a new one
-                st.model = dataclasses.replace(st.model, outages=((start, start + outage_after_alert_s),))
         if kill_first_alerting_rsu:
             runner.at(now, lambda: runner.kill_rsu(msg.rsu_id))
 
@@ -446,6 +445,7 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
         "commands": [f"{sent[i][1]}@{sent[i][0] - (lon or 0):+.2f}s" for i in issued],
         "lost_commands": lost, "latency_s": m.get("latency_s"), "vehicle_link": m.get("vehicle_link"),
         "collision": m.get("collision"), "wall_s": m.get("wall_s"), "seed": m.get("seed"),
+        "first_command_s": sent[issued[0]][0] if issued else None,
     }
     start = m.get("latency_s", {}).get("lights_on_to_manoeuvre_s")
     if start is not None:
@@ -493,12 +493,14 @@ def corridor_faults(seed: int | None = None, quick: bool = False) -> list[FaultO
     lat = (0.0, 0.3) if quick else LATENCIES_S
     out = [run_corridor_fault(f"latency {x * 1000:.0f} ms +jitter", "latency", channel=latency_channel(x),
                               seed=seed)[0] for x in lat]
+    first_cmd = out[0].details["first_command_s"]  # the perfect-link run: when the first command went out
     losses = (0.5,) if quick else LOSSES
     out += [run_corridor_fault(f"loss {p:.0%}", "dropout", channel=ChannelModel(latency_s=0.003, loss=p),
                                seed=seed)[0] for p in losses]
-    for length in ((2.0,) if quick else OUTAGES_S):
-        out.append(run_corridor_fault(f"{length:.0f} s outage at the alert", "dropout", seed=seed,
-                                      channel=ChannelModel(latency_s=0.003), outage_after_alert_s=length)[0])
+    if first_cmd is not None:
+        for length in ((2.0,) if quick else OUTAGES_S):
+            out.append(run_corridor_fault(f"{length:.0f} s outage at the command", "dropout", seed=seed,
+                                          channel=latency_channel(0.0), outage_s=(first_cmd - 0.005, length))[0])
     out.append(run_corridor_fault("RSU killed with the EV in view", "rsu_kill", seed=seed,
                                   kill_first_alerting_rsu=True)[0])
     out.append(run_corridor_fault("DDM killed + restarted mid-manoeuvre", "ddm_restart", seed=seed,

@@ -12,11 +12,6 @@ from deploy.process_faults import ddm_restarted, router_restarted, rsu_killed
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(150)]
 
-KNOWN_TRACK_LOSS = ("the DDM loses the EV's fused track when it moves from one RSU to the next (new track id, "
-                    "'resume: EV track N cleared or lost') and resumes before the EV has passed: the EV-policy "
-                    "thrash the lead is debugging")
-
-
 @pytest.fixture(scope="module")
 def rsu_kill(tmp_path_factory):
     return rsu_killed(tmp_path_factory.mktemp("rsu_kill"))
@@ -41,7 +36,6 @@ def test_rsu_killed_ddm_reports_it_stale_and_neighbours_keep_the_ev(rsu_kill):
     assert d["ev_reported_after_kill_by"], "no neighbouring RSU reported the EV after the kill"
 
 
-@pytest.mark.xfail(reason=KNOWN_TRACK_LOSS, strict=False)
 def test_rsu_killed_ddm_keeps_yielding_until_the_ev_passed(rsu_kill):
     assert rsu_kill.details["ev_passed"]
     assert rsu_kill.details["resume_before_ev_passed"] == 0
@@ -61,7 +55,6 @@ def test_ddm_killed_vehicle_keeps_its_command_or_stops_safely(ddm_restart):
     assert d["metrics"]["restarts"] == {"ddm": 1}
 
 
-@pytest.mark.xfail(reason=KNOWN_TRACK_LOSS, strict=False)
 def test_restarted_ddm_does_not_contradict_the_vehicle(ddm_restart):
     assert ddm_restart.passed, f"{ddm_restart.outcome}: {ddm_restart.details['new_ddm_commands']}"
 
