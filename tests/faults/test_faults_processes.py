@@ -12,6 +12,7 @@ from deploy.process_faults import ddm_restarted, router_restarted, rsu_killed
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(150)]
 
+
 @pytest.fixture(scope="module")
 def rsu_kill(tmp_path_factory):
     return rsu_killed(tmp_path_factory.mktemp("rsu_kill"))
