@@ -66,14 +66,18 @@ class DdmConfig:
     act_time_to_pass_s: float = 25.0
     """Respond when the EV will reach the AV within this time (CARMA starts at 75 s on highways; at
     50 m and 5-10 m/s closing our EV passes in 5-10 s, so 25 s covers the whole approach)."""
-    act_gap_m: float = 40.0
+    act_gap_m: float = 80.0
     """... or when it is this close behind whatever its closing speed (Texas 545.156: yield on the
-    immediate approach, also to an EV that is not gaining)."""
+    immediate approach, also to an EV that is not gaining yet: one that just switched its lights on
+    is still accelerating, so its time to pass says little)."""
     min_closing_mps: float = 0.5
     """Closing speeds below this count as not closing (time to pass = infinity)."""
     too_late_s: float = 4.0
     """Below this time to pass, no lane change: slow in lane (CARMA: 13 s at highway speed, where a
     change takes longer; ours takes ``lane_change_min_s`` = 3 s at 13.4 m/s, + 1 s margin)."""
+    ev_closing_assumed_mps: float = 6.0
+    """For timing the stop, an EV closes at least this fast (one that just switched its lights on is
+    still accelerating: RELLIS EV 19 m/s vs AV 13.4 m/s)."""
     stop_margin_s: float = 1.0
     """A pull-over aims to be stopped this long before the EV's time to pass (braking harder than
     comfort, up to ``max_decel_mps2``, when the EV is close)."""

@@ -295,8 +295,8 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
         t = urgent[0]
         common = dict(base, ev_track_id=t.track_id, time_to_pass_s=t.time_to_pass_s, ev_gap_m=t.gap_m)
         if response.phase == "yielding":
-            if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and response.slow_because in ("gap", "too_late")
-                    and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s and t.lane != 0):
+            if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s
+                    and t.lane != 0):  # slowed for a gap, too late, or an EV in lane 0 that has left it
                 gap = pull_over_gap(t)
                 ok, why = gap
                 if ok:
@@ -378,7 +378,12 @@ def plan(decision: Decision, frame: RoadFrame, cfg: DdmConfig, vehicle_width_m: 
     s0, d0, h, v = decision.ego_s_m, decision.ego_d_m, decision.ego_heading_error_rad, decision.ego_speed_mps
     if m == Manoeuvre.PULL_OVER:
         d_stop = stop_offset_m(frame, vehicle_width_m, frame.road.shoulder_width_m, cfg)
+        # when the EV arrives: a just-lit EV is still accelerating, so assume it closes at least at
+        # ev_closing_assumed_mps (pessimistic), whatever its closing speed now
         ttp = decision.time_to_pass_s
+        if decision.ev_gap_m is not None:
+            ttp_assumed = decision.ev_gap_m / cfg.ev_closing_assumed_mps
+            ttp = ttp_assumed if ttp is None or not math.isfinite(ttp) else min(ttp, ttp_assumed)
         within_s = ttp - cfg.stop_margin_s if ttp is not None and math.isfinite(ttp) else None
         return plan_stop(frame, s0, d0, h, v, d_stop, cfg, stop_within_s=within_s,
                          max_stop_dist_m=decision.stop_within_m)

@@ -16,6 +16,10 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   supersedes it with RESUME once no EV needs yielding to.
 - Rejected or expired commands are logged with their reason, the vehicle's response memory is
   rolled back, and the decision is re-planned after ``replan_backoff_s``.
+- Hazards (issue 10): ``HazardAlert``s of every RSU are fused in a :class:`ddm.hazard.HazardBook`; while
+  the EV policy has nothing to do for a vehicle (no EV to yield to, not yielding), the hazard policy
+  (:func:`ddm.hazard.decide_hazard`) may command a lane change around a hazard, a stop before it, or a
+  resume. An EV command supersedes a hazard command (EV > hazard).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import numpy as np
 from ddm.commands import CommandManager, CommandState
 from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
+from ddm.hazard import HazardBook, HazardConfig, HazardDecision, HazardResponse, decide_hazard
 from ddm.policy import Decision, Ego, Response, decide, plan
 from ddm.world import CorridorWorld
 from protocol.clock import Clock, RateTimer
@@ -57,7 +62,8 @@ NEIGHBOUR_RADIUS_M = 150.0
 
 class DdmService:
     def __init__(self, transport: Transport, clock: Clock, corridor: Corridor, config: DdmConfig | None = None,
-                 *, corridor_id: str | None = None, ddm_id: str = "ddm") -> None:
+                 *, corridor_id: str | None = None, ddm_id: str = "ddm",
+                 hazard_config: HazardConfig | None = None) -> None:
         self.config = cfg = config or DdmConfig()
         self.transport = transport
         self.clock = clock
@@ -90,6 +96,11 @@ class DdmService:
         self._cmd_keys: dict[str, str] = {}
         self._health_key = ddm_health_key(c)
         self._step_time_s = 0.0
+        self.hazard_config = hazard_config or HazardConfig()
+        self.hazards = HazardBook(self.frame, self.hazard_config)
+        self.hazard_responses: dict[str, HazardResponse] = {}
+        self._hazard_rollback: dict[str, HazardResponse] = {}
+        self._last_hazard_reason: dict[str, tuple[str, int | None]] = {}
         # subscribe last: a Zenoh callback may run (on its own thread) as soon as this returns
         self._subs = [
             transport.subscribe(all_rsus_expr(c), self._on_rsu),
@@ -131,7 +142,11 @@ class DdmService:
             elif isinstance(msg, Health):
                 self.world.ingest_rsu_health(node, now)
             elif isinstance(msg, HazardAlert):
-                self.counters["hazard_alerts"] += 1  # hazard policy: not part of this service yet
+                if msg.rsu_id != node:
+                    self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
+                    return
+                self.hazards.ingest(msg, now)
+                self.counters["hazard_alerts"] += 1
 
     def _on_vehicle_state(self, key: str, msg: VehicleState) -> None:
         node = parse_key(key).node
@@ -178,11 +193,15 @@ class DdmService:
                 before = self._rollback.pop(ev.command_id, None)
                 if before is not None:
                     self.responses[ev.vehicle_id] = before
+                before_hz = self._hazard_rollback.pop(ev.command_id, None)
+                if before_hz is not None:
+                    self.hazard_responses[ev.vehicle_id] = before_hz
                 self._replan_after[ev.vehicle_id] = now + self.config.replan_backoff_s
                 log.log(level, "command %s to %s %s: %s; re-planning", ev.command_id, ev.vehicle_id, ev.kind, ev.detail)
             elif ev.kind in ("issued", "superseded", "accepted", "completed", "adopted"):
                 if ev.kind != "issued":
                     self._rollback.pop(ev.command_id, None)
+                    self._hazard_rollback.pop(ev.command_id, None)
                 log.info("command %s to %s %s%s", ev.command_id, ev.vehicle_id, ev.kind,
                          f": {ev.detail}" if ev.detail else "")
 
@@ -208,7 +227,8 @@ class DdmService:
                 evs = self.world.ev_tracks(now)
             resp = self.responses.setdefault(vid, Response())
             if not evs and resp.phase == "normal":
-                continue  # nothing to yield to, nothing to resume from
+                self._decide_hazard(vid, ego, now)  # nothing to yield to, nothing to resume from
+                continue
             others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
             decision = decide(ego, evs, others, self.frame, self.config, resp, now)
             if decision.ev_near:
@@ -220,6 +240,9 @@ class DdmService:
             if decision.manoeuvre is not None:
                 self._command(vid, decision, resp, now)
                 self.counters["decisions"] += 1
+                self.hazard_responses.pop(vid, None)  # the EV command supersedes any hazard command
+            elif resp.phase == "normal" and decision.action == "none":
+                self._decide_hazard(vid, ego, now)
         self._send_due(now)
         if t0 is not None and self._issued_in_call:
             ms = (time.perf_counter() - t0) * 1000.0
@@ -239,6 +262,35 @@ class DdmService:
         self._rollback[cmd.command_id] = copy.deepcopy(resp)
         resp.commit(decision, now)
         self._issued_in_call = True
+        self._process_events(now)
+
+    def _decide_hazard(self, vid: str, ego: Ego, now: float) -> None:
+        """The hazard policy for one vehicle the EV policy leaves alone."""
+        active = self.hazards.active()
+        hresp = self.hazard_responses.setdefault(vid, HazardResponse())
+        if not active and hresp.phase == "normal":
+            return
+        others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
+        d = decide_hazard(ego, active, others, self.frame, self.config, self.hazard_config, hresp,
+                          self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
+        what = (str(d.action), d.hazard_id)
+        if what != self._last_hazard_reason.get(vid):
+            log.info("%s: hazard %s (%s)", vid, d.action, d.reason)
+        self._last_hazard_reason[vid] = what
+        if d.manoeuvre is not None:
+            self._command_hazard(vid, d, hresp, now)
+            self.counters["hazard_decisions"] += 1
+
+    def _command_hazard(self, vid: str, d: HazardDecision, hresp: HazardResponse, now: float) -> None:
+        path = d.path
+        assert path is not None
+        cmd = self.commands.issue(
+            vid, now, manoeuvre=d.manoeuvre, reason=d.reason, target_lane=d.target_lane or 0,
+            waypoints=path.waypoints, speed_profile_mps=path.speeds_mps, target_speed_mps=path.target_speed_mps,
+            stop_point=path.stop_point,
+        )
+        self._hazard_rollback[cmd.command_id] = copy.deepcopy(hresp)
+        hresp.commit(d, now)
         self._process_events(now)
 
     def _send_due(self, now: float) -> None:
@@ -264,6 +316,9 @@ class DdmService:
                 log.info("RSU %s is alive again", r)
             changed = stale != self._stale_reported
             self._stale_reported = stale
+            self.hazards.maintain(now)
+            for what, hid in self.hazards.drain():
+                log.info("hazard %d %s", hid, what)
             self._decide_all(now)
             self._step_time_s = time.perf_counter() - t0
             if self._health_timer.due(now) or changed:
@@ -294,7 +349,8 @@ class DdmService:
                    "cmd_rejected": self.counters["cmd_rejected"]},
             rejected=rejected, stale=stale[:64],
             detail=(f"tracks={self.world.track_count} rsus_alive={n_rsu - len(stale)}/{n_rsu} "
-                    f"vehicles={len(self.world.vehicles)} outstanding={self.commands.outstanding()}"),
+                    f"vehicles={len(self.world.vehicles)} outstanding={self.commands.outstanding()} "
+                    f"hazards={len(self.hazards.hazards)}"),
         )
 
     def publish_health(self, now: float) -> Health:

@@ -520,8 +520,9 @@ class CorridorWorld:
             sa, sb = int(live[a]), int(live[b])
             if not (self.alive[sa] and self.alive[sb]):
                 continue
-            if math.hypot(self.vx[sa] - self.vx[sb], self.vy[sa] - self.vy[sb]) > self.config.gate_speed_mps:
-                continue
+            young = min(now - self.first[sa], now - self.first[sb]) < self.config.velocity_settle_s
+            if not young and math.hypot(self.vx[sa] - self.vx[sb], self.vy[sa] - self.vy[sb]) > self.config.gate_speed_mps:
+                continue  # (a young track's velocity is not known yet: position decides)
             ra = {k[0] for k in self._slot_keys.get(sa, ())}
             rb = {k[0] for k in self._slot_keys.get(sb, ())}
             if ra & rb:

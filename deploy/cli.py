@@ -6,6 +6,7 @@
     iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
     iea demo                    run the main scenario end to end (what `make demo` runs)
+    iea scenario run NAME       run any scenario end to end (--inprocess --fast: lockstep, faster than real time)
     iea up                      the compose topology as local processes around one router
 """
 
@@ -162,6 +163,12 @@ def _up(argv: list[str]) -> int:
     return up.main(argv)
 
 
+def _scenario(argv: list[str]) -> int:
+    from deploy.lockstep import scenario_main
+
+    return scenario_main(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     commands = {
@@ -171,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
         "deploy": ("generate deployment files (iea deploy acl ...)", _deploy),
         "demo": ("run the main scenario end to end (make demo)", _demo),
+        "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)", _scenario),
         "up": ("router + every service as local processes (no Docker)", _up),
     }
     if not argv or argv[0] in ("-h", "--help"):

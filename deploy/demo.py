@@ -51,6 +51,8 @@ class RunMonitor:
     ev_min_speed_mps: float = math.inf
     ev_max_speed_mps: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
+    road: Any = None
+    """The corridor road (protocol.corridor.Road): lanes in road coordinates; None: y is the lateral offset."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def mark(self, name: str, t: float) -> None:
@@ -107,6 +109,20 @@ class RunMonitor:
             return
         if ev is not None and ev.pos_x_m > av.pos_x_m + av.length_m / 2 + ev.length_m / 2:
             self.mark("ev_passed_av", snap.stamp)
+        if ev is not None and ev.light_bar is not None and ev.light_bar.on and "ev_passed_av" not in self.events:
+            # the AV has moved over: its whole body is out of the lane the EV drives in
+            if self.road is not None:
+                _, d_av = self.road.to_frenet(av.pos_x_m, av.pos_y_m)
+                _, d_ev = self.road.to_frenet(ev.pos_x_m, ev.pos_y_m)
+                w = self.road.lane_width_m
+            else:
+                d_av, d_ev, w = av.pos_y_m, ev.pos_y_m, 3.7
+            k = math.floor(float(d_ev) / w)
+            lo, hi = k * w, (k + 1) * w
+            if float(d_av) + av.width_m / 2 <= lo or float(d_av) - av.width_m / 2 >= hi:
+                self.mark("av_out_of_ev_lane", snap.stamp)
+            else:
+                self.events.pop("av_out_of_ev_lane", None)
         for other in snap.actors:
             if other is av or other.kind.value == "debris":
                 continue
@@ -114,7 +130,9 @@ class RunMonitor:
             lateral_clear = abs(dy) - (av.width_m + other.width_m) / 2
             longitudinal_clear = abs(dx) - (av.length_m + other.length_m) / 2
             gap = max(lateral_clear, longitudinal_clear)
-            self.min_gap_m = min(self.min_gap_m, gap)
+            if gap < self.min_gap_m:
+                self.min_gap_m = gap
+                self.facts["min_gap_with"] = f"{other.actor_id} at t={snap.sim_time_s:.2f} s"
             if lateral_clear < 0 and longitudinal_clear > 0:  # same lane: time to collision
                 closing = av.speed_mps - other.speed_mps if dx > 0 else other.speed_mps - av.speed_mps
                 if closing > 0.1:
@@ -148,6 +166,8 @@ class RunMonitor:
                 if a in ev and b in ev:
                     hop[name] = round(ev[b] - ev[a], 3)
             stopped_before_pass = "stopped" in ev and ("ev_passed_av" not in ev or ev["stopped"] <= ev["ev_passed_av"])
+            moved_over = "av_out_of_ev_lane" in ev and ("ev_passed_av" not in ev
+                                                        or ev["av_out_of_ev_lane"] <= ev["ev_passed_av"])
             return {
                 "corridor_id": self.corridor_id,
                 "events_since_lights_on_s": rel,
@@ -158,8 +178,12 @@ class RunMonitor:
                 "stop_lane": self.facts.get("stop_lane"),
                 "stop_mode": self.facts.get("stop_mode"),
                 "stopped_before_ev_passed": stopped_before_pass,
+                "moved_over_before_ev_passed": moved_over,
+                "ev_passed_av_s": rel.get("ev_passed_av"),
+                "out_of_ev_lane_s": rel.get("av_out_of_ev_lane"),
                 "max_abs_lateral_error_m": self.facts.get("max_abs_lateral_error_m"),
                 "min_gap_to_any_vehicle_m": None if math.isinf(self.min_gap_m) else round(self.min_gap_m, 2),
+                "min_gap_with": self.facts.get("min_gap_with"),
                 "min_time_to_collision_s": None if math.isinf(self.min_ttc_s) else round(self.min_ttc_s, 2),
                 "collision": self.min_gap_m < 0.0,
                 "ev_speed_min_max_mps": (None if math.isinf(self.ev_min_speed_mps)
@@ -172,12 +196,14 @@ class RunMonitor:
 
 
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
-             corridor_id: str | None = None, quiet: bool = False, detector: str = "motion") -> dict[str, Any]:
+             corridor_id: str | None = None, quiet: bool = False, detector: str = "motion",
+             seed: int | None = None) -> dict[str, Any]:
     from protocol import keys
-    from protocol.corridor import load_corridor
     from protocol.transport import ZenohTransport
+    from sim.scenario import load_scenario
 
-    corridor = load_corridor()
+    sc = load_scenario(scenario)
+    corridor = sc.corridor
     cid = corridor_id or f"rellis-{uuid.uuid4().hex[:6]}"
     run_dir = (run_root or ROOT / "runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -185,13 +211,13 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     say(f"[demo] corridor {cid}, scenario {scenario}, {duration_s:.0f} s; run folder {run_dir}")
 
-    monitor = RunMonitor(cid)
+    monitor = RunMonitor(cid, road=corridor.road)
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
     group = ServiceGroup(run_dir, env)
     procs = group.procs
     specs = corridor_services(corridor, cid, scenario=scenario, duration_s=duration_s, run_dir=run_dir,
-                              detector=detector)
+                              detector=detector, seed=seed)  # the vehicle starts where the scenario puts the AV
     try:
         for spec in specs[:-1]:
             group.start(spec.name, spec.args)
@@ -244,6 +270,9 @@ def print_summary(m: dict[str, Any]) -> None:
         ("command", m.get("command"), ""),
         ("stop position (x, y)", m.get("stop_position_m"), "m"),
         ("stop lane (None: shoulder)", m.get("stop_lane"), ""),
+        ("AV out of the EV's lane (after lights on)", m.get("out_of_ev_lane_s"), "s"),
+        ("EV passed the AV (after lights on)", m.get("ev_passed_av_s"), "s"),
+        ("moved over before the EV passed", m.get("moved_over_before_ev_passed"), ""),
         ("stopped before the EV passed", m.get("stopped_before_ev_passed"), ""),
         ("max |lateral error|", m.get("max_abs_lateral_error_m"), "m"),
         ("min gap to any vehicle", m.get("min_gap_to_any_vehicle_m"), "m"),
@@ -268,8 +297,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector)
     print_summary(m)
-    ok = bool(m.get("stopped_before_ev_passed")) and not m.get("collision")
-    print(f"\n[demo] {'PASS' if ok else 'FAIL'}: the AV {'moved right and stopped before the EV passed' if ok else 'did not complete the pull-over safely'}")
+    from deploy.outcome import judge_run
+    from sim.scenario import load_scenario
+
+    sc = load_scenario(args.scenario)
+    lit = None if sc.ev is None else sc.ev.lights_on_at_s is not None and sc.ev.lights_on_at_s < args.duration_s
+    ok, why = judge_run(m, ev_lights_on=lit)
+    print(f"\n[demo] {'PASS' if ok else 'FAIL'}: {why}")
     return 0 if ok else 1
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ from protocol.transport import DsrcLink, LocalBus, Transport
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import Frame
+from rsu.hazard import HazardDetector
 from rsu.localize import Localizer
 from rsu.service import RsuPipeline, RsuService
 from rsu.track import FrameworkTracker
@@ -77,6 +79,8 @@ class LockstepConfig:
     """Write every RSU's annotated video here."""
     realtime: bool = False
     """Pace the simulated clock to the wall clock (for watching); the default runs as fast as it can."""
+    hazards: bool = True
+    """RSUs run the static-object hazard detector (``rsu.hazard``, issue 10), started from the empty road."""
 
 
 class _Task:
@@ -107,7 +111,7 @@ class CorridorLockstep:
         self.duration_s = sc.duration_s if cfg.duration_s is None else cfg.duration_s
         self.clock = SimClock(0.0)
         self.bus = LocalBus()
-        self.monitor = RunMonitor(self.corridor_id, vehicle_id=self.vehicle_id or "av1")
+        self.monitor = RunMonitor(self.corridor_id, vehicle_id=self.vehicle_id or "av1", road=corridor.road)
         self._monitor_sub = self.bus.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
         self.sim = SimService(sc, self.bus, self.clock, seed=sc.seed)
         self.sim.close_subscription()  # the AV's pose comes from its plant (below), not over the radio
@@ -146,11 +150,18 @@ class CorridorLockstep:
         r = self.corridor.rsu(rsu_id)
         cam = SimCamera(self.corridor, rsu_id, seed=self.scenario.seed)
         det = self._make_detector()
+        empty = None
+        if isinstance(det, MotionDetector) or self.config.hazards:
+            empty = cam.render(self.sim.world.snapshot().model_copy(update={"actors": []})).image
         if isinstance(det, MotionDetector):
-            empty = self.sim.world.snapshot().model_copy(update={"actors": []})
             for _ in range(MOTION_WARMUP_FRAMES):
-                det.detect(cam.render(empty).image)
-        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), Localizer(self.corridor, r), TrackEvClassifier())
+                det.detect(empty)
+        loc = Localizer(self.corridor, r)
+        hazards = None
+        if self.config.hazards:  # an RSU that has been running: its background is the empty road
+            hazards = HazardDetector(self.corridor.road, loc.mapper.to_ground, camera=r.camera)
+            hazards.prime(empty)
+        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, TrackEvClassifier(), hazards=hazards)
         annotate = None
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)
@@ -278,3 +289,98 @@ class CorridorLockstep:
 
 def run_lockstep(config: LockstepConfig | None = None, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     return CorridorLockstep(config).run(progress)
+
+
+def ev_lights_on(scenario: Scenario, duration_s: float | None = None) -> bool | None:
+    """Whether the scenario's EV switches its lights on within the run (None: the scenario has no EV)."""
+    if scenario.ev is None:
+        return None
+    on = scenario.ev.lights_on_at_s
+    end = scenario.duration_s if duration_s is None else duration_s
+    return on is not None and on < end
+
+
+def scenario_main(argv: list[str] | None = None) -> int:
+    """``iea scenario list | run NAME [--inprocess [--fast]]``."""
+    import argparse
+    import json
+
+    from deploy.outcome import judge_run
+    from sim.scenario import ScenarioError, list_scenarios
+
+    ap = argparse.ArgumentParser(
+        prog="iea scenario", description="Run a scenario end to end and judge it: as separate processes over Zenoh "
+        "(like `iea demo`), or in one process in lockstep on a simulated clock (--inprocess).")
+    sub = ap.add_subparsers(dest="action", required=True)
+    sub.add_parser("list", help="list the scenarios")
+    run = sub.add_parser("run", help="run one scenario and print its summary")
+    run.add_argument("name", help="scenario name (`iea scenario list`) or a scenario TOML file")
+    run.add_argument("--inprocess", action="store_true",
+                     help="all services in this process on a simulated clock (deterministic; no Zenoh)")
+    run.add_argument("--fast", action="store_true",
+                     help="with --inprocess: run as fast as the CPU allows instead of in real time")
+    run.add_argument("--seed", type=int, default=None, help="scenario seed (default: the scenario file's)")
+    run.add_argument("--duration-s", type=float, default=None, help="scenario time to run (default: the scenario's)")
+    run.add_argument("--detector", default="motion",
+                     help="RSU detector: 'motion' (MOG2) or, --inprocess only, the path of an ONNX model")
+    run.add_argument("--runs", default=None, help="where the run folder goes (default ./runs)")
+    run.add_argument("--json", action="store_true", help="print the metrics as one JSON line at the end")
+    args = ap.parse_args(argv)
+    if args.action == "list":
+        for name in list_scenarios():
+            print(name)
+        return 0
+    try:
+        sc = load_scenario(args.name)
+    except ScenarioError as exc:
+        print(f"iea scenario: {exc}", file=sys.stderr)
+        return 2
+    if args.seed is not None:
+        sc = sc.with_overrides(seed=args.seed)
+    from deploy.demo import ROOT, print_summary, run_demo
+
+    runs = Path(args.runs) if args.runs else ROOT / "runs"
+    if args.inprocess:
+        run_dir = runs / f"scenario-{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        cfg = LockstepConfig(scenario=sc.name, seed=args.seed, duration_s=args.duration_s, detector=args.detector,
+                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast)
+        print(f"[scenario] {sc.name} seed {sc.seed} in lockstep ({'fast' if args.fast else 'real time'}); "
+              f"run folder {run_dir}", flush=True)
+        runner = CorridorLockstep(cfg, scenario=sc)
+        m = runner.run(progress=lambda line: print("  " + line, flush=True))
+        write_run_folder(runner, m, run_dir)
+        m["run_dir"] = str(run_dir)
+    else:
+        if args.detector != "motion":
+            print("iea scenario: --detector PATH needs --inprocess (the RSU processes take --detector onnx "
+                  "--model PATH themselves)", file=sys.stderr)
+            return 2
+        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed)
+    print_summary(m)
+    ok, why = judge_run(m, ev_lights_on=ev_lights_on(sc, args.duration_s))
+    print(f"\n[scenario] {sc.name}: {'PASS' if ok else 'FAIL'}: {why}")
+    if args.json:
+        print(json.dumps({**m, "passed": ok, "verdict": why}, default=str))
+    return 0 if ok else 1
+
+
+def write_run_folder(runner: CorridorLockstep, metrics: dict[str, Any], run_dir: Path) -> None:
+    """metrics.json, the vehicle's run (and its plots), and keep only the video of the first alerting RSU."""
+    import json
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    first = metrics.get("first_alert_rsu")
+    for rsu_id in [r.rsu_id for r in runner.corridor.rsus]:
+        video = run_dir / f"{rsu_id}.mp4"
+        if video.exists() and first is not None and rsu_id != first:
+            video.unlink()
+    if runner.vehicle is not None and runner.vehicle.record is not None:
+        from vehicle.plot import plot_run
+        from vehicle.record import write_run
+
+        write_run(run_dir / "vehicle", runner.vehicle.record)
+        try:
+            plot_run(run_dir / "vehicle")
+        except Exception as exc:  # plots are a convenience: the run's data is written
+            print(f"[scenario] plots not written: {exc}", file=sys.stderr)
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")

@@ -70,7 +70,7 @@ class Up:
         if not peer:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / CLIENT_CONFIG).write_text(CLIENT_CONFIG_TEXT)
-        self.monitor = RunMonitor(self.corridor_id)
+        self.monitor = RunMonitor(self.corridor_id, road=self.corridor.road)
         self.health: dict[str, tuple[float, str]] = {}
         self.judge = YieldJudge()
         """Scores the EV approach from the simulator's ground truth (deploy/faults.py)."""

@@ -8,11 +8,14 @@ import signal
 import sys
 from pathlib import Path
 
+import cv2
+
 from protocol.corridor import CorridorError, load_corridor
 from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
+from rsu.hazard import HazardDetector
 from rsu.localize import INTERPOLATIONS, Localizer
 from rsu.service import RsuPipeline, RsuService
 from rsu.sim_source import SimSource
@@ -57,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-classifier", choices=["lamps", "none"], default="lamps",
                     help="lamps: per-track flashing light bar evidence (rsu.classify.ev), publishes EvAlert; "
                          "none: no EV classification")
+    ap.add_argument("--hazards", choices=["static", "none"], default="static",
+                    help="static: report static objects that appear in a lane (rsu.hazard, dual background) as "
+                         "HazardAlert; none: no hazard detection")
+    ap.add_argument("--hazard-background", metavar="IMAGE", default=None,
+                    help="a frame of the empty road from this camera: the hazard detector starts from it instead of "
+                         "learning the road over its first seconds (debris already there at start is then found)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
@@ -86,6 +95,14 @@ def main(argv: list[str] | None = None) -> int:
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
         classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
+        hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
+                   if args.hazards == "static" else None)
+        if hazards is not None and args.hazard_background:
+            empty = cv2.imread(args.hazard_background, cv2.IMREAD_COLOR)
+            if empty is None or empty.shape[:2] != (rsu.camera.height_px, rsu.camera.width_px):
+                raise ValueError(f"--hazard-background {args.hazard_background!r}: not a "
+                                 f"{rsu.camera.width_px}x{rsu.camera.height_px} image")
+            hazards.prime(empty)
         if args.source == "sim":
             source = None  # needs the transport: opened below
         elif Path(args.source).is_dir():
@@ -100,9 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     transport = ZenohTransport(settings)
     if source is None:
         source = SimSource(corridor, args.rsu, transport, corridor_id=args.corridor_id, seed=args.sim_seed)
-    service = RsuService(corridor, args.rsu, source, RsuPipeline(detector, tracker, localizer, classifier), transport,
-                         corridor_id=args.corridor_id, annotate_path=args.annotate, max_frames=args.max_frames,
-                         read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
+    pipeline = RsuPipeline(detector, tracker, localizer, classifier, hazards=hazards)
+    service = RsuService(corridor, args.rsu, source, pipeline, transport, corridor_id=args.corridor_id,
+                         annotate_path=args.annotate, max_frames=args.max_frames, read_timeout_s=args.read_timeout_s, max_stall_s=args.max_stall_s)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     signal.signal(signal.SIGINT, lambda *_: service.stop())
     log.info("RSU %s: %s -> %s on %s", args.rsu, source.source_id, getattr(detector, "name", "detector"),

@@ -15,6 +15,10 @@ EV alerts: when the hook also has ``evidence(track_id)`` (the track classifier),
 :class:`rsu.classify.ev.EvAlertManager` on the frame times and publishes ``EvAlert`` on
 ``iea/{c}/rsu/{rsu}/ev``: ``active`` when a track is confirmed, refreshed at 2 Hz, ``cleared`` when
 its lights go off or it has left the view for ``leave_after_s``. ``alert_id = f"{rsu_id}-ev-{track_id}"``.
+
+Hazards (issue 10): with a :class:`rsu.hazard.HazardDetector` (``RsuPipeline(hazards=...)``), static objects
+in a lane are published as ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``: ``appear``, ``persist`` at 1 Hz,
+``clear``; ``hazard_id = f"{rsu_id}-hz-{n}"``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from protocol.messages import (
     EvAlert,
     EvEvidence,
     EvState,
+    HazardAlert,
     Health,
     HealthStatus,
     LightState,
@@ -47,13 +52,14 @@ from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent, EvAlertManager
 from rsu.detect import EV, Detector
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
+from rsu.hazard import HazardDetector, HazardEvent
 from rsu.localize import LocalizedObject, Localizer
 from rsu.track import FrameworkTracker, TrackSet
 
 log = logging.getLogger(__name__)
 
 Classifier = Callable[[Frame, TrackSet], dict[int, tuple]]
-STAGES = ("detect", "track", "classify", "localize", "publish")
+STAGES = ("detect", "track", "classify", "localize", "hazard", "publish")
 
 
 @dataclass
@@ -62,16 +68,19 @@ class FrameResult:
     tracks: TrackSet
     localized: list[LocalizedObject]
     stage_s: dict[str, float] = field(default_factory=dict)
+    hazards: list[HazardEvent] = field(default_factory=list)
 
 
 class RsuPipeline:
     """Detector -> tracker -> classifier hook -> localiser for one camera; ``process(frame)`` per frame."""
 
     def __init__(self, detector: Detector, tracker: FrameworkTracker, localizer: Localizer,
-                 classifier: Classifier | None = None, ev_threshold: float = 0.5) -> None:
+                 classifier: Classifier | None = None, ev_threshold: float = 0.5,
+                 hazards: HazardDetector | None = None) -> None:
         self.detector, self.tracker, self.localizer = detector, tracker, localizer
         self.classifier = classifier
         self.ev_threshold = ev_threshold
+        self.hazards = hazards
 
     def process(self, frame: Frame) -> FrameResult:
         stage_s: dict[str, float] = {}
@@ -85,8 +94,12 @@ class RsuPipeline:
         localized = self.localizer.update(tracks, frame.timestamp_s)
         objects = [self._to_message(o, ev.get(o.track_id)) for o in localized]
         t4 = time.perf_counter()
-        stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3)
-        return FrameResult(objects, tracks, localized, stage_s)
+        hazards = (self.hazards.update(frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,
+                                       {o.track_id: o.speed_mps for o in localized})
+                   if self.hazards is not None else [])
+        t5 = time.perf_counter()
+        stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3, hazard=t5 - t4)
+        return FrameResult(objects, tracks, localized, stage_s, hazards)
 
     def _to_message(self, o: LocalizedObject, ev: tuple | None) -> DetectedObject:
         ev_score = float(np.clip(ev[0], 0.0, 1.0)) if ev else 0.0
@@ -140,6 +153,8 @@ class RsuService:
         self.objects_key = rsu_key(cid, rsu_id, "objects")
         self.health_key = rsu_key(cid, rsu_id, "health")
         self.ev_key = rsu_key(cid, rsu_id, "ev")
+        self.hazard_key = rsu_key(cid, rsu_id, "hazard")
+        self.hazards_published = Counter()
         evidence = getattr(pipeline.classifier, "evidence", None)
         self._info_of = evidence if callable(evidence) else None
         self.alerts = EvAlertManager() if self._info_of is not None else None
@@ -150,7 +165,7 @@ class RsuService:
         self.max_stall_s = max_stall_s
         self.health_period_s = health_period_s
         self._next_health_s: float | None = None
-        self._seq = {"objects": 0, "health": 0, "ev": 0}
+        self._seq = {"objects": 0, "health": 0, "ev": 0, "hazard": 0}
         self._writer: cv2.VideoWriter | None = None
         self._stop = False
         self.frames = 0
@@ -231,6 +246,8 @@ class RsuService:
         if self.alerts is not None:
             for event in self.alerts.update(frame.timestamp_s, result.objects, self._info_of):
                 self._publish_alert(event)
+        for h in result.hazards:
+            self._publish_hazard(h)
         if self.annotate_path:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
@@ -254,6 +271,20 @@ class RsuService:
         self._seq["ev"] += 1
         self.alerts_published[str(e.state)] += 1
         log.info("EvAlert %s %s (track %d, lane %s, x %.1f m)", msg.alert_id, e.state, e.track_id, o.lane, o.pos_x_m)
+
+    def _publish_hazard(self, h: HazardEvent) -> None:
+        lat, lon = self.corridor.to_latlon(h.x_m, h.y_m)
+        msg = HazardAlert(src=self.rsu_id, seq=self._seq["hazard"], stamp=max(self.clock.now(), 0.0),
+                          hazard_id=f"{self.rsu_id}-hz-{h.hazard_id}", state=h.state, rsu_id=self.rsu_id,
+                          pos_x_m=h.x_m, pos_y_m=h.y_m, lat_deg=lat, lon_deg=lon, lane=h.lane,
+                          length_m=max(h.length_m, 0.0), width_m=max(h.width_m, 0.0),
+                          confidence=float(np.clip(h.confidence, 0.0, 1.0)), first_seen=max(h.first_seen_s, 0.0))
+        self.transport.publish(self.hazard_key, msg)
+        self._seq["hazard"] += 1
+        self.hazards_published[str(h.state)] += 1
+        if h.state != "persist":
+            log.info("HazardAlert %s %s (lane %s, x %.1f y %.1f m, %.1f x %.1f m)", msg.hazard_id, h.state, h.lane,
+                     h.x_m, h.y_m, h.length_m, h.width_m)
 
     def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
         image = annotate(frame.image, result)

@@ -134,6 +134,53 @@ def ev_lamps_on(light_bar, t_s: float) -> tuple[bool, bool]:
     return ph < 0.5, ph >= 0.5
 
 
+DEBRIS_SHAPES = ("box", "rock", "barrel", "pallet", "pipe", "tyre")
+"""Debris kind by livery index (``sim.scenario.DEBRIS_KINDS``)."""
+
+
+def _debris_parts(shape_index: int, detail: int, L: float, W: float, H: float, body: np.ndarray) -> list[Part]:
+    """Boxes that give each debris kind its look within its L x W x H footprint (deterministic by detail)."""
+    hl, hw = L / 2, W / 2
+    rng = np.random.default_rng(detail)
+    shape = DEBRIS_SHAPES[shape_index] if shape_index < len(DEBRIS_SHAPES) else "box"
+    if shape == "rock":  # a rough boulder: stacked, shrinking, offset blocks
+        parts = [Part(-hl, hl, -hw * 0.85, hw * 0.9, 0.0, H * 0.45, body * 0.85)]
+        x0, x1, y0, y1 = -hl * 0.8, hl * 0.75, -hw, hw * 0.7
+        z = H * 0.4
+        for k in range(3):
+            jx, jy = rng.uniform(-0.12, 0.12, 2) * (hl, hw)
+            parts.append(Part(x0 + jx, x1 + jx, y0 + jy, y1 + jy, z, z + H * 0.22 if k < 2 else H,
+                              body * float(rng.uniform(0.85, 1.1)), top_colour=body * 1.15))
+            x0, x1, y0, y1, z = x0 * 0.75, x1 * 0.7, y0 * 0.75, y1 * 0.7, z + H * 0.2
+        return parts
+    if shape == "barrel":  # an upright drum with two darker rims
+        r = min(hl, hw)
+        parts = [Part(-r, r, -r, r, 0.0, H, body, top_colour=body * 0.7)]
+        for zc in (0.3, 0.7):
+            parts.append(Part(-r * 1.03, r * 1.03, -r * 1.03, r * 1.03, H * (zc - 0.04), H * (zc + 0.04),
+                              body * 0.55, silhouette=False))
+        return parts
+    if shape == "pallet":  # three runners under a slatted deck
+        deck = H * 0.3
+        parts = [Part(-hl, hl, y - hw * 0.09, y + hw * 0.09, 0.0, H - deck, body * 0.75)
+                 for y in (-hw * 0.9, 0.0, hw * 0.9)]
+        n = 5
+        for k in range(n):
+            x0 = -hl + k * (L / n)
+            parts.append(Part(x0, x0 + L / n * 0.7, -hw, hw, H - deck, H, body))
+        return parts
+    if shape == "pipe":  # a length of pipe lying along the footprint with a dark bore at the ends
+        r = min(hw, H / 2)
+        return [Part(-hl, hl, -r, r, 0.0, 2 * r, body, top_colour=body * 1.15),
+                Part(hl - 0.02, hl + 0.005, -r * 0.6, r * 0.6, r * 0.4, r * 1.6, body * 0.3, silhouette=False)]
+    if shape == "tyre":  # lying flat: a black ring (outer block, grey hub on top)
+        return [Part(-hl, hl, -hw, hw, 0.0, H, body, top_colour=body * 1.4),
+                Part(-hl * 0.4, hl * 0.4, -hw * 0.4, hw * 0.4, H, H * 1.02, np.array([120.0, 120.0, 118.0]),
+                     silhouette=False)]
+    return [Part(-hl, hl * 0.3, -hw, hw * 0.6, 0.0, H, body),
+            Part(-hl * 0.2, hl, -hw * 0.5, hw, 0.0, H * float(rng.uniform(0.4, 0.8)), body * 0.8)]
+
+
 def _body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
     """Parts and decals of a vehicle from its kind, size, colour and style (deterministic)."""
     L, W, H = actor.length_m, actor.width_m, actor.height_m
@@ -145,10 +192,7 @@ def _body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
     decals: list[Decal] = []
     roof = body if livery != LIVERY_TWO_TONE else np.clip(body * 0.6 + 110, 0, 255)
     if kind == "debris":
-        rng = np.random.default_rng(detail)
-        parts.append(Part(-hl, hl * 0.3, -hw, hw * 0.6, 0.0, H, body))
-        parts.append(Part(-hl * 0.2, hl, -hw * 0.5, hw, 0.0, H * float(rng.uniform(0.4, 0.8)), body * 0.8))
-        return parts, decals
+        return _debris_parts(livery, detail, L, W, H, body), decals
     tail_v = (0.55, 0.85)
     if kind in ("car", "av") or (kind == "ev" and livery == LIVERY_POLICE):
         shape = detail % 3  # 0 sedan, 1 hatchback, 2 SUV

@@ -24,6 +24,9 @@ LIGHTINGS = ("day", "dusk", "night")
 PATTERNS = ("alternating", "strobe")
 DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_van", "red_truck")
 EV_BODIES = ("ambulance", "police")
+DEBRIS_KINDS = ("box", "rock", "barrel", "pallet", "pipe", "tyre")
+"""Debris of the hazard report's simulation (rocks, wooden boxes, oil barrels, wooden pallets, sections of
+pipe) and a lost tyre; the index is the debris' livery (``sim.render`` draws each kind)."""
 
 
 class ScenarioError(ValueError):
@@ -74,6 +77,11 @@ class HazardSpec:
     width_m: float = 0.7
     height_m: float = 0.35
     offset_m: float = 0.0
+    kind: str = "box"
+    appear_s: float = 0.0
+    """Sim time the object lands on the road (0: there from the start; later: it falls off a vehicle)."""
+    remove_s: float | None = None
+    """Sim time it is cleared from the road (None: it stays)."""
 
 
 @dataclass(frozen=True)
@@ -220,7 +228,12 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
         hazards.append(HazardSpec(s_m=hr.num("s_m", None, 0.0, road.length_m), lane=lane_of(hr, "lane", 0),
                                   length_m=hr.num("length_m", 0.8, 0.1, 5.0), width_m=hr.num("width_m", 0.7, 0.1, 3.0),
                                   height_m=hr.num("height_m", 0.35, 0.05, 2.0),
-                                  offset_m=hr.num("offset_m", 0.0, -2.0, 2.0)))
+                                  offset_m=hr.num("offset_m", 0.0, -4.0, 4.0),
+                                  kind=hr.text("kind", "box", DEBRIS_KINDS),
+                                  appear_s=hr.num("appear_s", 0.0, 0.0, 3600.0),
+                                  remove_s=(None if "remove_s" not in hr.data else hr.num("remove_s", None, 0.0, 3600.0))))
+        if hazards[-1].remove_s is not None and hazards[-1].remove_s <= hazards[-1].appear_s:
+            raise hr.fail("remove_s", f"a time later than appear_s ({hazards[-1].appear_s})", hazards[-1].remove_s)
     distractors = []
     for dr in top.tables("distractor", required=False):
         dr.check_keys(set(DistractorSpec.__dataclass_fields__))

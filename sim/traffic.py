@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.corridor import Road
-from sim.scenario import Scenario
+from sim.scenario import DEBRIS_KINDS, Scenario
 from sim.vehicles import (
     BLUE_BGR,
     LIVERY_AMBULANCE,
@@ -46,6 +46,12 @@ EV_REACT_BEHIND_M = 90.0
 EV_PASSED_AHEAD_M = 15.0
 YIELD_SPEED_FACTOR = 0.35
 YIELD_EDGE_SHIFT_M = 0.7
+HAZARD_RUN_UP_M = 40.0
+"""No background vehicle starts this close behind debris that lies in its lane at t = 0."""
+DEBRIS_COLOURS = {"box": (60, 75, 95), "rock": (105, 110, 112), "barrel": (30, 90, 200), "pallet": (120, 165, 195),
+                  "pipe": (150, 150, 145), "tyre": (28, 28, 30)}
+"""BGR body colour of each debris kind (wooden box, grey rock, orange oil barrel, pale pallet wood, steel
+pipe, black tyre)."""
 
 
 class TrafficModel(Protocol):
@@ -63,6 +69,12 @@ class TrafficModel(Protocol):
 
     def release_external(self, vehicle_id: str) -> None:
         """The outside driver went quiet: the model drives the vehicle again from where it is."""
+
+    def add(self, v: SimVehicle) -> None:
+        """Put a vehicle or static object on the road (a scenario's debris with ``appear_s``)."""
+
+    def remove(self, vehicle_id: str) -> None:
+        """Take a vehicle or static object off the road (``remove_s``)."""
 
 
 def idm_accel(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, dv: np.ndarray, t_gap: np.ndarray,
@@ -110,6 +122,17 @@ class IdmTraffic:
                 v.lane = lane if lane is not None else 0
                 v.target_lane = None
                 return
+
+    def add(self, v: SimVehicle) -> None:
+        """Put a vehicle or object on the road now (debris falling off a truck)."""
+        if any(o.vehicle_id == v.vehicle_id for o in self._vehicles):
+            raise KeyError(f"vehicle {v.vehicle_id!r} is already in the world")
+        self._vehicles.append(v)
+        self._update_pose(v)
+
+    def remove(self, vehicle_id: str) -> None:
+        """Take a vehicle or object off the road (debris cleared)."""
+        self._vehicles = [v for v in self._vehicles if v.vehicle_id != vehicle_id]
 
     # ---------------------------------------------------------------- model
     def _ev_threat(self, t_s: float) -> list[SimVehicle]:
@@ -164,8 +187,11 @@ class IdmTraffic:
                 des *= 0.4
             if v.yielding:  # move right first, then slow down at the right edge
                 des *= YIELD_SPEED_FACTOR if road.lane_of_offset(v.d_m) == 0 else 0.8
-            if v.kind == "ev" and v.light_bar_on(t_s):
-                v.idm_time_gap_s = 0.7
+            if v.kind == "ev":
+                if v.light_bar_on(t_s):
+                    v.idm_time_gap_s = 0.7  # on duty: exempt from the limit, follows closely
+                else:
+                    des = min(des, road.speed_limit_mps)  # lights off: an EV is ordinary traffic
             v0[i] = des
         t_gap = np.array([v.idm_time_gap_s for v in vs])
         a_max = np.array([v.idm_max_accel_mps2 for v in vs])
@@ -313,9 +339,11 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                               make_style(livery, detail), desired_speed_mps=dsp.speed_mps,
                               brake_period_s=dsp.brake_period_s, yields_to_ev=False))
     for k, hz in enumerate(scenario.hazards):
+        kind_index = DEBRIS_KINDS.index(hz.kind)
         out.append(SimVehicle(f"hz{k}", "debris", hz.s_m, centre(hz.lane) + hz.offset_m, 0.0, hz.lane, hz.length_m,
-                              hz.width_m, hz.height_m, (60, 75, 95), make_style(LIVERY_PLAIN, k), desired_speed_mps=0.0,
-                              is_static=True))
+                              hz.width_m, hz.height_m, DEBRIS_COLOURS[hz.kind], make_style(kind_index, k),
+                              desired_speed_mps=0.0, is_static=True,
+                              extra={"appear_s": hz.appear_s, "remove_s": hz.remove_s}))
 
     ev_gap = None
     if av is not None and ev is not None and ev.lane == av.lane and ev.start_offset_m < 0:
@@ -328,12 +356,24 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
         for _ in range(n_per_lane):
             kind = _kind_for(rng, tr)
             size = random_size(kind, rng)
+            speed = float(max(2.0, rng.normal(tr.speed_mps, tr.speed_spread_mps)))
+            if kind in ("truck", "bus"):
+                speed *= 0.9
             for _attempt in range(20):
                 s0 = float(rng.uniform(tr.spawn_s_min_m, tr.spawn_s_max_m))
                 clear = all(abs(o.s_m - s0) > (o.length_m + size[0]) / 2 + 6.0 or abs(o.d_m - centre(lane)) > 2.0
                             for o in out)
                 if ev_gap is not None and lane == ev_gap[0] and ev_gap[1] - 10.0 < s0 < ev_gap[2] + 10.0:
                     clear = False  # the EV's lane is free up to the AV (thesis test set-up)
+                if av is not None and lane == av.lane and s0 > av.start_s_m - 10.0:
+                    # the AV follows commanded paths only (no onboard car-following): nothing slower ahead
+                    # of it in its lane that it would catch up with during the scenario
+                    catch_up_m = max(0.0, av.speed_mps - speed) * scenario.duration_s + 30.0
+                    if s0 - av.start_s_m < catch_up_m:
+                        clear = False
+                if any(h.appear_s <= 0.0 and road.lane_of_offset(centre(h.lane) + h.offset_m) == lane
+                       and h.s_m - HAZARD_RUN_UP_M < s0 < h.s_m for h in scenario.hazards):
+                    clear = False  # debris already on the road: traffic arrives from upstream, not parked behind it
                 if clear:
                     break
             else:
@@ -348,9 +388,6 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
             if kind == "bus":
                 colour = tuple(int(c) for c in rng.choice([(40, 160, 230), (230, 230, 230), (60, 60, 180)]))
             livery = LIVERY_TWO_TONE if kind in ("van", "truck") and rng.random() < 0.3 else LIVERY_PLAIN
-            speed = float(max(2.0, rng.normal(tr.speed_mps, tr.speed_spread_mps)))
-            if kind in ("truck", "bus"):
-                speed *= 0.9
             out.append(SimVehicle(f"v{k}", kind, s0, centre(lane), speed, lane, *size, colour,
                                   make_style(livery, int(rng.integers(256))), desired_speed_mps=speed,
                                   yields_to_ev=bool(rng.random() < tr.yield_fraction),

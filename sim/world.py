@@ -28,8 +28,18 @@ class World:
         self.seed = scenario.seed if seed is None else int(seed)
         self.rng = np.random.default_rng(self.seed)
         self.road = scenario.corridor.road
-        self.traffic: TrafficModel = traffic or IdmTraffic(self.road, build_population(scenario, self.rng),
-                                                           np.random.default_rng(self.seed + 1))
+        self._appear: list[SimVehicle] = []  # static objects that land on the road later, by time
+        self._remove: list[tuple[float, str]] = []
+        if traffic is None:
+            population = build_population(scenario, self.rng)
+            self._appear = sorted((v for v in population if v.extra.get("appear_s", 0.0) > 0.0),
+                                  key=lambda v: v.extra["appear_s"])
+            later = {v.vehicle_id for v in self._appear}
+            population = [v for v in population if v.vehicle_id not in later]
+            self._remove = sorted((v.extra["remove_s"], v.vehicle_id) for v in population + self._appear
+                                  if v.extra.get("remove_s") is not None)
+            traffic = IdmTraffic(self.road, population, np.random.default_rng(self.seed + 1))
+        self.traffic: TrafficModel = traffic
         self.t_s = 0.0
         self.steps = 0
         self.av_id = scenario.av.vehicle_id if scenario.av else None
@@ -37,10 +47,22 @@ class World:
     def step(self, dt_s: float) -> float:
         """Advance the world by dt_s; returns the new sim time (rounded to 1 ns so that fixed steps
         give exact times, e.g. 200 steps of 0.05 s end at 10.0 s)."""
+        self._scheduled(self.t_s)
         self.traffic.step(dt_s, self.t_s)
         self.steps += 1
         self.t_s = round(self.t_s + dt_s, 9)
         return self.t_s
+
+    def _scheduled(self, t_s: float) -> None:
+        """Debris that lands on or is cleared from the road by time t_s (scenario ``appear_s``/``remove_s``)."""
+        while self._appear and self._appear[0].extra["appear_s"] <= t_s + 1e-9:
+            self.traffic.add(self._appear.pop(0))
+        while self._remove and self._remove[0][0] <= t_s + 1e-9:
+            _, vid = self._remove.pop(0)
+            if any(p.vehicle_id == vid for p in self._appear):
+                self._appear = [p for p in self._appear if p.vehicle_id != vid]
+            else:
+                self.traffic.remove(vid)
 
     def run_until(self, t_s: float, dt_s: float = 0.05) -> None:
         while self.t_s < t_s - 1e-9:

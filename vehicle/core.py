@@ -152,6 +152,11 @@ class VehicleCore:
         self.mode = VehicleMode.MANOEUVRE
         self.detail = f"{cmd.manoeuvre.value}: {cmd.reason}"[:200]
         self.plan_decel_mps2 = self.longitudinal.plan_decel_mps2
+        if path.stop_s_m is not None and path.speeds is not None and path.stop_s_m > 1.0:
+            # brake to the stop as the command planned it (the DDM may brake harder than our default
+            # to stop before the EV arrives), never beyond the comfort cap
+            planned = float(path.speeds[0]) ** 2 / (2.0 * path.stop_s_m)
+            self.plan_decel_mps2 = min(max(planned, self.plan_decel_mps2), self.longitudinal.comfort_decel_mps2)
         self._set_path(path, path.stop_s_m)
         return []
 
@@ -202,10 +207,15 @@ class VehicleCore:
         dist = None if self.stop_s_m is None else self.stop_s_m - lat.s_m
         if self.mode == VehicleMode.STOPPED:
             dist = 0.0
-        target = self.path.speed_at(lat.s_m, self.target_speed_mps) if self.mode == VehicleMode.MANOEUVRE \
-            else self.target_speed_mps
+        ff = 0.0
+        if self.mode == VehicleMode.MANOEUVRE:
+            target = self.path.speed_at(lat.s_m, self.target_speed_mps)
+            ahead = self.path.speed_at(lat.s_m + 1.0, self.target_speed_mps)
+            ff = target * (ahead - target)  # v dv/ds over the next metre of the profile
+        else:
+            target = self.target_speed_mps
         self.longitudinal.plan_decel_mps2 = self.plan_decel_mps2
-        lon = self.longitudinal.step(speed_mps, target, dist)
+        lon = self.longitudinal.step(speed_mps, target, dist, ff)
         decisions += self._progress(lat, speed_mps, dist)
         out = ControlOutput(now_s, lat.steer_cmd_rad, lon.accel_cmd_mps2, lat, lon, self.mode, tuple(decisions))
         self.last = out

@@ -2,7 +2,7 @@
 
 The reference speed is the lower of the path's speed (cruise or the command's profile) and the
 braking curve v_stop(d) = sqrt(2 a_plan d) to the stop point d metres ahead; a proportional term
-tracks it and the braking curve's own deceleration is fed forward. Deceleration is capped at
+tracks it and the braking curve's own deceleration (or the commanded profile's) is fed forward. Deceleration is capped at
 ``comfort_decel_mps2`` (3 m/s^2); only when the stop point cannot be reached at that rate
 (v^2 / 2d above it) may it rise to ``emergency_decel_mps2``. Within ``hold_distance_m`` of the
 point at walking pace it holds the brake.
@@ -36,8 +36,10 @@ class LongitudinalController:
     hold_speed_mps: float = 0.3
 
     def step(self, speed_mps: float, target_speed_mps: float,
-             distance_to_stop_m: float | None) -> LongitudinalOutput:
-        v_ref, ff = max(0.0, target_speed_mps), 0.0
+             distance_to_stop_m: float | None, accel_ff_mps2: float = 0.0) -> LongitudinalOutput:
+        """``accel_ff_mps2``: the reference's own acceleration (a commanded speed profile's v dv/ds), fed
+        forward so a braking profile is tracked without the lag of the proportional term alone."""
+        v_ref, ff = max(0.0, target_speed_mps), accel_ff_mps2
         cap, emergency = self.comfort_decel_mps2, False
         if distance_to_stop_m is not None:
             d = max(0.0, distance_to_stop_m)

@@ -1,0 +1,243 @@
+"""Static-object hazard detection (rsu/hazard.py): life cycle, localisation, what is not a hazard."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from protocol.corridor import load_corridor
+from protocol.messages import HazardState
+from rsu.hazard import HazardConfig, HazardDetector, road_mask
+from rsu.localize import Localizer
+
+RSU = "rsu3"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    corridor = load_corridor()
+    rsu = corridor.rsu(RSU)
+    cam = rsu.camera
+    h, w = cam.height_px, cam.width_px
+    rng = np.random.default_rng(0)
+    # a textured grey "road" image (static background)
+    base = np.clip(110 + rng.normal(0, 6, (h, w, 1)), 0, 255).astype(np.uint8).repeat(3, axis=2)
+    loc = Localizer(corridor, rsu)
+    return corridor, rsu, base, loc
+
+
+def project(rsu, x, y, z=0.0):
+    cam = rsu.camera
+    pc = cam.rotation_world_to_camera @ (np.array([x, y, z]) - cam.centre_world)
+    uv = cam.intrinsic_matrix @ pc
+    return uv[:2] / uv[2]
+
+
+def patch_box(rsu, x, y, length=1.0, width=0.8, height=0.5):
+    """Image box of an object standing at (x, y) (corners of its 3-D box)."""
+    pts = [project(rsu, x + dx, y + dy, z) for dx in (-length / 2, length / 2) for dy in (-width / 2, width / 2)
+           for z in (0.0, height)]
+    pts = np.array(pts)
+    return pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max()
+
+
+_NOISE: list[np.ndarray] = []
+
+
+def frame_with(base, boxes, colour=(40, 90, 200), noise=None):
+    """The background with filled boxes; ``noise`` (a Generator) adds sensor noise (+-2 levels, one of 4
+    precomputed fields picked at random)."""
+    img = base.copy()
+    for b in boxes:
+        x1, y1, x2, y2 = (int(round(v)) for v in b)
+        img[y1:y2, x1:x2] = colour
+    if noise is not None:
+        if not _NOISE:
+            g = np.random.default_rng(99)
+            _NOISE.extend(g.integers(0, 5, base.shape, dtype=np.uint8) for _ in range(4))
+        n = _NOISE[int(noise.integers(4))]
+        img = cv2.subtract(cv2.add(img, n), 2)
+    return img
+
+
+def detector(corridor, rsu, loc, base, **cfg):
+    d = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(**cfg), camera=rsu.camera)
+    d.prime(base)
+    return d
+
+
+def run(det, frames, t0=0.0, dt=1 / 15, tracks=None):
+    events = []
+    for k, img in enumerate(frames):
+        ids, boxes = tracks(k) if tracks else ((), ())
+        events += [(t0 + k * dt, e) for e in det.update(img, t0 + k * dt, ids, boxes)]
+    return events
+
+
+FAST = dict(on_frames=6, off_frames=2, evidence_max=15, decay=3, clear_after_s=0.3, persist_period_s=0.5)
+"""A quicker life cycle than the defaults (keeps the tests short); the logic is the same."""
+
+
+def test_debris_appears_persists_and_clears(scene):
+    corridor, rsu, base, loc = scene
+    det = detector(corridor, rsu, loc, base, **FAST)
+    x = 125.0  # 25 m ahead of rsu3, lane 1 centre
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    box = patch_box(rsu, x, y)
+    rng = np.random.default_rng(1)
+    present = [frame_with(base, [box], noise=rng) for _ in range(30)]
+    gone = [frame_with(base, [], noise=rng) for _ in range(15)]
+    events = run(det, present + gone)
+    states = [e.state for _, e in events]
+    assert states[0] == HazardState.APPEAR
+    t_appear, first = events[0]
+    # the short-term background needs ~8 frames (alpha 0.25) to take the object in, then on_frames (6)
+    assert 6 / 15 - 1e-6 <= t_appear <= 15 / 15
+    assert first.lane == 1
+    # the ground contact of the object's near face: within its length of the true centre, laterally within 0.5 m
+    assert abs(first.x_m - x) < 1.0 and abs(first.y_m - y) < 0.5
+    assert 0.3 < first.width_m < 1.6
+    persists = [t for t, e in events if e.state == HazardState.PERSIST]
+    assert len(persists) >= 2 and np.allclose(np.diff(persists), 0.5, atol=0.07)  # at persist_period_s
+    clears = [t for t, e in events if e.state == HazardState.CLEAR]
+    assert len(clears) == 1 and 2.0 < clears[0] <= 2.0 + 0.8  # removed at 2 s: evidence decays, then 0.3 s
+    assert {e.hazard_id for _, e in events} == {first.hazard_id}
+
+
+def test_moving_and_tracked_vehicles_are_not_hazards(scene):
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
+    rng = np.random.default_rng(2)
+    # a car drives from 20 m to 40 m ahead at 10 m/s, stops there (a queue) and stays: tracked while moving
+    xs = [120.0 + min(10.0 * k / 15, 20.0) for k in range(45)]
+    boxes = [patch_box(rsu, x, y, 4.5, 1.8, 1.5) for x in xs]
+    frames = [frame_with(base, [b], colour=(200, 200, 200), noise=rng) for b in boxes]
+    det = detector(corridor, rsu, loc, base, **FAST)
+    assert run(det, frames, tracks=lambda k: ([7], [boxes[k]])) == []
+    # the detector then loses the stopped car (a background model absorbs it): its region stays parked
+    more = [frame_with(base, [boxes[-1]], colour=(200, 200, 200), noise=rng) for _ in range(15)]
+    assert run(det, more, t0=3.0) == []
+    # control: the same pixels without the track are reported (so the masking is what kept them out)
+    det2 = detector(corridor, rsu, loc, base, **FAST)
+    events = run(det2, frames)
+    assert any(e.state == HazardState.APPEAR for _, e in events)
+
+
+def test_untracked_static_object_on_the_shoulder_is_not_a_hazard(scene):
+    corridor, rsu, base, loc = scene
+    det = detector(corridor, rsu, loc, base, **FAST)
+    y = float(corridor.road.pose_at(230.0, -1.4)[1])  # on the shoulder, 1.4 m right of lane 0
+    box = patch_box(rsu, 130.0, y, 1.0, 0.8, 0.3)
+    rng = np.random.default_rng(3)
+    events = run(det, [frame_with(base, [box], noise=rng) for _ in range(20)])
+    assert events == [] and det.stats.off_lane > 0
+
+
+def test_ghost_of_an_object_that_left_is_absorbed(scene):
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    box = patch_box(rsu, 125.0, y)
+    learnt = frame_with(base, [box])  # the object was there when the background was learnt
+    det = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(**FAST), camera=rsu.camera)
+    det.prime(learnt)
+    rng = np.random.default_rng(4)
+    events = run(det, [frame_with(base, [], noise=rng) for _ in range(20)])
+    assert events == [] and det.stats.ghosts >= 1
+
+
+def test_initial_median_ignores_passing_traffic(scene):
+    corridor, rsu, base, loc = scene
+    cfg = HazardConfig(init_frames=5, init_stride=3, **FAST)
+    det = HazardDetector(corridor.road, loc.mapper.to_ground, cfg, camera=rsu.camera)
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
+    rng = np.random.default_rng(5)
+    # a car passes during the learning phase (a different place in each sampled frame)
+    frames = [frame_with(base, [patch_box(rsu, 110.0 + 1.0 * k, y, 4.5, 1.8, 1.5)], noise=rng) for k in range(15)]
+    frames += [frame_with(base, [], noise=rng) for _ in range(20)]
+    assert run(det, frames) == []
+    assert det.fg.ready
+
+
+def test_road_mask_covers_the_lanes_not_the_sky(scene):
+    corridor, rsu, _base, _loc = scene
+    m = road_mask(rsu.camera, corridor.road, 0.5)
+    assert m.shape == (360, 640)
+    u, v = project(rsu, 130.0, float(corridor.road.pose_at(230.0, 1.85)[1]))
+    assert m[int(v / 2), int(u / 2)]
+    assert not m[:20].any()  # the sky
+    assert 0.05 < m.mean() < 0.5
+
+
+def test_config_is_validated():
+    with pytest.raises(ValueError):
+        HazardConfig(off_frames=20, on_frames=10)
+    with pytest.raises(ValueError):
+        HazardConfig(scale=2.0)
+
+
+class _NoDetector:
+    name = "none"
+
+    def detect(self, image):
+        from rsu.detect import Detections
+
+        return Detections.empty()
+
+
+def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
+    from protocol.clock import SimClock
+    from protocol.keys import rsu_key
+    from protocol.messages import HazardAlert
+    from protocol.transport import LocalBus
+    from rsu.frames import ArraySource
+    from rsu.service import RsuPipeline, RsuService
+    from rsu.track import FrameworkTracker
+
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    box = patch_box(rsu, 125.0, y)
+    rng = np.random.default_rng(6)
+    images = [frame_with(base, [box], noise=rng) for _ in range(30)] + [frame_with(base, [], noise=rng)
+                                                                         for _ in range(15)]
+    clock = SimClock()
+
+    class Source(ArraySource):
+        def read(self, timeout_s=None):
+            clock.advance(1 / 15)
+            return super().read(timeout_s)
+
+    bus = LocalBus()
+    got: list[HazardAlert] = []
+    bus.subscribe(rsu_key("rellis", RSU, "hazard"), lambda _k, m: got.append(m))
+    hazards = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(**FAST), camera=rsu.camera)
+    hazards.prime(base)
+    pipe = RsuPipeline(_NoDetector(), FrameworkTracker("B", 1, 3, 0.3), Localizer(corridor, rsu), hazards=hazards)
+    svc = RsuService(corridor, RSU, Source(images, 15.0, "cam"), pipe, bus, clock)
+    assert svc.run() == 0
+    states = [m.state.value for m in got]
+    assert states[0] == "appear" and states[-1] == "clear" and "persist" in states
+    assert {m.hazard_id for m in got} == {f"{RSU}-hz-1"}
+    assert [m.seq for m in got] == list(range(len(got)))
+    first = got[0]
+    assert first.rsu_id == RSU and first.lane == 1 and abs(first.pos_x_m - 125.0) < 1.0
+    lat, lon = corridor.to_latlon(first.pos_x_m, first.pos_y_m)
+    assert first.lat_deg == pytest.approx(lat) and first.lon_deg == pytest.approx(lon)
+    assert svc.hazards_published["appear"] == 1 and svc.hazards_published["clear"] == 1
+
+
+def test_slow_far_vehicle_is_masked_by_its_localised_speed(scene):
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(240.0, corridor.road.lane_centre_offset_m(0))[1])
+    rng = np.random.default_rng(7)
+    # 60 m ahead, 1.5 m/s: its box centre moves ~5 px over the run (less than moved_px), its body looks static
+    boxes = [patch_box(rsu, 160.0 + 1.5 * k / 15, y, 4.5, 1.8, 1.5) for k in range(30)]
+    frames = [frame_with(base, [b], colour=(200, 200, 200), noise=rng) for b in boxes]
+    cfg = dict(FAST, moving_speed_mps=1.0)
+    det = detector(corridor, rsu, loc, base, **cfg)
+    assert run(det, frames, tracks=lambda k: ([7], [boxes[k]])) != []  # pixels alone: it looks parked
+    det = detector(corridor, rsu, loc, base, **cfg)
+    events = []
+    for k, img in enumerate(frames):
+        events += det.update(img, k / 15, [7], [boxes[k]], {7: 1.5})
+    assert events == []
