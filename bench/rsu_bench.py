@@ -7,13 +7,25 @@ Figures (all measured in this run, on one core: onnxruntime, OpenCV and BLAS lim
 - tracker: ``SortTracker.update`` calls per second with 20 and 100 targets on the same synthetic
   detection stream as the reference SORT (``bench/sort_reference.py``; filterpy's KalmanFilter when
   installed), best of several repeats each; ``tracker_speedup_vs_reference`` is the smaller ratio;
-- detectors: ``detect`` fps of every detector on a real video at its own size and upscaled to
-  1280x720;
-- pipeline: per-stage and end-to-end fps (source -> detector -> tracker -> localiser) for each
-  detector on 1280x720 frames (``fps_end_to_end``: detector name -> fps). The frames are the real
-  video upscaled (the simulator's renders plug into ``pipeline_fps`` the same way);
-- MOTA / IDF1 (``rsu.evaluate``) of the tracker on a synthetic ground truth: moving boxes with
-  pixel noise, misses and false positives (``mota_idf1_source`` says so).
+- pipeline on simulator renders (``FPS_SCENARIO``: 1280x720, 10-20 labelled vehicles per frame): per-stage
+  and end-to-end fps (frames from memory -> detector -> SORT -> localiser) for each detector: the project's
+  own (``models/iea_det_tiny.onnx``, Framework B), ``MotionDetector`` and the COCO YOLOX-nano when
+  ``../shared`` has it. ``fps_end_to_end`` (detector name -> fps) counts this process's CPU time (every
+  library on one thread), i.e. the one-core cost even on a machine shared with other jobs;
+  ``fps_end_to_end_wall`` is wall-clock. Rendering is the simulator's work and is not timed;
+- MOTA / IDF1 (``rsu.evaluate``, IoU 0.5) of the whole pipeline (detector -> ``FrameworkTracker('B')``
+  with the RSU's defaults) on simulator ground truth: ``MOT_SCENARIO`` with a held-out seed, every camera,
+  ``Renderer.labels`` as truth. Counted: vehicles >= 30 % visible within the RSU's 100 m zone
+  (``models.evaluate_detector.ZONE_M``); the other labelled vehicles are ignore boxes (a track at least
+  half inside one and matching no counted vehicle is not scored, KITTI's DontCare rule), and so is a
+  track standing beyond 110 m that matches no counted vehicle (``beyond_zone``; counted in
+  ``hyp_beyond_zone_not_scored``). The first 2 s of each clip are not scored (MOG2's background
+  warm-up). ``mota``/``idf1`` are the project detector's, ``mot_by_detector`` has every detector's;
+- localisation error at 60 m (vehicles 55-65 m from the camera) on the same renders, ray-plane and
+  reference interpolation: of the pipeline's tracks (per detector) and of the label boxes themselves,
+  plus ray-plane with a 0.15 deg camera-pitch error;
+- the tracker alone on a synthetic ground truth (``mot_synthetic``), and detector / end-to-end fps on a
+  real video upscaled to 1280x720 when ``../shared`` has it.
 
 With ``--json`` the last line is one JSON object of the figures.
 """
@@ -39,18 +51,35 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from dataclasses import dataclass, replace  # noqa: E402
+
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort  # noqa: E402
+from models.evaluate_detector import ZONE_M  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
 from rsu.detect import Detector, MotionDetector, OnnxDetector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
-from rsu.localize import Localizer  # noqa: E402
-from rsu.track import SortTracker  # noqa: E402
+from rsu.localize import GroundProjector, Localizer  # noqa: E402
+from rsu.track import FrameworkTracker, SortTracker, iou_matrix  # noqa: E402
+from sim.camera_source import Frame, SimCamera  # noqa: E402
+from sim.render import MIN_VISIBLE_FRACTION  # noqa: E402
+from sim.scenario import load_scenario  # noqa: E402
+from sim.world import World  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO = REAL / "traffic_videos" / "ambdet_video_3.mp4"
 SIZE_720P = (1280, 720)
+PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
+WORLD_DT_S = 0.05
+FPS_SCENARIO = ("ev_two_lanes_dense", "rsu2")
+"""Sim clip for the fps figures: the dense two-lane scenario, 10-20 labelled vehicles per frame."""
+MOT_SCENARIO = "rellis_ev_yield"
+"""MOTA/IDF1 and localisation error: the default scenario, held-out seed (never used to train the detector)."""
+MOT_SEED = 900_003
+WARMUP_S = 2.0
+"""Frames in the first 2 s of a clip run through the pipeline but are not scored (MOG2 learns its
+background in them; a fixed camera runs continuously)."""
 
 
 def _best_rates(runs: dict[str, Callable[[], None]], n_calls: int, repeats: int) -> dict[str, float]:
@@ -117,6 +146,7 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
     n = 0
     it = iter(frames)
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     while True:
         t0 = time.perf_counter()
         try:
@@ -128,7 +158,7 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
         t2 = time.perf_counter()
         tracks = tracker.update(det.boxes, det.scores, det.classes)
         t3 = time.perf_counter()
-        localizer.update(tracks, stamp)
+        localizer.update(tracks, stamp, det.boxes)
         t4 = time.perf_counter()
         stage_s["source"] += t1 - t0
         stage_s["detect"] += t2 - t1
@@ -136,8 +166,10 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
         stage_s["localize"] += t4 - t3
         n += 1
     total = time.perf_counter() - t_start
+    cpu = time.process_time() - cpu_start
     out = {f"{k}_fps": (n / v if v > 0 else float("inf")) for k, v in stage_s.items()}
     out["end_to_end_fps"] = n / total if total > 0 else float("nan")
+    out["end_to_end_fps_cpu"] = n / cpu if cpu > 0 else float("nan")
     out["frames"] = n
     return out
 
@@ -160,6 +192,156 @@ def bench_mot(n_frames: int, n_targets: int) -> dict[str, float]:
         out = tracker.update(f.det_boxes, f.det_scores)
         ev.update(f.gt_ids, f.gt_boxes, out.track_ids, out.boxes)
     return ev.result().as_dict()
+
+
+# ---------------------------------------------------------------- simulator clips (ground truth for evaluation only)
+@dataclass
+class SimTruth:
+    """Ground truth of one camera frame from ``Renderer.labels``: counted boxes (visible >= 30 %, vehicle
+    centre within the RSU's zone) with integer ids, ignore boxes (the other labelled vehicles), and per
+    counted box the vehicle centre (x, y), its distance from the camera and its visible fraction."""
+
+    ids: np.ndarray
+    boxes: np.ndarray
+    ignore_boxes: np.ndarray
+    centres_xy: np.ndarray
+    range_m: np.ndarray
+    visible: np.ndarray
+
+
+@dataclass
+class SimClip:
+    name: str
+    rsu_id: str
+    frames: list[Frame]
+    truths: list[SimTruth]
+
+
+def render_sim_clip(scenario: str, rsu_id: str, seed: int, duration_s: float, zone_m: float = ZONE_M) -> SimClip:
+    """One camera's frames at its own rate (every snapshot that starts a new camera frame, as
+    ``SimCamera.read`` does) over ``duration_s`` of the scenario, with ground truth."""
+    sc = load_scenario(scenario).with_overrides(seed=seed)
+    world = World(sc)
+    camera = SimCamera(sc.corridor, rsu_id, seed=seed)
+    centre = camera.rsu.camera.centre_world
+    frames, truths, last, id_of = [], [], -1, {}
+    for _ in range(int(round(duration_s / WORLD_DT_S))):
+        world.step(WORLD_DT_S)
+        snap = world.snapshot()
+        n = camera.frame_index(snap.sim_time_s)
+        if n == last:
+            continue
+        last = n
+        frames.append(camera.render(snap))
+        pos = {a.actor_id: (a.pos_x_m, a.pos_y_m) for a in snap.actors}
+        labels = [lb for lb in camera.renderer.labels(snap, include_dropped=True) if lb.visible_fraction > 0]
+        xy = np.array([pos[lb.actor_id] for lb in labels], float).reshape(-1, 2)
+        rng_m = np.hypot(xy[:, 0] - centre[0], xy[:, 1] - centre[1])
+        vis = np.array([lb.visible_fraction for lb in labels], float)
+        boxes = np.array([lb.bbox_px for lb in labels], float).reshape(-1, 4)
+        counted = (vis >= MIN_VISIBLE_FRACTION) & (rng_m <= zone_m)
+        ids = np.array([id_of.setdefault(lb.actor_id, len(id_of) + 1) for lb in labels], np.int64)
+        truths.append(SimTruth(ids[counted], boxes[counted], boxes[~counted], xy[counted], rng_m[counted],
+                               vis[counted]))
+    return SimClip(f"{scenario}/s{seed}/{rsu_id}", rsu_id, frames, truths)
+
+
+def project_detector(threads: int = 1) -> OnnxDetector:
+    """The project's detector as the RSU runs it in Framework B (every vehicle one class)."""
+    return OnnxDetector(PROJECT_MODEL, intra_op_threads=threads, class_map={0: 0, 1: 0}, name="project")
+
+
+def sim_detectors() -> dict[str, Callable[[], Detector]]:
+    dets: dict[str, Callable[[], Detector]] = {}
+    if PROJECT_MODEL.is_file():
+        dets["project"] = project_detector
+    dets["motion"] = lambda: MotionDetector()
+    if YOLOX.is_file():
+        dets["yolox_nano"] = lambda: OnnxDetector(YOLOX, intra_op_threads=1)
+    return dets
+
+
+def beyond_zone(hyp_boxes: np.ndarray, counted_boxes: np.ndarray, camera, margin_m: float = 10.0) -> np.ndarray:
+    """Hypotheses outside the evaluated region: matching no counted vehicle (IoU < 0.5) and standing
+    (bottom-centre of the box back-projected to the road with the true camera) more than ``ZONE_M +
+    margin_m`` from the camera, where no counted vehicle can be (a counted vehicle's centre is within
+    ``ZONE_M``, its near edge nearer still). Tracks of far vehicles, which no RSU evaluates here."""
+    if not len(hyp_boxes):
+        return np.zeros(0, bool)
+    uv = np.column_stack([(hyp_boxes[:, 0] + hyp_boxes[:, 2]) / 2, hyp_boxes[:, 3]])
+    xy, valid = GroundProjector(camera).to_ground(uv)
+    c = camera.centre_world
+    with np.errstate(invalid="ignore"):
+        far = ~valid | (np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) > ZONE_M + margin_m)
+    if len(counted_boxes):
+        far &= np.nan_to_num(iou_matrix(hyp_boxes, counted_boxes)).max(axis=1) < 0.5
+    return far
+
+
+def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corridor) -> dict[str, float]:
+    """MOTA/IDF1 (``rsu.evaluate.MotEvaluator``, IoU 0.5, ignore boxes as distractors) of detector ->
+    ``FrameworkTracker('B')`` (the RSU defaults: max_age 1, min_hits 3, IoU 0.3) over the clips, and
+    the localisation error of what the pipeline publishes (``Localizer.update``, both methods: world
+    position of each track) against the vehicle centres, for tracks whose box matches (IoU >= 0.5) a
+    counted vehicle 55-65 m from the camera."""
+    ev = MotEvaluator()
+    loc_err: dict[str, list[float]] = {"transform": [], "reference": []}
+    out_of_zone = 0
+    for n_clip, clip in enumerate(clips):
+        id_offset = 1_000_000 * n_clip  # one evaluator for all clips: ids of different clips must not meet
+        detector, tracker = make_detector(), FrameworkTracker("B")
+        localizers = {m: Localizer(corridor, clip.rsu_id, method=m) for m in loc_err}
+        camera = corridor.rsu(clip.rsu_id).camera
+        for frame, truth in zip(clip.frames, clip.truths, strict=True):
+            det = detector.detect(frame.image)
+            tracks = tracker.update(det.boxes, det.scores, det.classes)
+            objects = {m: loc.update(tracks, frame.timestamp_s, det.boxes) for m, loc in localizers.items()}
+            if frame.timestamp_s < WARMUP_S:
+                continue
+            keep = ~beyond_zone(tracks.boxes, truth.boxes, camera)
+            out_of_zone += int((~keep).sum())
+            ev.update(truth.ids + id_offset, truth.boxes, tracks.track_ids[keep] + id_offset, tracks.boxes[keep],
+                      truth.ignore_boxes)
+            near60 = np.flatnonzero(np.abs(truth.range_m - 60.0) <= 5.0)
+            for method, objs in objects.items():
+                if not len(near60) or not objs:
+                    continue
+                boxes = np.array([o.bbox_px for o in objs], float)
+                xy = np.array([(o.x_m, o.y_m) for o in objs], float)
+                iou = iou_matrix(truth.boxes[near60], boxes)
+                best = iou.argmax(axis=1)
+                ok = iou[np.arange(len(near60)), best] >= 0.5
+                loc_err[method].extend(np.hypot(*(xy[best[ok]] - truth.centres_xy[near60[ok]]).T).tolist())
+    out: dict[str, float] = dict(ev.result().as_dict())
+    out["hyp_beyond_zone_not_scored"] = out_of_zone
+    for method, errs in loc_err.items():
+        out[f"loc_err_60m_median_m_{method}"] = float(np.median(errs)) if errs else float("nan")
+        out[f"loc_err_60m_n_{method}"] = len(errs)
+    return out
+
+
+def sim_localisation_truth_boxes(clips: list[SimClip], corridor, pitch_error_deg: float = 0.15) -> dict[str, float]:
+    """Localisation error of the label boxes themselves (the rendered visible part of each vehicle at
+    least 90 % visible, 55-65 m from the camera): the localiser's own error, without the detector's.
+    Also ray-plane with the camera pitch mis-set by ``pitch_error_deg`` (a mounting-angle estimate
+    error; reference interpolation needs only the surveyed pairs)."""
+    errs: dict[str, list[float]] = {"transform": [], "reference": [], "transform_pose_error": []}
+    for clip in clips:
+        rsu = corridor.rsu(clip.rsu_id)
+        bad = replace(rsu, camera=replace(rsu.camera, pitch_rad=rsu.camera.pitch_rad + np.radians(pitch_error_deg)))
+        locs = {"transform": Localizer(corridor, rsu), "reference": Localizer(corridor, rsu, method="reference"),
+                "transform_pose_error": Localizer(corridor, bad)}
+        for truth in clip.truths:
+            sel = (np.abs(truth.range_m - 60.0) <= 5.0) & (truth.visible >= 0.9)
+            if sel.any():
+                for method, loc in locs.items():
+                    xy, _, valid = loc.localize_boxes(truth.boxes[sel])
+                    errs[method].extend(np.hypot(*(xy - truth.centres_xy[sel]).T)[valid].tolist())
+    out: dict[str, float] = {"loc_err_60m_n": len(errs["transform"]), "pitch_error_deg": pitch_error_deg}
+    for m, e in errs.items():
+        out[f"loc_err_60m_median_m_{m}"] = float(np.median(e)) if e else float("nan")
+        out[f"loc_err_60m_p90_m_{m}"] = float(np.percentile(e, 90)) if e else float("nan")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -186,16 +368,75 @@ def main(argv: list[str] | None = None) -> int:
     figures["tracker_speedup_vs_reference"] = min(ratios)
     figures["tracker_reference"] = reference
 
-    # ---------------------------------------------------------------- detectors and pipeline
+    corridor = load_corridor()
+    # ---------------------------------------------------------------- pipeline fps on simulator renders
+    scenario, rsu_id = FPS_SCENARIO
+    t0 = time.perf_counter()
+    clip = render_sim_clip(scenario, rsu_id, seed=MOT_SEED, duration_s=2.0 if quick else 12.0, zone_m=float("inf"))
+    n_vehicles = float(np.mean([len(t.ids) for t in clip.truths]))
+    print(f"pipeline on simulator renders ({clip.name}, {len(clip.frames)} frames 1280x720, {n_vehicles:.1f} "
+          f"labelled vehicles per frame; rendered in {time.perf_counter() - t0:.0f} s, not timed): "
+          "source -> detect -> SORT -> localise, one core")
+    e2e, e2e_wall, stages = {}, {}, {}
+    for name, make in sim_detectors().items():
+        r = pipeline_fps(((f.image, f.timestamp_s) for f in clip.frames), make(), SortTracker(),
+                         Localizer(corridor, rsu_id))
+        stages[name], e2e[name], e2e_wall[name] = r, r["end_to_end_fps_cpu"], r["end_to_end_fps"]
+        print(f"  {name:10s}: wall-clock stages: detect {r['detect_fps']:6.1f}  track {r['track_fps']:7.1f}  "
+              f"localise {r['localize_fps']:7.1f} fps; end-to-end {r['end_to_end_fps_cpu']:6.1f} fps of CPU time "
+              f"(one core), {r['end_to_end_fps']:6.1f} fps wall-clock")
+    figures["fps_end_to_end"] = e2e
+    figures["fps_end_to_end_wall"] = e2e_wall
+    figures["fps_end_to_end_basis"] = ("frames per second of this process's CPU time, every library on one thread "
+                                       "(the one-core cost on a shared machine); _wall: wall-clock")
+    figures["pipeline_stages"] = stages
+    figures["pipeline_frames"] = f"{clip.name}: {len(clip.frames)} sim renders 1280x720, " \
+                                 f"{n_vehicles:.1f} labelled vehicles per frame"
+
+    # ---------------------------------------------------------------- MOTA / IDF1 and localisation on sim renders
+    cams = ["rsu1"] if quick else [r.rsu_id for r in corridor.rsus]
+    duration_s = 4.0 if quick else 20.0
+    t0 = time.perf_counter()
+    clips = [render_sim_clip(MOT_SCENARIO, c, seed=MOT_SEED, duration_s=duration_s) for c in cams]
+    n_gt = sum(len(t.ids) for c in clips for t in c.truths)
+    print(f"MOTA/IDF1 on simulator ground truth: {MOT_SCENARIO} seed {MOT_SEED} (held out), cameras {cams}, "
+          f"{duration_s:g} s each at 15 fps ({sum(len(c.frames) for c in clips)} frames, first {WARMUP_S:g} s "
+          f"not scored; {n_gt} counted boxes: >= 30 % visible, within {ZONE_M:g} m of the camera; "
+          f"rendered in {time.perf_counter() - t0:.0f} s)")
+    mot_by = {}
+    for name, make in sim_detectors().items():
+        r = sim_mot(clips, make, corridor)
+        mot_by[name] = r
+        print(f"  {name:10s}: MOTA {r['mota']:.3f}  IDF1 {r['idf1']:.3f}  (FN {r['fn']}, FP {r['fp']}, IDSW "
+              f"{r['idsw']}, GT {r['gt']}); localisation of its tracks at 55-65 m: median "
+              f"{r['loc_err_60m_median_m_transform']:.2f} m ray-plane, "
+              f"{r['loc_err_60m_median_m_reference']:.2f} m reference interpolation "
+              f"(n {r['loc_err_60m_n_transform']})")
+    main_det = "project" if "project" in mot_by else "motion"
+    figures.update({"mota": mot_by[main_det]["mota"], "idf1": mot_by[main_det]["idf1"], "mot_by_detector": mot_by,
+                    "mota_idf1_source": f"{main_det} detector -> FrameworkTracker B on {MOT_SCENARIO} seed "
+                                        f"{MOT_SEED} renders, cameras {cams}, Renderer.labels ground truth "
+                                        f"(>= 30 % visible, within {ZONE_M:g} m; the rest ignored)"})
+    loc = sim_localisation_truth_boxes(clips, corridor)
+    figures["localisation_label_boxes"] = loc
+    print(f"localisation of the label boxes (>= 90 % visible, 55-65 m, n {loc['loc_err_60m_n']}): median "
+          f"{loc['loc_err_60m_median_m_transform']:.3f} m ray-plane, {loc['loc_err_60m_median_m_reference']:.3f} m "
+          f"reference interpolation (p90 {loc['loc_err_60m_p90_m_transform']:.3f} / "
+          f"{loc['loc_err_60m_p90_m_reference']:.3f} m); ray-plane with the pitch {loc['pitch_error_deg']:g} deg "
+          f"off: median {loc['loc_err_60m_median_m_transform_pose_error']:.3f} m")
+    mot = bench_mot(n_frames=100 if quick else 600, n_targets=15)
+    figures["mot_synthetic"] = mot
+    print(f"tracker alone on synthetic ground truth (15 boxes, 2 px noise, 10% misses, 1 FP/frame): "
+          f"MOTA {mot['mota']:.3f}  IDF1 {mot['idf1']:.3f}")
+
+    # ---------------------------------------------------------------- detectors on real video
     if not args.video.is_file():
-        print(f"detectors: {args.video} absent, skipped")
+        print(f"real video: {args.video} absent, skipped")
     else:
-        detectors: dict[str, Callable[[], Detector]] = {
-            "motion": lambda: MotionDetector(min_area_px=400),
-        }
+        detectors: dict[str, Callable[[], Detector]] = {"motion": lambda: MotionDetector(min_area_px=400)}
         if YOLOX.is_file():
             detectors = {"yolox_nano": lambda: OnnxDetector(YOLOX, intra_op_threads=1), **detectors}
-        n_frames = 20 if quick else 150
+        n_frames = 10 if quick else 150
         native = read_frames(args.video, n_frames, None)
         upscaled = [cv2.resize(im, SIZE_720P, interpolation=cv2.INTER_LINEAR) for im in native]
         h, w = native[0].shape[:2]
@@ -205,27 +446,15 @@ def main(argv: list[str] | None = None) -> int:
             det_fps[name] = {f"{w}x{h}": detector_fps(make(), native), "1280x720": detector_fps(make(), upscaled)}
             print(f"  {name:10s}: {det_fps[name][f'{w}x{h}']:7.1f} fps at {w}x{h}, "
                   f"{det_fps[name]['1280x720']:7.1f} fps at 1280x720")
-        figures["detector_fps"] = det_fps
-        corridor = load_corridor()
-        print("pipeline (source decode+upscale -> detect -> SORT -> localise), 1280x720, one core:")
-        e2e, stages = {}, {}
+        figures["detector_fps_real_video"] = det_fps
+        real_e2e = {}
         for name, make in detectors.items():
             r = pipeline_fps(_video_frames_720p(args.video, n_frames), make(), SortTracker(),
                              Localizer(corridor, corridor.rsus[0]))
-            stages[name], e2e[name] = r, r["end_to_end_fps"]
-            print(f"  {name:10s}: source {r['source_fps']:6.1f}  detect {r['detect_fps']:6.1f}  track "
-                  f"{r['track_fps']:7.1f}  localise {r['localize_fps']:7.1f}  end-to-end {r['end_to_end_fps']:6.1f} fps")
-        figures["fps_end_to_end"] = e2e
-        figures["pipeline_stages"] = stages
-        figures["pipeline_frames"] = f"{args.video.name} upscaled to 1280x720 (simulator renders pending)"
-
-    # ---------------------------------------------------------------- MOTA / IDF1
-    mot = bench_mot(n_frames=100 if quick else 600, n_targets=15)
-    figures.update({"mota": mot["mota"], "idf1": mot["idf1"], "mot_details": mot,
-                    "mota_idf1_source": "SortTracker on synthetic ground truth (15 moving boxes, 2 px noise, "
-                                        "10% misses, 1 false positive/frame); simulator pipeline pending"})
-    print(f"MOTA {mot['mota']:.3f}  IDF1 {mot['idf1']:.3f}  (FN {mot['fn']}, FP {mot['fp']}, IDSW {mot['idsw']}, "
-          f"GT {mot['gt']}; synthetic ground truth)")
+            real_e2e[name] = r["end_to_end_fps"]
+        figures["fps_end_to_end_real_video"] = real_e2e
+        print("  end-to-end (decode + upscale -> detect -> SORT -> localise): "
+              + ", ".join(f"{k} {v:.1f} fps" for k, v in real_e2e.items()))
     if args.json:
         print(json.dumps(figures, default=float))
     return 0

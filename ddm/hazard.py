@@ -272,8 +272,8 @@ def assess_hazards(ego_s: float, ego_d: float, ego_len: float, ego_w: float, lan
     out = []
     for k, h in enumerate(hazards):
         hs, hd = float(s[k]), float(d[k])
-        if hs + h.length_m / 2.0 + cfg.pass_margin_m < ego_s - ego_len / 2.0:
-            continue  # passed
+        if hs + h.length_m / 2.0 + cfg.pass_margin_m < ego_s - ego_len / 2.0 or hs < ego_s:
+            continue  # passed, or behind the AV's centre (it drives away from it: e.g. where it had stopped)
         if abs(hs - ego_s) < (ego_len + h.length_m) / 2.0 and abs(hd - ego_d) < (ego_w + h.width_m) / 2.0:
             continue  # under the AV's own footprint: the RSU sees the car, not debris
         lx, ly = av_hazard_distances(ego_s, ego_d, ego_len, hs, hd, h.length_m)

@@ -5,6 +5,8 @@
     iea corridor [FILE]         validate a corridor file and print a summary
     iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
+    iea deploy compose|acl ...  generate docker-compose.yml / router ACL and credentials for a corridor
+    iea health ROLE [ID]        wait for a service's Health (the containers' health check)
     iea demo                    run the main scenario end to end (what `make demo` runs)
     iea scenario run NAME       run any scenario end to end (--inprocess --fast: lockstep, faster than real time)
     iea up                      the compose topology as local processes around one router
@@ -132,12 +134,22 @@ def _deploy(argv: list[str]) -> int:
     acl.add_argument("--mtls", action="store_true",
                      help="mutual TLS instead of passwords: a private CA and a certificate per service")
     acl.add_argument("--pki-path", default=None, help="with --mtls: where services will find the files")
+    comp = sub.add_parser("compose", help="docker-compose file: router, sim, RSUs, DDM and vehicles of a corridor")
+    comp.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
+    comp.add_argument("--rsus", type=int, default=None, help="number of RSUs to deploy (default: all of the corridor)")
+    comp.add_argument("--scenario", default="rellis_ev_yield", help="scenario the simulator runs")
+    comp.add_argument("--no-acl", action="store_true", help="open router, no credentials (closed lab network only)")
+    comp.add_argument("--acl-dir", default="./secrets/acl", help="host folder of `iea deploy acl --out` (default ./secrets/acl)")
+    comp.add_argument("--zenoh-image", default=None, help="router image (default: eclipse/zenoh pinned to the binding)")
+    comp.add_argument("--out", default="-", help="output file (default: standard output)")
     args = ap.parse_args(argv)
     try:
         corridor = load_corridor(args.corridor)
     except CorridorError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    if args.action == "compose":
+        return _write_compose(args, corridor)
     from deploy.acl import write_acl_bundle, write_mtls_bundle
 
     if args.mtls:
@@ -149,6 +161,81 @@ def _deploy(argv: list[str]) -> int:
     print("start the router with `iea router --config ROUTER` and each service with "
           "`--connect tcp/HOST:7447 --zenoh-config <its credentials file>`")
     return 0
+
+
+def _write_compose(args: argparse.Namespace, corridor) -> int:
+    from pathlib import Path
+
+    from deploy.compose import HEADER, ZENOH_IMAGE, compose_services, compose_yaml
+    from sim.scenario import ScenarioError, load_scenario
+
+    try:
+        sc = load_scenario(args.scenario, corridor)
+        av = {sc.av.vehicle_id: (sc.av.start_s_m, sc.av.lane, sc.av.speed_mps)} if sc.av is not None else None
+        root = Path(__file__).resolve().parent.parent
+        try:
+            corridor_file = str(Path(args.corridor).resolve().relative_to(root))
+        except ValueError:
+            print(f"error: the corridor file must be inside the repository (the image copies {root}); "
+                  f"got {args.corridor}", file=sys.stderr)
+            return 1
+        doc = compose_services(corridor, rsus=args.rsus, scenario=args.scenario, acl=not args.no_acl,
+                               acl_dir=args.acl_dir, zenoh_image=args.zenoh_image or ZENOH_IMAGE,
+                               corridor_file=corridor_file, av_start=av)
+    except (ValueError, ScenarioError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    text = compose_yaml(doc, HEADER)
+    if args.out == "-":
+        sys.stdout.write(text)
+    else:
+        Path(args.out).write_text(text, encoding="utf-8")
+        print(f"wrote {args.out} ({len(doc['services'])} services)")
+    return 0
+
+
+def _health(argv: list[str]) -> int:
+    import threading
+
+    from protocol import keys
+    from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
+    from protocol.transport import ZenohSettings, ZenohTransport
+
+    ap = argparse.ArgumentParser(prog="iea health", description="Wait for a service's Health message and report it "
+                                 "(exit 0: ok or degraded; 1: error status or none within the timeout). Used as the "
+                                 "docker-compose health check.")
+    ap.add_argument("role", choices=["rsu", "ddm", "vehicle", "sim"])
+    ap.add_argument("node", nargs="?", default=None, help="RSU or vehicle id (rsu, vehicle)")
+    ap.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (its id names the keys)")
+    ap.add_argument("--corridor-id", default=None, help="override the corridor id")
+    ap.add_argument("--timeout-s", type=float, default=5.0, help="how long to wait (Health comes at 1 Hz)")
+    ZenohSettings.add_arguments(ap)
+    args = ap.parse_args(argv)
+    if args.role in ("rsu", "vehicle") and not args.node:
+        ap.error(f"{args.role} needs its id, e.g. `iea health {args.role} {'rsu1' if args.role == 'rsu' else 'av1'}`")
+    try:
+        cid = args.corridor_id or load_corridor(args.corridor).corridor_id
+        key = {"rsu": lambda: keys.rsu_key(cid, args.node, "health"),
+               "vehicle": lambda: keys.vehicle_key(cid, args.node, "health"),
+               "ddm": lambda: keys.ddm_health_key(cid), "sim": lambda: keys.sim_health_key(cid)}[args.role]()
+        settings = ZenohSettings.from_args(args)
+    except (CorridorError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    got: list = []
+    done = threading.Event()
+    transport = ZenohTransport(settings)
+    try:
+        transport.subscribe(key, lambda _k, m: (got.append(m), done.set()))
+        done.wait(args.timeout_s)
+    finally:
+        transport.close()
+    if not got:
+        print(f"no Health on {key} within {args.timeout_s:g} s", file=sys.stderr)
+        return 1
+    h = got[-1]
+    print(f"{key}: {h.status.value} (uptime {h.uptime_s:.0f} s) {h.detail}")
+    return 0 if h.status.value in ("ok", "degraded") else 1
 
 
 def _demo(argv: list[str]) -> int:
@@ -176,9 +263,10 @@ def main(argv: list[str] | None = None) -> int:
         "router": ("start a Zenoh router (iea-router)", None),
         "corridor": ("validate and summarise a corridor file", _corridor),
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
-        "deploy": ("generate deployment files (iea deploy acl ...)", _deploy),
+        "deploy": ("generate deployment files (iea deploy acl|compose ...)", _deploy),
         "demo": ("run the main scenario end to end (make demo)", _demo),
         "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)", _scenario),
+        "health": ("check a running service's Health (docker-compose health check)", _health),
         "up": ("router + every service as local processes (no Docker)", _up),
     }
     if not argv or argv[0] in ("-h", "--help"):

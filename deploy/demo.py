@@ -51,6 +51,11 @@ class RunMonitor:
     ev_min_speed_mps: float = math.inf
     ev_max_speed_mps: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
+    last_seq: dict[str, int] = field(default_factory=dict)
+    lost: dict[str, int] = field(default_factory=dict)
+    """Per link (key topic): messages missing from the per-key sequence numbers (gaps seen here)."""
+    ev_lit_speeds: list[tuple[float, float]] = field(default_factory=list)
+    """(sim time, EV speed) while its lights are on: how much the EV had to slow."""
     road: Any = None
     """The corridor road (protocol.corridor.Road): lanes in road coordinates; None: y is the lateral offset."""
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -63,6 +68,12 @@ class RunMonitor:
         kind = msg.KIND
         with self.lock:
             self.counts[kind] = self.counts.get(kind, 0) + 1
+            last = self.last_seq.get(key)
+            if last is not None and msg.seq > last + 1:
+                link = key.rsplit("/", 1)[-1]
+                self.lost[link] = self.lost.get(link, 0) + (msg.seq - last - 1)
+            if last is None or msg.seq > last:
+                self.last_seq[key] = msg.seq
             if kind == "WorldSnapshot":
                 self._on_world(msg)
             elif kind == "EvAlert" and msg.state.value == "active":
@@ -105,6 +116,7 @@ class RunMonitor:
             self.ev_max_speed_mps = max(self.ev_max_speed_mps, ev.speed_mps)
             if ev.light_bar is not None and ev.light_bar.on:
                 self.mark("lights_on", snap.stamp)
+                self.ev_lit_speeds.append((snap.sim_time_s, ev.speed_mps))
         if av is None:
             return
         if ev is not None and ev.pos_x_m > av.pos_x_m + av.length_m / 2 + ev.length_m / 2:
@@ -137,6 +149,17 @@ class RunMonitor:
                 closing = av.speed_mps - other.speed_mps if dx > 0 else other.speed_mps - av.speed_mps
                 if closing > 0.1:
                     self.min_ttc_s = min(self.min_ttc_s, longitudinal_clear / closing)
+
+    def _ev_delay(self) -> dict[str, Any]:
+        """How much the EV had to slow with its lights on: its lowest speed, and the time it lost against
+        driving at the highest speed it reached (sum of (1 - v / v_max) dt)."""
+        if len(self.ev_lit_speeds) < 2:
+            return {"ev_min_speed_lights_on_mps": None, "ev_delay_s": None}
+        t = [a for a, _ in self.ev_lit_speeds]
+        v = [b for _, b in self.ev_lit_speeds]
+        vmax = max(max(v), 1e-3)
+        lost = sum((1.0 - v[i] / vmax) * (t[i + 1] - t[i]) for i in range(len(t) - 1))
+        return {"ev_min_speed_lights_on_mps": round(min(v), 2), "ev_delay_s": round(lost, 2)}
 
     def progress_line(self) -> str:
         with self.lock:
@@ -189,6 +212,8 @@ class RunMonitor:
                 "ev_speed_min_max_mps": (None if math.isinf(self.ev_min_speed_mps)
                                          else [round(self.ev_min_speed_mps, 2), round(self.ev_max_speed_mps, 2)]),
                 "messages_seen": dict(self.counts),
+                "messages_lost_per_link": dict(self.lost),
+                **self._ev_delay(),
                 "alerts": len(self.alerts),
                 "commands": [{"id": c[1], "manoeuvre": c[2]} for c in self.commands],
                 "acks": [{"id": a[1], "status": a[2]} for a in self.acks],
@@ -279,6 +304,9 @@ def print_summary(m: dict[str, Any]) -> None:
         ("min time to collision", m.get("min_time_to_collision_s"), "s"),
         ("collision", m.get("collision"), ""),
         ("EV speed min / max", m.get("ev_speed_min_max_mps"), "m/s"),
+        ("EV lowest speed with lights on", m.get("ev_min_speed_lights_on_mps"), "m/s"),
+        ("EV delay (time lost vs its top speed)", m.get("ev_delay_s"), "s"),
+        ("messages lost per link", m.get("messages_lost_per_link") or "none", ""),
     ]
     print("\n summary")
     for name, value, unit in rows:

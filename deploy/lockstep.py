@@ -210,7 +210,7 @@ class CorridorLockstep:
         """The plant's true pose (physics, not a radio message) for the simulator."""
         v = self.vehicle
         st = v.sim.truth
-        msg = v.state_message(now)
+        msg = v.state_message(now, publish=False)
         return msg.model_copy(update={"pos_x_m": st.x_m, "pos_y_m": st.y_m, "speed_mps": max(0.0, st.vx_mps),
                                       "heading_rad": math.remainder(st.yaw_rad, 2 * math.pi)})
 

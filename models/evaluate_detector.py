@@ -1,12 +1,14 @@
 """Evaluate an exported detector through the runtime path (``rsu.detect.OnnxDetector``) on fresh renders.
 
 Held-out set: renders of a scenario (default ``rellis_ev_yield``, its own lighting) with scenario seeds
-never used for training (the training export uses ``seed * 100003 + episode * 7919 + scenario seed``
-with small episode numbers; the held-out seeds here are ``HELD_OUT_SEEDS``), every ``stride_s`` of sim
-time, all the corridor's cameras. Ground truth = the simulator's labels (``Renderer.labels``: visible
-part of each vehicle, at least ``MIN_VISIBLE_FRACTION`` visible). Labels below that visibility, and
-optionally boxes whose shorter side is below ``min_box_px``, are "difficult" (PASCAL VOC): they are
-not counted as ground truth and a detection matching them is neither a true nor a false positive.
+never used for training (the training exports use ``seed * 100003 + episode * 7919 + scenario seed``
+with seed 1 or 3 and episodes < 20; the held-out seeds here are ``HELD_OUT_SEEDS``), every ``stride_s``
+of sim time, all the corridor's cameras. Ground truth = the simulator's labels (``Renderer.labels``:
+visible part of each vehicle as rendered). "Difficult" boxes (PASCAL VOC: not counted as ground truth,
+and a detection matching one is neither a true nor a false positive): vehicles less than
+``MIN_VISIBLE_FRACTION`` visible, vehicles farther than ``max_range_m`` from the camera (the RSU's zone
+of responsibility, ``ZONE_M``; figures are also given for 150 m and for every labelled vehicle), and
+optionally boxes whose shorter side is below ``min_box_px``.
 
 ``average_precision``: VOC all-point interpolated AP at IoU 0.5 (Everingham et al. 2010; VOC2010+).
 Needs no torch (numpy, OpenCV, onnxruntime only).
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -26,6 +29,10 @@ import numpy as np
 from rsu.detect import OnnxDetector
 
 HELD_OUT_SEEDS = (900_001, 900_002)
+ZONE_M = 100.0
+"""The RSU's zone of responsibility: about 100 m of road from its camera (DESIGN.md "Coordinates", SPEC.md
+"IEA architecture", deploy/corridors/rellis.toml: 4 RSUs 50 m apart, each covering about 100 m). A vehicle
+farther away is the next RSU's (it is 50 m from it), so here it is 'difficult': neither counted nor penalised."""
 WORLD_DT_S = 0.05
 
 
@@ -34,6 +41,7 @@ class FrameTruth:
     boxes: np.ndarray  # (n, 4) xyxy
     classes: np.ndarray  # (n,)
     difficult: np.ndarray  # (n,) bool
+    range_m: np.ndarray | None = None  # (n,) horizontal distance camera -> vehicle centre
 
 
 @dataclass
@@ -132,21 +140,30 @@ def render_held_out(scenario: str = "rellis_ev_yield", seeds=HELD_OUT_SEEDS, str
                 small = np.minimum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]) < min_box_px
                 difficult = np.array([lb.visible_fraction < MIN_VISIBLE_FRACTION for lb in labels], bool) | small
                 out.images.append(rend.render(snap, frame_index=int(round(snap.sim_time_s * rsu.camera.fps))))
-                out.truths.append(FrameTruth(boxes, classes, difficult.reshape(-1)))
+                pos = {a.actor_id: (a.pos_x_m, a.pos_y_m) for a in snap.actors}
+                cam = rsu.camera.centre_world
+                rng_m = np.array([math.hypot(pos[lb.actor_id][0] - cam[0], pos[lb.actor_id][1] - cam[1])
+                                  for lb in labels], np.float64)
+                out.truths.append(FrameTruth(boxes, classes, difficult.reshape(-1), rng_m))
                 out.names.append(f"{sc.name}_s{seed}_{rsu_id}_t{snap.sim_time_s:.2f}")
                 if max_frames and len(out.images) >= max_frames:
                     return out
     return out
 
 
-def evaluate(model_path: str | Path, data: HeldOutSet, score_threshold: float = 0.01) -> dict:
-    """mAP@0.5 per class (Framework A: vehicle, ev) and of one 'vehicle' class (Framework B: every vehicle,
-    score = objectness * max(p(vehicle), p(ev)), via ``class_map={0: 0, 1: 0}``)."""
-    res: dict = {"frames": len(data.images)}
+def detect_all(model_path: str | Path, images: list[np.ndarray], score_threshold: float = 0.01):
+    """Runtime detections of every image: (Framework A outputs, Framework B outputs)."""
     det_a = OnnxDetector(model_path, score_threshold=score_threshold)
     det_b = OnnxDetector(model_path, score_threshold=score_threshold, class_map={0: 0, 1: 0})
-    outs_a = [det_a.detect(im) for im in data.images]
-    outs_b = [det_b.detect(im) for im in data.images]
+    return [det_a.detect(im) for im in images], [det_b.detect(im) for im in images]
+
+
+def evaluate(model_path: str | Path, data: HeldOutSet, score_threshold: float = 0.01, outputs=None) -> dict:
+    """mAP@0.5 per class (Framework A: vehicle, ev) and of one 'vehicle' class (Framework B: every vehicle,
+    score = objectness * max(p(vehicle), p(ev)), via ``class_map={0: 0, 1: 0}``). ``outputs``: the
+    result of ``detect_all`` on ``data.images`` when already at hand."""
+    res: dict = {"frames": len(data.images)}
+    outs_a, outs_b = outputs if outputs is not None else detect_all(model_path, data.images, score_threshold)
     for cls, name in ((0, "vehicle"), (1, "ev")):
         dets = [(o.boxes[o.classes == cls], o.scores[o.classes == cls]) for o in outs_a]
         # a box of the other class is not ground truth for this one, but a detection on it is not penalised
@@ -162,17 +179,19 @@ def evaluate(model_path: str | Path, data: HeldOutSet, score_threshold: float = 
 
 
 def cpu_latency(model_path: str | Path, images: list[np.ndarray], threads: int = 1, repeats: int = 1) -> dict:
-    """Per-frame wall time of ``OnnxDetector.detect`` (letterbox + inference + decode + NMS), ``threads`` CPU threads."""
+    """Per-frame time of ``OnnxDetector.detect`` (letterbox + inference + decode + NMS), ``threads`` CPU
+    threads: wall-clock, and this process's CPU time (the cost on one core when the machine is shared)."""
     det = OnnxDetector(model_path, intra_op_threads=threads, warmup_runs=3)
-    times = []
+    times, cpu = [], []
     for _ in range(repeats):
         for im in images:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             det.detect(im)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
     t = np.array(times) * 1e3
     return {"latency_ms_median": float(np.median(t)), "latency_ms_p90": float(np.percentile(t, 90)),
-            "latency_frames": len(t), "threads": threads}
+            "cpu_ms_mean": float(np.mean(cpu) * 1e3), "latency_frames": len(t), "threads": threads}
 
 
 def main(argv=None) -> int:
@@ -183,7 +202,10 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=list(HELD_OUT_SEEDS))
     p.add_argument("--stride-s", type=float, default=0.7)
     p.add_argument("--lighting", default=None, help="override the scenario's lighting (day, dusk, night)")
-    p.add_argument("--min-box-px", type=float, nargs="+", default=[0.0, 8.0, 12.0],
+    p.add_argument("--max-range-m", type=float, nargs="+", default=[ZONE_M, 150.0, math.inf],
+                   help="report with vehicles farther than this from the camera as difficult (default: the "
+                        f"RSU's {ZONE_M:g} m zone, 150 m and every labelled vehicle)")
+    p.add_argument("--min-box-px", type=float, nargs="+", default=[0.0],
                    help="also report with boxes whose shorter side (full-res px) is below this as difficult")
     p.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
     a = p.parse_args(argv)
@@ -192,26 +214,32 @@ def main(argv=None) -> int:
     print(f"rendered {len(data.images)} held-out frames of {a.scenario} seeds {a.seeds} "
           f"({time.perf_counter() - t0:.0f} s)", flush=True)
     figures: dict = {"model": str(a.model), "scenario": a.scenario, "seeds": a.seeds, "lighting": a.lighting}
-    for m in a.min_box_px:
-        res = evaluate(a.model, _with_min_box(data, m))
-        figures[f"min_box_px_{m:g}"] = res
-        print(f"min box {m:g} px: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
-                                                for k, v in res.items()), flush=True)
+    outputs = detect_all(a.model, data.images)
+    for r in a.max_range_m:
+        for m in a.min_box_px:
+            res = evaluate(a.model, restrict(data, min_box_px=m, max_range_m=r), outputs=outputs)
+            key = f"range_{r:g}_m" + (f"_min_box_px_{m:g}" if m > 0 else "")
+            figures[key] = res
+            print(f"{key}: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}"
+                                         for k, v in res.items()), flush=True)
     lat = cpu_latency(a.model, data.images[:60])
     figures.update(lat)
     print(f"CPU latency (1 thread, OnnxDetector.detect): median {lat['latency_ms_median']:.1f} ms, "
-          f"p90 {lat['latency_ms_p90']:.1f} ms over {lat['latency_frames']} frames")
+          f"p90 {lat['latency_ms_p90']:.1f} ms wall-clock, {lat['cpu_ms_mean']:.1f} ms CPU time per frame "
+          f"over {lat['latency_frames']} frames")
     if a.json:
         print(json.dumps(figures))
     return 0
 
 
-def _with_min_box(data: HeldOutSet, min_box_px: float) -> HeldOutSet:
-    """The same frames with boxes whose shorter side is below ``min_box_px`` also marked difficult."""
+def restrict(data: HeldOutSet, min_box_px: float = 0.0, max_range_m: float = math.inf) -> HeldOutSet:
+    """The same frames with boxes whose shorter side is below ``min_box_px`` or whose vehicle is farther
+    than ``max_range_m`` (horizontal, camera to vehicle centre) also marked difficult."""
     out = HeldOutSet(images=data.images, names=data.names)
     for t in data.truths:
         sides = np.minimum(t.boxes[:, 2] - t.boxes[:, 0], t.boxes[:, 3] - t.boxes[:, 1])
-        out.truths.append(FrameTruth(t.boxes, t.classes, t.difficult | (sides < min_box_px)))
+        far = t.range_m > max_range_m if t.range_m is not None else np.zeros(len(t.boxes), bool)
+        out.truths.append(FrameTruth(t.boxes, t.classes, t.difficult | (sides < min_box_px) | far, t.range_m))
     return out
 
 

@@ -6,12 +6,13 @@ Model: a tiny depthwise-separable backbone + top-down FPN + YOLOX-style decouple
 ``[1, A, 7]`` rows ``cx, cy, w, h`` grid-relative (``xy = (xy + grid) * stride``, ``wh = exp(wh) *
 stride``), sigmoid objectness, sigmoid p(vehicle), sigmoid p(ev).
 
-Training (seeded): images letterboxed once to the model input and cached in memory; random crops,
-horizontal flips and brightness jitter; centre-sampling assignment (anchor points whose centre lies
-within ``CENTRE_RADIUS`` strides of a box centre and inside the box grown by one stride, on the level
-chosen by the box's longer side; an anchor claimed by several boxes goes to the smallest); losses:
-BCE objectness over all anchor points, BCE classes and GIoU + L1 boxes over positives, normalised by
-the number of positives (YOLOX). Needs torch (the ``train`` extra).
+Training (seeded): images letterboxed once to the model input and cached in memory (several export
+folders can be pooled); random crops and brightness/contrast jitter (no flips by default: the cameras are
+fixed and shadows fall to one side); label assignment SimOTA (YOLOX: dynamic top-k anchor points by a
+class + IoU cost, any level), or the older fixed centre sampling with ``--assigner centre``; vehicles a
+crop cuts below 40 % are ignore regions; losses (YOLOX): BCE objectness over all anchor points, BCE
+classes with target one-hot x IoU (so the score follows the box quality), 5 x (1 - GIoU) + L1 boxes
+over positives, normalised by the number of positives. Needs torch (the ``train`` extra).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ INPUT_HW = (384, 640)
 PAD_VALUE = 114
 N_CLASSES = 2
 CENTRE_RADIUS = 1.5
+SIMOTA_RADIUS = 2.5
 LEVEL_MAX_SIDE_PX = (48.0, 112.0, math.inf)
 """A box goes to stride 8 if its longer side (input pixels) is below 48, to 16 below 112, else to 32."""
 
@@ -133,14 +135,22 @@ def load_split(det_dir: Path, split: str, input_hw=INPUT_HW, limit: int | None =
     return images, labels
 
 
-def augment(rng: np.random.Generator, image: np.ndarray, boxes: np.ndarray, crop_hw: tuple[int, int]):
-    """Random crop (to crop_hw, multiples of 32) of the letterboxed content, flip, brightness/contrast."""
+def augment(rng: np.random.Generator, image: np.ndarray, boxes: np.ndarray, crop_hw: tuple[int, int],
+            flip: bool = False):
+    """Random crop (to crop_hw, multiples of 32) of the letterboxed content, optional horizontal flip,
+    brightness/contrast. -> (image, boxes (n, 5) kept, ignore boxes (m, 4)): a vehicle the crop cuts to
+    less than 40 % of its box is an ignore region (its anchors get no objectness loss), not background.
+
+    Flips are off by default: the cameras are fixed and the sun casts shadows to one side, so a flipped
+    frame (road and shadows mirrored) is a view the detector never meets and teaches it to include the
+    shadow in the box."""
     H, W = image.shape[:2]
     ch, cw = crop_hw
     y0 = int(rng.integers(0, H - ch + 1))
     x0 = int(rng.integers(0, W - cw + 1))
     img = image[y0:y0 + ch, x0:x0 + cw].copy()
     b = boxes.copy()
+    ignore = np.zeros((0, 4), np.float32)
     if len(b):
         b[:, [1, 3]] -= x0
         b[:, [2, 4]] -= y0
@@ -149,15 +159,19 @@ def augment(rng: np.random.Generator, image: np.ndarray, boxes: np.ndarray, crop
         clipped[:, [2, 4]] = clipped[:, [2, 4]].clip(0, ch)
         area = (b[:, 3] - b[:, 1]) * (b[:, 4] - b[:, 2])
         carea = (clipped[:, 3] - clipped[:, 1]).clip(0) * (clipped[:, 4] - clipped[:, 2]).clip(0)
-        b = clipped[(carea >= 0.4 * area) & (carea > 1.0)]
-    if rng.random() < 0.5:
+        keep = (carea >= 0.4 * area) & (carea > 1.0)
+        ignore = clipped[~keep & (carea > 0), 1:]
+        b = clipped[keep]
+    if flip and rng.random() < 0.5:
         img = img[:, ::-1].copy()
         if len(b):
             b[:, [1, 3]] = cw - b[:, [3, 1]]
+        if len(ignore):
+            ignore[:, [0, 2]] = cw - ignore[:, [2, 0]]
     if rng.random() < 0.8:
         alpha, beta = rng.uniform(0.7, 1.3), rng.uniform(-25, 25)
         img = cv2.convertScaleAbs(img, alpha=alpha, beta=beta)
-    return img, b
+    return img, b, ignore
 
 
 # ----------------------------------------------------------------------------- assignment and loss
@@ -215,18 +229,96 @@ def giou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return iou - (enc - union) / enc
 
 
-def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple[int, int]):
+def simota_assign(pred_xyxy: torch.Tensor, pred_obj: torch.Tensor, pred_cls: torch.Tensor, boxes: np.ndarray,
+                  grid: torch.Tensor, stride: torch.Tensor):
+    """SimOTA (YOLOX, Ge et al. 2021 sec. 2.2): candidates are anchor points whose centre lies in a box or
+    within ``SIMOTA_RADIUS`` strides of its centre (any level); cost = class BCE of sqrt(obj * cls)
+    + 3 (-log IoU) + a large penalty unless both in the box and near its centre; each box takes its
+    ``dynamic_k = sum of its top-10 candidate IoUs`` (at least 1) cheapest points; a point claimed twice
+    goes to its cheapest box. Inputs are detached predictions of one image.
+    -> (fg mask (A,), matched box index per anchor (A,), IoU of each fg prediction with its box (n_fg,))."""
+    A = len(grid)
+    fg = torch.zeros(A, dtype=torch.bool)
+    match = torch.zeros(A, dtype=torch.long)
+    if len(boxes) == 0:
+        return fg, match, torch.zeros(0)
+    b = torch.from_numpy(boxes[:, 1:])
+    centres = (grid + 0.5) * stride[:, None]
+    in_box = ((centres[:, None] > b[None, :, :2]) & (centres[:, None] < b[None, :, 2:])).all(-1)  # (A, G)
+    bc = (b[:, :2] + b[:, 2:]) / 2
+    in_ctr = ((centres[:, None] - bc[None]).abs() < SIMOTA_RADIUS * stride[:, None, None]).all(-1)
+    cand = (in_box | in_ctr).any(1)
+    if not cand.any():
+        return fg, match, torch.zeros(0)
+    ci = torch.nonzero(cand).flatten()
+    ious = box_iou(b, pred_xyxy[ci])  # (G, C)
+    onehot = F.one_hot(torch.from_numpy(boxes[:, 0]).long(), N_CLASSES).float()  # (G, K)
+    p = (pred_cls[ci].sigmoid() * pred_obj[ci, None].sigmoid()).sqrt().clamp(1e-6, 1 - 1e-6)  # (C, K)
+    cls_cost = -(onehot[:, None] * p.log()[None] + (1 - onehot[:, None]) * (1 - p).log()[None]).sum(-1)
+    both = (in_box & in_ctr)[ci].T  # (G, C)
+    cost = cls_cost + 3.0 * -torch.log(ious + 1e-8) + 1e5 * (~both).float()
+    k = min(10, len(ci))
+    dyn_k = ious.topk(k, dim=1).values.sum(1).int().clamp(min=1)  # (G,)
+    rank = cost.argsort(1).argsort(1)
+    chosen = rank < dyn_k[:, None]  # (G, C)
+    multi = chosen.sum(0) > 1
+    if multi.any():
+        best = torch.where(chosen, cost, torch.full_like(cost, float("inf"))).argmin(0)
+        chosen[:, multi] = False
+        chosen[best[multi], torch.nonzero(multi).flatten()] = True
+    sel = chosen.any(0)
+    gi = chosen.float().argmax(0)[sel]
+    fg[ci[sel]] = True
+    match[ci[sel]] = gi
+    return fg, match, ious[gi, torch.nonzero(sel).flatten()]
+
+
+def box_iou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """IoU matrix (N, M) of xyxy boxes."""
+    lt = torch.max(a[:, None, :2], b[None, :, :2])
+    rb = torch.min(a[:, None, 2:], b[None, :, 2:])
+    inter = (rb - lt).clamp(min=0).prod(-1)
+    area_a = (a[:, 2:] - a[:, :2]).clamp(min=0).prod(-1)
+    area_b = (b[:, 2:] - b[:, :2]).clamp(min=0).prod(-1)
+    return inter / (area_a[:, None] + area_b[None] - inter + 1e-7)
+
+
+def decode_boxes(out: torch.Tensor, grid: torch.Tensor, stride: torch.Tensor) -> torch.Tensor:
+    """(..., A, 4) raw -> xyxy input px, exactly as ``rsu.detect.decode_yolox`` does at runtime."""
+    xy = (out[..., :2] + grid) * stride[:, None]
+    wh = torch.exp(out[..., 2:4].clamp(max=8)) * stride[:, None]
+    return torch.cat([xy - wh / 2, xy + wh / 2], -1)
+
+
+def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple[int, int],
+                   ignores: list[np.ndarray] | None = None, assigner: str = "simota"):
+    """YOLOX losses: BCE objectness over all anchor points (but those inside an ignore box), BCE classes
+    (target one-hot x IoU of the prediction with its box, YOLOX's IoU-aware class score) and 5 x (1 - GIoU)
+    + L1 of the raw box over positives, normalised by the number of positives."""
     grid, stride, level = anchor_points(hw)
     out = torch.cat([o.flatten(2).permute(0, 2, 1) for o in raw], dim=1)  # (B, A, 7)
     B, A, _ = out.shape
     obj_t = torch.zeros(B, A)
+    obj_w = torch.ones(B, A)
+    pred_all = decode_boxes(out.detach(), grid, stride)
+    centres = (grid + 0.5) * stride[:, None]
     box_p, box_t, box_raw, box_raw_t, cls_p, cls_t = [], [], [], [], [], []
     for i in range(B):
-        fg, match = assign(targets[i], grid, stride, level)
+        if ignores is not None and len(ignores[i]):
+            ig = torch.from_numpy(ignores[i])
+            inside = ((centres[:, None] >= ig[None, :, :2]) & (centres[:, None] <= ig[None, :, 2:])).all(-1).any(1)
+            obj_w[i, inside] = 0.0
+        if assigner == "simota":
+            fg, match, fg_iou = simota_assign(pred_all[i], out[i, :, 4].detach(), out[i, :, 5:].detach(), targets[i],
+                                              grid, stride)
+        else:
+            fg, match = assign(targets[i], grid, stride, level)
+            fg_iou = torch.ones(int(fg.sum()))
         if not fg.any():
             continue
         obj_t[i, fg] = 1.0
-        tb = torch.from_numpy(targets[i][match[fg]])
+        obj_w[i, fg] = 1.0
+        tb = torch.from_numpy(targets[i][match[fg].numpy()])
         o = out[i, fg]
         s = stride[fg][:, None]
         xy = (o[:, :2] + grid[fg]) * s
@@ -238,9 +330,9 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
         box_raw.append(o[:, :4])
         box_raw_t.append(torch.cat([txy / s - grid[fg], torch.log(twh / s)], 1))
         cls_p.append(o[:, 5:])
-        cls_t.append(F.one_hot(tb[:, 0].long(), N_CLASSES).float())
+        cls_t.append(F.one_hot(tb[:, 0].long(), N_CLASSES).float() * fg_iou.clamp(min=0.0)[:, None])
     n_fg = max(1.0, float(obj_t.sum()))
-    loss_obj = F.binary_cross_entropy_with_logits(out[..., 4], obj_t, reduction="sum") / n_fg
+    loss_obj = (F.binary_cross_entropy_with_logits(out[..., 4], obj_t, reduction="none") * obj_w).sum() / n_fg
     if box_p:
         bp, bt = torch.cat(box_p), torch.cat(box_t)
         loss_iou = (1 - giou(bp, bt)).sum() / n_fg
@@ -255,17 +347,22 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
 
 
 # ----------------------------------------------------------------------------- train / export
-def train(det_dir: Path, out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
+def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
           seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None,
-          input_hw: tuple[int, int] = INPUT_HW) -> nn.Module:
+          input_hw: tuple[int, int] = INPUT_HW, flip: bool = False, assigner: str = "simota",
+          neck: int = 64) -> nn.Module:
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     torch.set_num_threads(threads)
     torch.set_flush_denormal(True)
-    images, labels = load_split(det_dir, "train", input_hw, limit=limit)
+    parts = [load_split(d, "train", input_hw, limit=limit) for d in det_dirs]
+    images = np.concatenate([im for im, _ in parts]) if len(parts) > 1 else parts[0][0]
+    labels = [lb for _, lbs in parts for lb in lbs]
+    del parts
     n_boxes = sum(len(lb) for lb in labels)
-    print(f"train: {len(images)} images, {n_boxes} boxes, input {input_hw}, crops {crop_hw}", flush=True)
-    model = TinyYolox()
+    print(f"train: {len(images)} images, {n_boxes} boxes, input {input_hw}, crops {crop_hw}, assigner {assigner}, "
+          f"flip {flip}", flush=True)
+    model = TinyYolox(neck=neck)
     n_params = sum(p.numel() for p in model.parameters())
     print(f"model: {n_params / 1e6:.3f} M parameters", flush=True)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=5e-4)
@@ -276,13 +373,14 @@ def train(det_dir: Path, out_path: Path, *, iterations: int, batch: int, crop_hw
     t0 = time.perf_counter()
     for it in range(iterations):
         idx = rng.integers(0, len(images), batch)
-        imgs, tgts = [], []
+        imgs, tgts, igns = [], [], []
         for k in idx:
-            im, bx = augment(rng, images[k], labels[k], crop_hw)
+            im, bx, ig = augment(rng, images[k], labels[k], crop_hw, flip)
             imgs.append(im)
             tgts.append(bx)
+            igns.append(ig)
         x = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float().contiguous()
-        loss, parts = detection_loss(model.raw(x), tgts, crop_hw)
+        loss, parts = detection_loss(model.raw(x), tgts, crop_hw, igns, assigner)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
@@ -315,7 +413,8 @@ def export_onnx(model: nn.Module, out_path: Path, input_hw: tuple[int, int] = IN
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description="Train the project's tiny YOLOX-layout vehicle detector and export ONNX.")
-    p.add_argument("--data", default="datasets/det_train", help="export-dataset output folder (holds det/)")
+    p.add_argument("--data", nargs="+", default=["datasets/det_train"],
+                   help="export-dataset output folder(s) (each holds det/); their train splits are pooled")
     p.add_argument("--out", default="models/iea_det_tiny.onnx")
     p.add_argument("--iterations", type=int, default=3000)
     p.add_argument("--batch", type=int, default=8)
@@ -323,6 +422,10 @@ def main(argv=None) -> int:
                    help="model input (multiples of 32); the frame is letterboxed into it")
     p.add_argument("--crop", type=int, nargs=2, default=(256, 320), metavar=("H", "W"))
     p.add_argument("--lr", type=float, default=4e-3)
+    p.add_argument("--flip", action="store_true", help="random horizontal flips (off: fixed cameras, one-sided shadows)")
+    p.add_argument("--assigner", choices=("simota", "centre"), default="simota",
+                   help="label assignment: YOLOX SimOTA (default) or fixed centre sampling")
+    p.add_argument("--neck", type=int, default=64, help="FPN/head channels")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared 2-core box)")
     p.add_argument("--limit", type=int, default=None, help="use at most this many training images")
@@ -330,8 +433,9 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.crop[0] % 32 or a.crop[1] % 32 or a.input[0] % 32 or a.input[1] % 32:
         p.error("--crop and --input sides must be multiples of 32")
-    train(Path(a.data) / "det", Path(a.out), iterations=a.iterations, batch=a.batch, crop_hw=tuple(a.crop), lr=a.lr,
-          seed=a.seed, threads=a.threads, limit=a.limit, time_budget_s=a.time_budget_s, input_hw=tuple(a.input))
+    train([Path(d) / "det" for d in a.data], Path(a.out), iterations=a.iterations, batch=a.batch,
+          crop_hw=tuple(a.crop), lr=a.lr, seed=a.seed, threads=a.threads, limit=a.limit,
+          time_budget_s=a.time_budget_s, input_hw=tuple(a.input), flip=a.flip, assigner=a.assigner, neck=a.neck)
     print(f"exported {a.out} ({Path(a.out).stat().st_size / 1e6:.2f} MB)")
     return 0
 

@@ -90,6 +90,9 @@ def main(argv: list[str] | None = None) -> int:
             providers = args.providers if args.providers in (None, "auto") else args.providers.split(",")
             detector = OnnxDetector(args.model, score_threshold=args.score_threshold, providers=providers,
                                     intra_op_threads=args.threads)
+            if args.framework == "B" and detector.layout == "project":
+                # one 'vehicle' class: score = obj x max(p(vehicle), p(ev)), one box per vehicle after NMS
+                detector.class_map = {0: 0, 1: 0}
         else:
             detector = MotionDetector()
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)

@@ -56,6 +56,15 @@ class MotMetrics:
                 "gt_ids": self.num_gt_ids, "hyp_ids": self.num_hyp_ids}
 
 
+def _inside_fraction(boxes: np.ndarray, regions: np.ndarray) -> np.ndarray:
+    """(N, M): the fraction of each box's area (xyxy) that lies inside each region."""
+    lt = np.maximum(boxes[:, None, :2], regions[None, :, :2])
+    rb = np.minimum(boxes[:, None, 2:], regions[None, :, 2:])
+    inter = np.clip(rb - lt, 0, None).prod(-1)
+    area = np.clip(boxes[:, 2:] - boxes[:, :2], 0, None).prod(-1)
+    return inter / np.maximum(area, 1e-9)[:, None]
+
+
 @dataclass
 class MotEvaluator:
     """Feed ``update(gt_ids, gt_boxes, hyp_ids, hyp_boxes)`` per frame, then read ``result()``."""
@@ -67,11 +76,23 @@ class MotEvaluator:
     _gt_ids: set[int] = field(default_factory=set)
     _hyp_ids: set[int] = field(default_factory=set)
 
-    def update(self, gt_ids, gt_boxes, hyp_ids, hyp_boxes) -> None:
+    def update(self, gt_ids, gt_boxes, hyp_ids, hyp_boxes, ignore_boxes=None) -> None:
+        """One frame. ``ignore_boxes`` (optional, (k, 4)): ground truth that is not counted (distractors:
+        barely visible or out of the evaluated zone). A hypothesis that overlaps no counted box with IoU >=
+        ``iou_threshold`` but lies at least half inside one ignore box (intersection / its own area >= 0.5,
+        KITTI's "DontCare" rule, Geiger et al. 2012) is removed: neither a true nor a false positive."""
         gt_ids = [int(g) for g in np.asarray(gt_ids).reshape(-1)]
         hyp_ids = [int(h) for h in np.asarray(hyp_ids).reshape(-1)]
         gt_boxes = np.asarray(gt_boxes, dtype=float).reshape(-1, 4)
         hyp_boxes = np.asarray(hyp_boxes, dtype=float).reshape(-1, 4)
+        if ignore_boxes is not None and len(hyp_ids):
+            ignore_boxes = np.asarray(ignore_boxes, dtype=float).reshape(-1, 4)
+            if len(ignore_boxes):
+                on_ignored = _inside_fraction(hyp_boxes, ignore_boxes).max(axis=1) >= 0.5
+                if len(gt_ids):
+                    on_ignored &= np.nan_to_num(iou_matrix(hyp_boxes, gt_boxes)).max(axis=1) < self.iou_threshold
+                hyp_boxes = hyp_boxes[~on_ignored]
+                hyp_ids = [h for h, drop in zip(hyp_ids, on_ignored, strict=True) if not drop]
         if len(set(hyp_ids)) != len(hyp_ids) or len(set(gt_ids)) != len(gt_ids):
             raise ValueError("ids must be unique within a frame")
         m = self._m

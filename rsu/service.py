@@ -91,7 +91,7 @@ class RsuPipeline:
         t2 = time.perf_counter()
         ev = self.classifier(frame, tracks) if self.classifier is not None else {}
         t3 = time.perf_counter()
-        localized = self.localizer.update(tracks, frame.timestamp_s)
+        localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
         objects = [self._to_message(o, ev.get(o.track_id)) for o in localized]
         t4 = time.perf_counter()
         hazards = (self.hazards.update(frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,

@@ -102,7 +102,7 @@ def _cmd_export(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="iea-sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-v", "--verbose", action="store_true")
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -127,7 +127,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-vary-lighting", action="store_true", help="keep each scenario's lighting")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     sub.add_parser("list", help="list the scenarios")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s %(message)s")
     try:
         if args.cmd == "run":

@@ -120,7 +120,9 @@ class VehicleService:
             self.rejected["command_" + decision.reason.split(":", 1)[0].split(" ", 1)[0]] += 1
         self.transport.publish(self.ack_key, ack)
 
-    def state_message(self, now_s: float) -> VehicleState:
+    def state_message(self, now_s: float, *, publish: bool = True) -> VehicleState:
+        """The VehicleState of now; ``publish=False`` leaves the key's sequence number untouched (a
+        copy for the lockstep simulator, not a message on the link)."""
         core, st = self.sim.core, self.sim.truth
         x, y, yaw = core.estimator.pose
         lat, lon = self.corridor.to_latlon(x, y)
@@ -128,7 +130,8 @@ class VehicleService:
         active = core.book.active
         age = core.estimator.age_s(now_s)
         return VehicleState(
-            src=self.vehicle_id, seq=self._next_seq(self.state_key), stamp=now_s, vehicle_id=self.vehicle_id,
+            src=self.vehicle_id, seq=self._next_seq(self.state_key) if publish else self._seq[self.state_key],
+            stamp=now_s, vehicle_id=self.vehicle_id,
             pos_x_m=x, pos_y_m=y, lat_deg=lat, lon_deg=lon, heading_rad=math.remainder(yaw, 2 * math.pi),
             speed_mps=max(0.0, core.speed_mps), yaw_rate_rps=core.yaw_rate_rps, accel_mps2=st.accel_mps2,
             steer_rad=st.steer_rad, length_m=self.vehicle_config.length_m, width_m=self.vehicle_config.width_m,

@@ -52,3 +52,21 @@ def test_synthetic_scene_is_deterministic_and_keeps_its_population():
     assert all(np.array_equal(x.det_boxes, y.det_boxes) for x, y in zip(a, b, strict=True))
     assert all(len(f.gt_ids) == 12 for f in a)
     assert len({int(i) for f in a for i in f.gt_ids}) > 12  # targets die and are replaced
+
+
+def test_hypotheses_on_ignored_ground_truth_are_neither_true_nor_false_positives():
+    far = [100, 100, 110, 108]  # e.g. a vehicle beyond the RSU's zone: ignored ground truth
+    ev = MotEvaluator()
+    loose = [103, 102, 112, 110]  # IoU 0.47 with it, but 7/9 of its area inside it: ignored too (KITTI)
+    wide = [95, 95, 125, 120]  # mostly background around it: a false positive
+    ev.update([1], [A], [7, 8, 9, 10, 11], [A, far, loose, wide, [300, 300, 320, 320]], ignore_boxes=[far])
+    m = ev.result()
+    assert (m.true_positives, m.false_positives, m.false_negatives, m.num_hyp) == (1, 2, 0, 3)
+    # a hypothesis that matches a counted box stays a true positive even if it also overlaps an ignore box
+    ev = MotEvaluator()
+    ev.update([1], [A], [7], [A], ignore_boxes=[A])
+    assert (ev.result().true_positives, ev.result().false_positives) == (1, 0)
+    # without ignore boxes the same hypothesis is a false positive
+    ev = MotEvaluator()
+    ev.update([1], [A], [7, 8], [A, far])
+    assert ev.result().false_positives == 1

@@ -12,13 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.evaluate_detector import average_precision, iou_matrix, render_held_out
+from models.evaluate_detector import (
+    ZONE_M,
+    average_precision,
+    evaluate,
+    iou_matrix,
+    render_held_out,
+    restrict,
+)
 from rsu.detect import PROJECT_CLASSES, OnnxDetector, yolox_grids
 
 MODEL = Path(__file__).resolve().parents[2] / "models" / "iea_det_tiny.onnx"
-MIN_SIDE_PX = 12.0
-"""Ground truth counted for recall: shorter side >= 12 px in the 1280x720 frame (6 px at the model's input)."""
-
 needs_model = pytest.mark.skipif(not MODEL.is_file(), reason=f"{MODEL} not built (make models)")
 
 
@@ -40,27 +44,32 @@ def test_model_has_the_project_layout():
 
 
 @needs_model
-def test_detects_the_simulated_vehicles_of_the_default_scenario(held_out):
+def test_reaches_the_issue_target_in_the_rsu_zone(held_out):
+    """Issue 4: mAP@0.5 >= 0.9 on held-out renders of the default scenario (every vehicle one class),
+    counting the vehicles of the RSU's 100 m zone (models/iea_det_tiny.md has the full-set figures)."""
+    res = evaluate(MODEL, restrict(held_out, max_range_m=ZONE_M))
+    assert res["gt_all_vehicles"] >= 40, res
+    assert res["map50_all_vehicles"] >= 0.9, res
+
+
+@needs_model
+def test_detects_the_simulated_vehicles_at_the_runtime_threshold(held_out):
     det = OnnxDetector(MODEL, class_map={0: 0, 1: 0}, intra_op_threads=1)  # default thresholds, Framework B
-    n_gt = hits = n_det = correct = loose = 0
-    for image, truth in zip(held_out.images, held_out.truths, strict=True):
+    zone = restrict(held_out, max_range_m=ZONE_M)
+    n_gt = hits = n_det = correct = 0
+    for image, truth in zip(zone.images, zone.truths, strict=True):
         boxes, scores, classes = det.detect(image)
         assert (classes == 0).all() and ((scores >= 0.3) & (scores <= 1)).all()
         iou = iou_matrix(truth.boxes, boxes)
-        sides = np.minimum(truth.boxes[:, 2] - truth.boxes[:, 0], truth.boxes[:, 3] - truth.boxes[:, 1])
-        counted = ~truth.difficult & (sides >= MIN_SIDE_PX)
+        counted = ~truth.difficult
         n_gt += int(counted.sum())
         hits += int((iou[counted] >= 0.5).any(axis=1).sum()) if len(boxes) else 0
         n_det += len(boxes)
         correct += int((iou >= 0.5).any(axis=0).sum()) if len(truth.boxes) else 0  # any labelled vehicle
-        loose += int((iou >= 0.3).any(axis=0).sum()) if len(truth.boxes) else 0
-    assert n_gt >= 30, f"too few ground-truth boxes rendered ({n_gt})"
+    assert n_gt >= 40, f"too few ground-truth boxes rendered ({n_gt})"
     recall, precision = hits / n_gt, correct / max(1, n_det)
-    assert recall >= 0.9, f"recall {recall:.3f} ({hits}/{n_gt}) of vehicles >= {MIN_SIDE_PX} px"
-    # known weakness (models/iea_det_tiny.md): boxes of far vehicles are loose, so precision at IoU 0.5 is
-    # about 0.6 (0.78 at IoU 0.3); these bounds guard against regressions, not the issue target
-    assert loose / max(1, n_det) >= 0.7, f"precision at IoU 0.3 {loose / max(1, n_det):.3f} ({loose}/{n_det})"
-    assert precision >= 0.5, f"precision at IoU 0.5 {precision:.3f} ({correct}/{n_det})"
+    assert recall >= 0.95, f"recall {recall:.3f} ({hits}/{n_gt}) of the vehicles within {ZONE_M:g} m"
+    assert precision >= 0.8, f"precision at IoU 0.5 {precision:.3f} ({correct}/{n_det})"
 
 
 def test_average_precision_all_point_voc():

@@ -1,0 +1,112 @@
+"""docker-compose deployment of a corridor: one Zenoh router, the simulator, the RSUs, the DDM, the vehicles.
+
+    iea deploy compose [--corridor FILE] [--rsus N] [--scenario NAME] [--out docker-compose.yml] [--no-acl]
+
+Every IEA service runs from one image (the top-level ``Dockerfile``) with its own CLI, in Zenoh client
+mode against the router (``eclipse/zenoh``, pinned to the version of the Python binding), with a health
+check (``iea health ROLE ID``: a fresh ``Health`` message from that service within a few seconds) and a
+restart policy. RSU cameras default to the simulator's view (``--source sim``); set ``RSU1_SOURCE`` (etc.)
+to a camera URL or file for real cameras.
+
+Access control (issue 9): by default the router runs with the per-service ACL of ``deploy/acl.py`` and
+each service authenticates with its own credentials, so only the DDM may publish vehicle commands.
+Create the (secret, never committed) bundle once with::
+
+    iea deploy acl --out secrets/acl --dictionary-path /etc/iea/acl/users.txt
+
+``--no-acl`` writes an open deployment for a closed lab network.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from protocol.corridor import Corridor
+
+ZENOH_IMAGE = "eclipse/zenoh:1.10.2"
+"""The router image, pinned to the eclipse-zenoh Python binding the services use."""
+IEA_IMAGE = "iea-corridor:latest"
+ROUTER_ENDPOINT = "tcp/router:7447"
+ACL_DIR_IN_CONTAINER = "/etc/iea/acl"
+
+
+def _zenoh_args(user: str, acl: bool) -> list[str]:
+    args = ["--mode", "client", "--connect", ROUTER_ENDPOINT]
+    if acl:
+        args += ["--zenoh-config", f"{ACL_DIR_IN_CONTAINER}/{user}.json5"]
+    return args
+
+
+def _healthcheck(role: str, node: str | None, user: str, acl: bool) -> dict[str, Any]:
+    test = ["CMD", "iea", "health", role, *([node] if node else []), "--timeout-s", "5", *_zenoh_args(user, acl)]
+    return {"test": test, "interval": "15s", "timeout": "10s", "retries": 3, "start_period": "20s"}
+
+
+def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: str = "rellis_ev_yield",
+                     acl: bool = True, acl_dir: str = "./secrets/acl", zenoh_image: str = ZENOH_IMAGE,
+                     corridor_file: str = "deploy/corridors/rellis.toml",
+                     av_start: dict[str, tuple[float, int, float]] | None = None) -> dict[str, Any]:
+    """The compose document (a dict) for a corridor: router, sim, ``rsus`` RSUs (default all), DDM, vehicles.
+    ``av_start``: vehicle id -> (start_s_m, lane, speed_mps) where the scenario puts it."""
+    chosen = list(corridor.rsus)
+    if rsus is not None:
+        if not 1 <= rsus <= len(chosen):
+            raise ValueError(f"--rsus must be between 1 and {len(chosen)} (the corridor's RSUs), got {rsus}")
+        chosen = chosen[:rsus]
+    corridor_in_image = f"/opt/iea/{corridor_file}"
+    acl_volume = [f"{acl_dir}:{ACL_DIR_IN_CONTAINER}:ro"] if acl else []
+
+    def iea_service(user: str, command: list[str], role: str, node: str | None) -> dict[str, Any]:
+        svc: dict[str, Any] = {
+            "image": IEA_IMAGE,
+            "command": command + ["--corridor", corridor_in_image] + _zenoh_args(user, acl),
+            "depends_on": {"router": {"condition": "service_started"}},
+            "restart": "unless-stopped",
+            "healthcheck": _healthcheck(role, node, user, acl),
+        }
+        if acl_volume:
+            svc["volumes"] = list(acl_volume)
+        return svc
+
+    router_cfg = f"{ACL_DIR_IN_CONTAINER}/router-acl.json5" if acl else "/etc/zenoh/router.json5"
+    services: dict[str, Any] = {
+        "router": {
+            "image": zenoh_image,
+            "command": ["-c", router_cfg],
+            "volumes": ([f"{acl_dir}:{ACL_DIR_IN_CONTAINER}:ro"] if acl
+                        else ["./deploy/zenoh/router.json5:/etc/zenoh/router.json5:ro"]),
+            "ports": ["7447:7447"],
+            "restart": "unless-stopped",
+        },
+    }
+    sim = iea_service("sim", ["sim", "run", scenario], "sim", None)
+    sim["build"] = {"context": ".", "dockerfile": "Dockerfile"}  # the one image all IEA services share
+    services["sim"] = sim
+    for r in chosen:
+        env = f"{r.rsu_id.upper()}_SOURCE"
+        services[r.rsu_id] = iea_service(r.rsu_id, ["rsu", "--rsu", r.rsu_id, "--source", f"${{{env}:-sim}}"],
+                                         "rsu", r.rsu_id)
+    services["ddm"] = iea_service("ddm", ["ddm", "run"], "ddm", None)
+    for v in corridor.vehicles:
+        cmd = ["vehicle", "run", "--vehicle", v.vehicle_id]
+        if av_start and v.vehicle_id in av_start:
+            s0, lane, speed = av_start[v.vehicle_id]
+            cmd += ["--start-s", f"{s0:g}", "--start-lane", str(lane), "--speed", f"{speed:g}"]
+        services[v.vehicle_id] = iea_service(v.vehicle_id, cmd, "vehicle", v.vehicle_id)
+    return {"name": f"iea-{corridor.corridor_id}", "services": services}
+
+
+def compose_yaml(doc: dict[str, Any], header: str = "") -> str:
+    import yaml
+
+    body = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120)
+    return header + body
+
+
+HEADER = """\
+# IEA corridor deployment: one Zenoh router, the simulator, the RSUs, the DDM and the vehicle.
+# Generated by `iea deploy compose` from deploy/corridors/rellis.toml: edit the corridor, not this file.
+# Before the first `docker compose up`, create the router ACL and each service's credentials (secret):
+#   iea deploy acl --out secrets/acl --dictionary-path /etc/iea/acl/users.txt
+# Real cameras: RSU1_SOURCE=rtsp://... docker compose up   (default: each RSU renders the simulator's view)
+"""
