@@ -9,6 +9,7 @@
     iea health ROLE [ID]        wait for a service's Health (the containers' health check)
     iea demo                    run the main scenario end to end (what `make demo` runs)
     iea scenario run NAME       run any scenario end to end (--inprocess --fast: lockstep, faster than real time)
+    iea up                      the compose topology as local processes around one router
 """
 
 from __future__ import annotations
@@ -243,6 +244,12 @@ def _demo(argv: list[str]) -> int:
     return demo.main(argv)
 
 
+def _up(argv: list[str]) -> int:
+    from deploy import up
+
+    return up.main(argv)
+
+
 def _scenario(argv: list[str]) -> int:
     from deploy.lockstep import scenario_main
 
@@ -260,6 +267,7 @@ def main(argv: list[str] | None = None) -> int:
         "demo": ("run the main scenario end to end (make demo)", _demo),
         "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)", _scenario),
         "health": ("check a running service's Health (docker-compose health check)", _health),
+        "up": ("router + every service as local processes (no Docker)", _up),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]

@@ -21,7 +21,6 @@ import argparse
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -30,6 +29,8 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from deploy.procs import PROJECT_MODEL, ServiceGroup, child_env, corridor_services, detector_args  # noqa: F401
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -229,12 +230,6 @@ class RunMonitor:
             }
 
 
-def _start(name: str, args: list[str], run_dir: Path, env: dict[str, str]) -> subprocess.Popen:
-    log = open(run_dir / "logs" / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-    return subprocess.Popen([sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
-                            start_new_session=True)
-
-
 def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]:
     """Throwaway keys (DDM + one per RSU) in ``run_dir/keys`` and a corridor file trusting them."""
     from protocol.corridor import DEFAULT_CORRIDOR
@@ -257,20 +252,6 @@ def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]
     return corridor_file, paths
 
 
-PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
-
-
-def detector_args(detector: str) -> list[str]:
-    """iea-rsu options for a detector name: ``project`` (the project's ONNX model, models/), ``motion``
-    (MOG2), or the path of an ONNX model."""
-    if detector == "motion":
-        return ["--detector", "motion"]
-    model = PROJECT_MODEL if detector == "project" else Path(detector)
-    if not model.is_file():
-        raise FileNotFoundError(f"detector model {model} not found (use --detector motion, or train it: make models)")
-    return ["--detector", "onnx", "--model", str(model)]
-
-
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
              corridor_id: str | None = None, quiet: bool = False, detector: str = "project",
              seed: int | None = None, signed: bool = True) -> dict[str, Any]:
@@ -283,40 +264,34 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     cid = corridor_id or f"rellis-{uuid.uuid4().hex[:6]}"
     run_dir = (run_root or ROOT / "runs") / f"demo-{time.strftime('%Y%m%d-%H%M%S')}"
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), PYTHONUNBUFFERED="1")
+    env = child_env()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     say(f"[demo] corridor {cid}, scenario {scenario}, {duration_s:.0f} s; run folder {run_dir}")
 
     monitor = RunMonitor(cid, road=corridor.road)
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
-    common = ["--corridor-id", cid]
+    common: list[str] = []
     key_args: dict[str, list[str]] = {}
     if signed:
         corridor_file, key_paths = make_demo_keys(run_dir, corridor)
-        common += ["--corridor", str(corridor_file)]
+        common = ["--corridor", str(corridor_file)]
         key_args = {name: ["--key", str(path)] for name, path in key_paths.items()}
         say(f"[demo] signed messages: throwaway keys in {run_dir / 'keys'}, trust list in {corridor_file}")
     else:
         say("[demo] UNSIGNED: commands and alerts carry no signatures (--unsigned)")
-    procs: dict[str, subprocess.Popen] = {}
+    group = ServiceGroup(run_dir, env)
+    procs = group.procs
+    # DDM, RSUs, then (after discovery) the vehicle and the simulator together: the AV starts where the
+    # scenario puts it when the world starts
+    specs = corridor_services(corridor, cid, scenario=scenario, duration_s=duration_s, run_dir=run_dir,
+                              detector=detector, seed=seed, zenoh_args=common, keys=key_args)
     try:
-        av = []  # the vehicle starts where the scenario puts the AV
-        if sc.av is not None:
-            av = ["--vehicle", sc.av.vehicle_id, "--start-s", str(sc.av.start_s_m), "--start-lane", str(sc.av.lane),
-                  "--speed", str(sc.av.speed_mps)]
-        procs["vehicle"] = _start("vehicle", ["-m", "vehicle", "run", *common, *av, "--record", str(run_dir / "vehicle"),
-                                              "--duration", str(duration_s + 4)], run_dir, env)
-        procs["ddm"] = _start("ddm", ["-m", "ddm", "run", *common, *key_args.get("ddm", [])], run_dir, env)
-        for rsu in corridor.rsus:
-            procs[rsu.rsu_id] = _start(rsu.rsu_id, ["-m", "rsu", "--rsu", rsu.rsu_id, "--source", "sim", *common,
-                                                    *key_args.get(rsu.rsu_id, []),
-                                                    *detector_args(detector),
-                                                    "--annotate", str(run_dir / f"{rsu.rsu_id}.mp4")], run_dir, env)
+        for spec in specs[:-2]:
+            group.start(spec.name, spec.args)
         time.sleep(2.0)  # let every session discover the others before the world starts
-        seed_arg = [] if seed is None else ["--seed", str(seed)]
-        procs["sim"] = _start("sim", ["-m", "sim", "run", scenario, *common, *seed_arg, "--duration", str(duration_s)],
-                              run_dir, env)
+        for spec in specs[-2:]:
+            group.start(spec.name, spec.args)
         say("[demo] started: " + ", ".join(f"{k} (pid {p.pid})" for k, p in procs.items()))
         deadline = time.monotonic() + duration_s + 30
         last_alerts = last_cmds = 0
@@ -336,14 +311,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
                     say(f"  !! {name} exited with code {p.returncode}; see {run_dir / 'logs' / (name + '.log')}")
         time.sleep(1.0)
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        group.stop_all()
         transport.close()
 
     metrics = monitor.metrics()

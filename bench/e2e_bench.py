@@ -1,0 +1,227 @@
+"""End-to-end benchmark of the corridor (issue 8): lights on -> EvAlert -> command at the vehicle -> manoeuvre.
+
+Runs ``rellis_ev_yield`` N times (seeds) as real processes over Zenoh on loopback: the simulator, 4 RSUs
+(``--source sim``, motion detector: pixels in, objects out), the DDM and the vehicle. Default: the
+``iea up`` deployment (every service a client of one router); ``--peer``: the ``iea demo`` topology
+(peer mode, no router). Each run's figures come from ``deploy.demo.RunMonitor`` (a client listening to
+every key of the corridor; stamps are the publishers' wall clocks on this one host):
+
+- lights on -> first EvAlert: the simulator's snapshot with the light bar on -> the RSU's alert stamp;
+- EvAlert -> command at the vehicle: the alert stamp -> the vehicle's ``accepted`` ack stamp;
+- lights on -> manoeuvre start: -> the first VehicleState in mode ``manoeuvre`` (20 Hz: +-50 ms).
+
+Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault
+table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
+vehicle services, scripted RSUs: ``deploy/faults.py``) and the process faults (RSU killed, DDM
+restarted, router restarted: ``deploy/process_faults.py``).
+
+The same distribution from the whole corridor in lockstep (``deploy/lockstep.py``: simulator, 4 RSUs
+rendering and processing pixels, DDM, vehicle on one simulated clock; ``--lockstep-runs``) shows what
+the algorithms alone cost: no processing time, no scheduling, no load. ``--corridor-faults`` adds
+the fault table on that runner (about 40 s of CPU per case).
+
+    python bench/e2e_bench.py [--runs 5] [--lockstep-runs 3] [--peer] [--no-process-faults]
+                              [--corridor-faults] [--quick] [--json]
+
+Wall time: ~25 s per process run, ~40 s per lockstep run (2 loaded cores), ~60 s for the process
+faults. The machine's load shows in the process figures (every service shares its cores): run it on an
+otherwise idle machine for numbers to quote.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from deploy.faults import FaultOutcome, YieldJudge, corridor_faults, dropout_faults, latency_faults  # noqa: E402
+from deploy.up import Up  # noqa: E402
+
+TARGET_MEDIAN_S = 0.6
+TARGET_P99_S = 1.0
+HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
+        ("alert_to_command_at_vehicle_s", "EvAlert -> command at the vehicle"),
+        ("lights_on_to_manoeuvre_s", "lights on -> manoeuvre start"))
+
+
+def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[str, Any]:
+    """One scenario run as processes; returns the RunMonitor metrics plus the EvAlert -> ack hop."""
+    up = Up(port=0, run_dir=run_root / f"e2e-seed{seed}", duration_s=duration_s, seed=seed, restart="no",
+            peer=peer)
+    try:
+        up.start()
+        deadline = time.monotonic() + duration_s + 25
+        while up.group.running("sim") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(0.5)
+    finally:
+        up.stop()
+    m = up.metrics()
+    ev = up.monitor.events
+    m["latency_s"]["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
+                                                       if "command_acked" in ev and "first_ev_alert" in ev else None)
+    m["seed"] = seed
+    return m
+
+
+def one_lockstep_run(seed: int, duration_s: float) -> dict[str, Any]:
+    """The same scenario on the whole corridor in lockstep (simulated time: no processing delays)."""
+    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from protocol import keys
+
+    runner = CorridorLockstep(LockstepConfig(seed=seed, duration_s=duration_s))
+    judge = YieldJudge()
+    runner.bus.subscribe(keys.sim_world_key(runner.corridor_id),
+                         lambda k, snap: judge.on_snapshot(snap, runner.corridor.road))
+    m = runner.run()
+    ev = runner.monitor.events
+    m["latency_s"]["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
+                                                       if "command_acked" in ev and "first_ev_alert" in ev else None)
+    ok, outcome, margin = judge.outcome()
+    m["yield"] = {"passed": ok, "outcome": outcome, "margin_s": None if margin is None else round(margin, 3)}
+    return m
+
+
+def print_distribution(title: str, runs: list[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
+    dists = {k: distribution([r["latency_s"][k] for r in runs if r["latency_s"].get(k) is not None]) for k, _ in HOPS}
+    print(f"\n {title}")
+    print(f" {'hop':<36} {'n':>3} {'median':>8} {'p90':>8} {'p99':>8} {'max':>8}")
+    for k, label in HOPS:
+        d = dists[k]
+        cells = " ".join("       -" if d[q] is None else f"{d[q]:8.3f}" for q in ("median", "p90", "p99", "max"))
+        print(f" {label:<36} {d['n']:>3} {cells}")
+    n_yield = sum(1 for r in runs if r["yield"]["passed"] and r["yield"]["outcome"] != "EV never reached the AV")
+    print(f" AV out of the EV's lane (or stopped) before the EV reached it: {n_yield}/{len(runs)} runs")
+    return dists
+
+
+def run_line(seed: int, m: dict[str, Any], wall_s: float) -> str:
+    lat = m["latency_s"]
+    y = m["yield"]
+    return (f"  seed {seed}: " + "  ".join(f"{k.removesuffix('_s')}={lat.get(k)}" for k, _ in HOPS)
+            + f"  first alert {m.get('first_alert_rsu')}  commands {[c['manoeuvre'] for c in m['commands']]}"
+            + f"  collision {m.get('collision')}  yield: {y['outcome']}"
+            + (f" {y['margin_s']:+.2f} s" if y["margin_s"] is not None else "") + f"  ({wall_s:.0f} s)")
+
+
+def distribution(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"n": 0, "median": None, "p90": None, "p99": None, "max": None}
+    a = np.asarray(values, float)
+    return {"n": len(a), "median": float(np.median(a)), "p90": float(np.percentile(a, 90)),
+            "p99": float(np.percentile(a, 99)), "max": float(a.max())}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=5, help="scenario runs (seeds 1..N; default 5)")
+    ap.add_argument("--duration-s", type=float, default=14.0, help="scenario time per run (default 14 s)")
+    ap.add_argument("--lockstep-runs", type=int, default=3, help="lockstep corridor runs (seeds 1..N; default 3; 0: none)")
+    ap.add_argument("--corridor-faults", action="store_true",
+                    help="also the fault table on the lockstep corridor (~40 s per case)")
+    ap.add_argument("--peer", action="store_true", help="peer mode on loopback (the demo) instead of a router")
+    ap.add_argument("--no-process-faults", action="store_true", help="skip the process-level faults (~60 s)")
+    ap.add_argument("--quick", action="store_true", help="1 process run, 1 lockstep run, no process faults")
+    ap.add_argument("--runs-dir", default=None, help="keep the run folders here (default: a temporary folder)")
+    ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)  # the services' own warnings are in the run folders' logs
+    if args.quick:
+        args.runs, args.lockstep_runs, args.no_process_faults = 1, min(args.lockstep_runs, 1), True
+    tmp = None
+    if args.runs_dir:
+        root = Path(args.runs_dir)
+    else:
+        tmp = tempfile.TemporaryDirectory(prefix="e2e-")
+        root = Path(tmp.name)
+    mode = "peer mode, no router (iea demo)" if args.peer else "client mode via one router (iea up)"
+    print(f"e2e: rellis_ev_yield x {args.runs} seeds as processes over Zenoh on loopback, {mode}")
+    runs = []
+    for seed in range(1, args.runs + 1):
+        t = time.monotonic()
+        m = one_run(seed, root, args.duration_s, args.peer)
+        runs.append(m)
+        print(run_line(seed, m, time.monotonic() - t), flush=True)
+    dists = print_distribution(f"processes over Zenoh ({mode}), wall-clock stamps", runs)
+    tot = dists["lights_on_to_manoeuvre_s"]
+    missing = args.runs - tot["n"]
+    n_yield = sum(1 for r in runs if r["yield"]["passed"] and r["yield"]["outcome"] != "EV never reached the AV")
+    med_ok = tot["median"] is not None and tot["median"] <= TARGET_MEDIAN_S
+    p99_ok = tot["p99"] is not None and tot["p99"] <= TARGET_P99_S and missing == 0
+    print(f" targets over Zenoh: median <= {TARGET_MEDIAN_S} s {'met' if med_ok else 'NOT met'}, p99 <= {TARGET_P99_S} s "
+          f"{'met' if p99_ok else 'NOT met'}" + (f" ({missing} run(s) without a manoeuvre)" if missing else ""))
+
+    ls_runs: list[dict[str, Any]] = []
+    ls_dists = None
+    if args.lockstep_runs > 0:
+        print(f"\nlockstep: the same scenario x {args.lockstep_runs} seeds, whole corridor in one process", flush=True)
+        for seed in range(1, args.lockstep_runs + 1):
+            t = time.monotonic()
+            m = one_lockstep_run(seed, args.duration_s)
+            ls_runs.append(m)
+            print(run_line(seed, m, time.monotonic() - t), flush=True)
+        ls_dists = print_distribution("lockstep corridor, simulated time (no processing time)", ls_runs)
+
+    print("\n fault table")
+    t = time.monotonic()
+    faults: list[FaultOutcome] = latency_faults() + dropout_faults()
+    if args.corridor_faults:
+        faults += corridor_faults(quick=args.quick)
+    if not args.no_process_faults:
+        from deploy.process_faults import PROCESS_FAULTS
+
+        for fn in PROCESS_FAULTS.values():
+            faults.append(fn(root))
+    print(f" {'condition':<34} {'':<5} {'margin':>9}  outcome  [runner]")
+    for f in faults:
+        print(" " + f.row() + f"  [{f.runner}]")
+    passed = sum(f.passed for f in faults)
+    print(f" {passed}/{len(faults)} passed ({time.monotonic() - t:.0f} s)")
+    if tmp is not None:
+        tmp.cleanup()
+
+    if args.json:
+        def q(k: str, stat: str) -> float | None:
+            v = dists[k][stat]
+            return None if v is None else round(v, 3)
+
+        def lq(k: str, stat: str) -> float | None:
+            v = None if ls_dists is None else ls_dists[k][stat]
+            return None if v is None else round(v, 3)
+
+        figures = {
+            "runner": mode, "runs": args.runs, "runs_with_manoeuvre": tot["n"],
+            "lights_on_to_manoeuvre_median_s": q("lights_on_to_manoeuvre_s", "median"),
+            "lights_on_to_manoeuvre_p99_s": q("lights_on_to_manoeuvre_s", "p99"),
+            "lights_on_to_manoeuvre_max_s": q("lights_on_to_manoeuvre_s", "max"),
+            "lights_on_to_alert_median_s": q("lights_on_to_alert_s", "median"),
+            "lights_on_to_alert_p99_s": q("lights_on_to_alert_s", "p99"),
+            "alert_to_command_at_vehicle_median_s": q("alert_to_command_at_vehicle_s", "median"),
+            "alert_to_command_at_vehicle_p99_s": q("alert_to_command_at_vehicle_s", "p99"),
+            "target_median_met": med_ok, "target_p99_met": p99_ok, "runs_yield_ok": n_yield,
+            "lockstep_runs": len(ls_runs),
+            "lockstep_lights_on_to_manoeuvre_median_s": lq("lights_on_to_manoeuvre_s", "median"),
+            "lockstep_lights_on_to_manoeuvre_p99_s": lq("lights_on_to_manoeuvre_s", "p99"),
+            "lockstep_lights_on_to_alert_median_s": lq("lights_on_to_alert_s", "median"),
+            "lockstep_alert_to_command_at_vehicle_median_s": lq("alert_to_command_at_vehicle_s", "median"),
+            "lockstep_runs_yield_ok": sum(1 for r in ls_runs if r["yield"]["passed"]
+                                          and r["yield"]["outcome"] != "EV never reached the AV"),
+            "faults_passed": passed, "faults_total": len(faults),
+            "faults": [{"condition": f.name, "passed": f.passed, "outcome": f.outcome, "margin_s": f.margin_s,
+                        "runner": f.runner} for f in faults],
+        }
+        print(json.dumps(figures))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,243 @@
+"""`iea up`: the docker-compose topology as local processes, for machines without Docker.
+
+One Zenoh router (``iea router``, listening on loopback), then the vehicle, the DDM, one RSU per camera
+of the corridor (``--source sim``) and the simulator, every service in client mode against that router
+(``--connect tcp/127.0.0.1:PORT``). A service started while the router is down waits for it (Zenoh
+``connect/timeout_ms: -1``), services that crash are restarted (``--restart on-failure``, as in the
+compose file), and clients reconnect by themselves when the router comes back. Runs until Ctrl-C (or
+``--duration-s``), printing a status line now and then; Ctrl-C stops the services, then the router.
+The run folder (``runs/up-<time>/``) holds ``logs/<service>.log``, the vehicle's run and ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+from deploy.demo import RunMonitor, print_summary
+from deploy.faults import YieldJudge
+from deploy.procs import ROOT, ServiceGroup, corridor_services
+
+ROUTER = "router"
+CLIENT_CONFIG = "zenoh-client.json5"
+CLIENT_CONFIG_TEXT = """// written by `iea up`: a service waits for its router instead of exiting when the router is not up
+// (yet, or again); once connected, Zenoh clients reconnect by themselves after a router restart.
+{ connect: { timeout_ms: -1 } }
+"""
+
+
+def free_port() -> int:
+    """A TCP port on loopback nobody listens on now (for tests and parallel runs)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Up:
+    """The corridor's processes around one router; ``start()``, ``restart_router()``, ``stop()``."""
+
+    def __init__(self, *, corridor_file: str | None = None, corridor_id: str | None = None,
+                 scenario: str = "rellis_ev_yield", duration_s: float | None = None, port: int = 7447,
+                 run_dir: Path | None = None, detector: str = "project", rsu_ids: list[str] | None = None,
+                 restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
+                 vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False) -> None:
+        from protocol.corridor import load_corridor
+
+        self.corridor = load_corridor(corridor_file)
+        self.corridor_id = corridor_id or f"{self.corridor.corridor_id}-{uuid.uuid4().hex[:6]}"
+        self.port = port or free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.run_dir = Path(run_dir or ROOT / "runs" / f"up-{time.strftime('%Y%m%d-%H%M%S')}")
+        self.group = ServiceGroup(self.run_dir)
+        self.peer = peer
+        """Peer mode on loopback, no router (the `iea demo` topology): for comparisons."""
+        zenoh = [] if peer else ["--connect", self.endpoint, "--zenoh-config", str(self.run_dir / CLIENT_CONFIG)]
+        if corridor_file:
+            zenoh = ["--corridor", corridor_file, *zenoh]
+        self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
+                                       run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
+                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed)
+        if not with_sim:
+            self.specs = [s for s in self.specs if s.name != "sim"]
+        for s in self.specs:
+            s.restart = restart if s.name != "sim" else "no"  # the simulator ends with its scenario
+        if not peer:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            (self.run_dir / CLIENT_CONFIG).write_text(CLIENT_CONFIG_TEXT)
+        self.monitor = RunMonitor(self.corridor_id, road=self.corridor.road)
+        self.health: dict[str, tuple[float, str]] = {}
+        self.judge = YieldJudge()
+        """Scores the EV approach from the simulator's ground truth (deploy/faults.py)."""
+        self.transport = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def _start_router(self, timeout_s: float = 20.0) -> None:
+        self.group.start(ROUTER, ["-m", "deploy", "router", "--listen", self.endpoint, "--no-multicast"])
+        if not self.group.wait_for_log(ROUTER, "router ready", timeout_s):
+            log = self.group.log_path(ROUTER).read_text(errors="replace")[-2000:]
+            raise RuntimeError(f"the router did not start on {self.endpoint}:\n{log}")
+
+    def start(self, settle_s: float = 2.0, monitor: bool = True, extra_subscribers: list | None = None) -> None:
+        """Router, then the services, then (after ``settle_s``) the simulator. ``extra_subscribers``:
+        more ``callback(key, message)`` for every message of the corridor (the monitor's session)."""
+        from protocol import keys
+        from protocol.transport import ZenohSettings, ZenohTransport
+
+        if not self.peer:
+            self._start_router()
+        if monitor:
+            settings = ZenohSettings() if self.peer else ZenohSettings(mode="client", connect=[self.endpoint])
+            self.transport = ZenohTransport(settings)
+            self.transport.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
+            self.transport.subscribe(keys.corridor_expr(self.corridor_id), self._on_health)
+            for cb in extra_subscribers or []:
+                self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
+        settled = False
+        for spec in self.specs:
+            if spec.name in ("vehicle", "sim") and not settled:
+                time.sleep(settle_s)  # every client joins the router before the AV and the world start
+                settled = True
+            self.group.start(spec.name, spec.args, spec.restart)
+
+    def restart_router(self, down_s: float = 0.5) -> None:
+        """Stop the router, wait ``down_s``, start it again on the same endpoint."""
+        self.group.stop(ROUTER)
+        time.sleep(down_s)
+        self.group.restarts[ROUTER] = self.group.restarts.get(ROUTER, 0) + 1
+        self._start_router()
+
+    def stop(self) -> None:
+        """Services first (SIGINT, then SIGKILL), the router last."""
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+        self.group.stop_all(keep_last=0 if self.peer else 1)
+
+    def __enter__(self) -> Up:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _on_health(self, key: str, msg: Any) -> None:
+        if msg.KIND == "WorldSnapshot":
+            self.judge.on_snapshot(msg, self.corridor.road)
+            return
+        if msg.KIND != "Health":
+            return
+        from protocol.keys import parse_key
+
+        pk = parse_key(key)
+        name = pk.node if pk.domain == "rsu" else ("vehicle" if pk.domain == "vehicle" else pk.domain)
+        stale = f" stale={','.join(msg.stale)}" if msg.stale else ""
+        self.health[name] = (time.time(), f"{msg.status.value}{stale}")
+
+    def health_line(self) -> str:
+        """Each service's last Health (1 Hz): status and how long ago; '?' when never heard."""
+        now = time.time()
+        parts = []
+        for spec in self.specs:
+            h = self.health.get(spec.name)
+            parts.append(f"{spec.name}:?" if h is None else f"{spec.name}:{h[1]}({now - h[0]:.0f}s)")
+        return "health " + " ".join(parts)
+
+    def status(self) -> str:
+        parts = []
+        for name in self.group.procs:
+            code = self.group.exited().get(name)
+            parts.append(name if code is None else f"{name}(exit {code})")
+        return "up: " + " ".join(parts)
+
+    def metrics(self) -> dict[str, Any]:
+        m = self.monitor.metrics()
+        ok, outcome, margin = self.judge.outcome()
+        m["yield"] = {"passed": ok, "outcome": outcome, "margin_s": None if margin is None else round(margin, 3),
+                      "events_sim_s": {k: round(v, 2) for k, v in self.judge.events.items()}}
+        m["restarts"] = dict(self.group.restarts)
+        m["exit_codes"] = self.group.exited()
+        return m
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="iea up", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
+    ap.add_argument("--corridor-id", default=None, help="corridor id in the keys (default: the file's id + a suffix)")
+    ap.add_argument("--scenario", default="rellis_ev_yield", help="scenario the simulator runs (iea-sim list)")
+    ap.add_argument("--no-sim", action="store_true", help="do not start the simulator (RSUs then wait for frames)")
+    ap.add_argument("--rsus", type=int, default=None, metavar="N", help="start only the first N RSUs of the corridor")
+    ap.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1 (0: any free port; default 7447)")
+    ap.add_argument("--detector", default="project",
+                    help="RSU detector: 'project' (models/iea_det_tiny.onnx, default), 'motion' (MOG2) or an ONNX path")
+    ap.add_argument("--annotate", action="store_true", help="each RSU writes its annotated video to the run folder")
+    ap.add_argument("--restart", choices=["no", "on-failure"], default="on-failure",
+                    help="restart a service that exits with an error (default on-failure)")
+    ap.add_argument("--duration-s", type=float, default=None,
+                    help="stop everything after this many seconds (default: run until Ctrl-C)")
+    ap.add_argument("--sim-duration-s", type=float, default=None,
+                    help="scenario time the simulator runs (default: the scenario's duration)")
+    ap.add_argument("--status-every-s", type=float, default=2.0, help="print a status line this often (0: never)")
+    ap.add_argument("--runs", default=str(ROOT / "runs"), help="where run folders go")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from protocol.corridor import CorridorError, load_corridor
+
+    try:
+        corridor = load_corridor(args.corridor)
+    except CorridorError as exc:
+        print(f"iea up: {exc}", file=sys.stderr)
+        return 2
+    rsu_ids = None
+    if args.rsus is not None:
+        if not 1 <= args.rsus <= len(corridor.rsus):
+            print(f"iea up: --rsus must be in 1..{len(corridor.rsus)}", file=sys.stderr)
+            return 2
+        rsu_ids = [r.rsu_id for r in corridor.rsus[:args.rsus]]
+    run_dir = Path(args.runs) / f"up-{time.strftime('%Y%m%d-%H%M%S')}"
+    up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
+            duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
+            rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim)
+    print(f"[up] corridor {up.corridor_id}: router {up.endpoint}, services "
+          f"{', '.join(s.name for s in up.specs)}; logs in {up.run_dir / 'logs'}", flush=True)
+    code = 0
+    try:
+        up.start()
+        print(f"[up] {up.status()}  (Ctrl-C to stop)", flush=True)
+        end = None if args.duration_s is None else time.monotonic() + args.duration_s
+        next_status = time.monotonic()
+        while end is None or time.monotonic() < end:
+            time.sleep(0.5)
+            for name in up.group.supervise():
+                print(f"[up] {name} exited with an error; restarted (see its log)", flush=True)
+            if args.status_every_s > 0 and time.monotonic() >= next_status:
+                next_status = time.monotonic() + args.status_every_s
+                print("  " + up.monitor.progress_line(), flush=True)
+                print("    " + up.health_line(), flush=True)
+    except KeyboardInterrupt:
+        print("\n[up] interrupted: stopping the services, then the router", flush=True)
+    except RuntimeError as exc:
+        print(f"iea up: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        up.stop()
+    m = up.metrics()
+    up.run_dir.mkdir(parents=True, exist_ok=True)
+    (up.run_dir / "metrics.json").write_text(json.dumps(m, indent=2, default=str) + "\n")
+    m["run_dir"] = str(up.run_dir)
+    if m["events_since_lights_on_s"]:
+        print_summary(m)
+    print(f"[up] stopped; exit codes {m['exit_codes']}; run folder {up.run_dir}")
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
