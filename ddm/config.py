@@ -20,10 +20,15 @@ class DdmConfig:
     gate_speed_mps: float = 4.0
     """Largest velocity difference between a measurement and a track it may join (an opposite-direction
     car passing at the same spot differs by ~2 v and never matches)."""
+    velocity_settle_s: float = 1.0
+    """An RSU object younger than this (its ``age_s``) is gated on position only: its velocity is still
+    converging (the RSU's filter starts at zero speed)."""
     min_pos_var_m2: float = 0.25
     """Floor of the position variance used in gating (RSU-to-RSU calibration bias of ~0.5 m)."""
     vel_meas_var_m2ps2: float = 1.0
     """Variance of an RSU velocity measurement ((m/s)^2): RSU SORT velocities are differenced positions."""
+    young_vel_meas_var_m2ps2: float = 100.0
+    """... of an object younger than ``velocity_settle_s`` (its filter started at zero speed)."""
     accel_noise_m2ps4: float = 4.0
     """Process noise of the constant-velocity filter (white acceleration, (m/s^2)^2): covers 2 m/s^2 braking."""
     map_gate_m: float = 8.0
@@ -36,7 +41,7 @@ class DdmConfig:
     """Object lists whose capture time is older than this on arrival are dropped (Autoware: 1.5 s)."""
     max_future_s: float = 0.5
     """Object lists stamped further ahead than this (clock skew) are rejected."""
-    merge_distance_m: float = 1.5
+    merge_distance_m: float = 2.5
     """Two tracks closer than this with similar velocity and no RSU in common are merged (older id kept)."""
     rsu_stale_s: float = 0.3
     """An RSU whose object stream is silent this long is stale (RSUs publish at 10-15 Hz: 3-4 frames
@@ -66,14 +71,20 @@ class DdmConfig:
     immediate approach, also to an EV that is not gaining)."""
     min_closing_mps: float = 0.5
     """Closing speeds below this count as not closing (time to pass = infinity)."""
-    too_late_s: float = 6.0
+    too_late_s: float = 4.0
     """Below this time to pass, no lane change: slow in lane (CARMA: 13 s at highway speed, where a
-    change takes longer; our change takes ~4 s + 2 s margin)."""
+    change takes longer; ours takes ``lane_change_min_s`` = 3 s at 13.4 m/s, + 1 s margin)."""
+    stop_margin_s: float = 1.0
+    """A pull-over aims to be stopped this long before the EV's time to pass (braking harder than
+    comfort, up to ``max_decel_mps2``, when the EV is close)."""
     slow_speed_mps: float = 4.47
     """Speed to slow to in lane (CARMA: 4.47 m/s = 10 mph)."""
     pass_margin_m: float = 30.0
     """The pass is done once the EV is this far ahead of the AV (CARMA: 152.4 m at highway speeds;
     30 m is > 1.5 s of EV travel at 20 m/s and two car lengths beyond the AV's own length)."""
+    resume_hold_s: float = 1.5
+    """A yielding AV resumes only once no EV has been behind or passing it for this long (RSU tracks
+    of two cars side by side can merge or switch for a moment while the EV passes)."""
     min_ev_speed_mps: float = 1.0
     """A slower 'EV' is parked, not approaching (a hazard, not this policy)."""
     same_direction_cos: float = 0.5
@@ -89,6 +100,9 @@ class DdmConfig:
     comfort_decel_mps2: float = 2.0
     """Deceleration to the stop (<= 3 m/s^2 asked by the issue; Apollo's pull-over allows 4.5)."""
     max_decel_mps2: float = 3.0
+    urgent_lat_accel_mps2: float = 3.0
+    """An urgent pull-over (the EV is close) may steer up to this lateral acceleration (the vehicle
+    accepts paths up to 4 m/s^2)."""
     max_lat_accel_mps2: float = 2.0
     """Largest lateral acceleration of a commanded path (comfort; curvature limit = a / v^2)."""
     max_curvature_1pm: float = 0.19
@@ -98,10 +112,10 @@ class DdmConfig:
     lane_change_min_m: float = 15.0
     curb_clearance_m: float = 0.3
     """Gap kept between the car's side and the curb / lane edge when stopped."""
-    stop_on_shoulder: bool = True
-    """Stop on the shoulder when it is at least car width + 2 clearances wide: clears lane 0 for the
-    EV and traffic; otherwise stop at the curb side of lane 0 (Texas 545.156: 'as close as possible
-    to the right-hand edge or curb')."""
+    stop_on_shoulder: bool = False
+    """True: stop on the shoulder when it is at least car width + 2 clearances wide (clears lane 0 too).
+    Default: stop at the curb side of lane 0, one lane to the right of the EV's lane (Texas 545.156:
+    'as close as possible to the right-hand edge or curb'; issue 8: 'stops one lane to the right')."""
     waypoint_step_m: float = 1.0
     path_tail_m: float = 10.0
     """Waypoints continue this far past the stop point (the controller's look-ahead needs them)."""

@@ -54,9 +54,11 @@ def quintic_offset(u: np.ndarray, d0: float, d1: float, slope0: float = 0.0) -> 
     return a0 + a1 * u + a3 * u**3 + a4 * u**4 + a5 * u**5
 
 
-def curvature_allowed(speed_mps: float, road_curvature_1pm: float, cfg: DdmConfig) -> float:
+def curvature_allowed(speed_mps: float, road_curvature_1pm: float, cfg: DdmConfig,
+                      lat_accel_mps2: float | None = None) -> float:
     v = max(speed_mps, 1.0)
-    return max(1e-4, min(cfg.max_curvature_1pm, cfg.max_lat_accel_mps2 / (v * v)) - abs(road_curvature_1pm))
+    a = cfg.max_lat_accel_mps2 if lat_accel_mps2 is None else lat_accel_mps2
+    return max(1e-4, min(cfg.max_curvature_1pm, a / (v * v)) - abs(road_curvature_1pm))
 
 
 def lane_change_length(delta_d_m: float, speed_mps: float, road_curvature_1pm: float, cfg: DdmConfig) -> float:
@@ -103,13 +105,64 @@ def _build(frame: RoadFrame, s: np.ndarray, d: np.ndarray, v: np.ndarray, target
     )
 
 
+def braking_lane_change_length(delta_d_m: float, v0_mps: float, decel_mps2: float, road_curvature_1pm: float,
+                               cfg: DdmConfig, lat_accel_mps2: float | None = None) -> float:
+    """Length of a lane change driven while braking at ``decel_mps2`` from ``v0_mps``: it lasts
+    ``lane_change_min_s`` at the average speed over that time, and its peak curvature keeps the lateral
+    acceleration at that average speed within comfort."""
+    v_avg = max(MIN_PLAN_SPEED_MPS, v0_mps - decel_mps2 * cfg.lane_change_min_s / 2.0)
+    # the quintic's curvature peaks about a fifth of the way in, where the car is still fast
+    v_peak = max(MIN_PLAN_SPEED_MPS, v0_mps - decel_mps2 * cfg.lane_change_min_s / 5.0)
+    kappa = curvature_allowed(v_peak, road_curvature_1pm, cfg, lat_accel_mps2)
+    return max(cfg.lane_change_min_m, v_avg * cfg.lane_change_min_s,
+               math.sqrt(QUINTIC_PEAK * abs(delta_d_m) / kappa) if delta_d_m else 0.0)
+
+
+def min_stop_distance_m(delta_d_m: float, v0_mps: float, road_curvature_1pm: float, cfg: DdmConfig) -> float:
+    """Shortest pull-over: braking at ``max_decel_mps2``, lane change done 5 m before the stop."""
+    v0 = max(v0_mps, MIN_PLAN_SPEED_MPS)
+    lc = braking_lane_change_length(delta_d_m, v0, cfg.max_decel_mps2, road_curvature_1pm, cfg,
+                                    cfg.urgent_lat_accel_mps2)
+    return max(lc + 5.0, v0 * v0 / (2.0 * cfg.max_decel_mps2))
+
+
 def plan_stop(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
-              d_target: float, cfg: DdmConfig) -> PlannedPath:
-    """Move from (s0, d0) to offset d_target and stop there at a constant deceleration <= comfort."""
+              d_target: float, cfg: DdmConfig, *, stop_within_s: float | None = None,
+              max_stop_dist_m: float | None = None) -> PlannedPath:
+    """Move from (s0, d0) to offset d_target and stop there at a constant deceleration.
+
+    The deceleration is the comfort one, raised (up to ``max_decel_mps2``) to be stopped within
+    ``stop_within_s`` (e.g. before the EV arrives) and within ``max_stop_dist_m`` (e.g. behind a car
+    that is stopping ahead in the target lane; never shorter than ``min_stop_distance_m``). The lane
+    change is ``braking_lane_change_length`` long and ends at least 5 m before the stop.
+    """
     v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
+    decel = cfg.comfort_decel_mps2
+    if stop_within_s is not None and math.isfinite(stop_within_s) and stop_within_s > 0:
+        decel = max(decel, v0 / stop_within_s)
+    if max_stop_dist_m is not None and max_stop_dist_m > 0:
+        decel = max(decel, v0 * v0 / (2.0 * max_stop_dist_m))
+    decel = min(decel, cfg.max_decel_mps2)
     kroad = frame.road.curvature_at(s0)
-    lc = lane_change_length(d_target - d0, v0, kroad, cfg)
-    stop_dist = max(lc + 5.0, v0 * v0 / (2.0 * cfg.comfort_decel_mps2))
+
+    def layout(a: float, lat: float | None = None) -> tuple[float, float]:
+        lc_a = braking_lane_change_length(d_target - d0, v0, a, kroad, cfg, lat)
+        return lc_a, max(lc_a + 5.0, v0 * v0 / (2.0 * a))
+
+    lc, stop_dist = layout(decel)
+    if stop_within_s is not None and math.isfinite(stop_within_s) and 2.0 * stop_dist / v0 > stop_within_s:
+        # the lane change, not the brakes, sets the stop: brake harder and steer more briskly (up to
+        # max_decel_mps2 and urgent_lat_accel_mps2) to shorten it
+        for k in np.linspace(0.0, 1.0, 8)[1:]:
+            a = decel + k * (cfg.max_decel_mps2 - decel)
+            lat = cfg.max_lat_accel_mps2 + k * (cfg.urgent_lat_accel_mps2 - cfg.max_lat_accel_mps2)
+            lc, stop_dist = layout(float(a), float(lat))
+            if 2.0 * stop_dist / v0 <= stop_within_s:
+                break
+    if max_stop_dist_m is not None and max_stop_dist_m > 0 and stop_dist > max_stop_dist_m:
+        shortest = min_stop_distance_m(d_target - d0, v0, kroad, cfg)
+        stop_dist = max(max_stop_dist_m, shortest)
+        lc = min(lc, stop_dist - 5.0)
     decel = v0 * v0 / (2.0 * stop_dist)
     s = _sample(s0, stop_dist + cfg.path_tail_m, cfg)
     rel = s - s0

@@ -14,13 +14,17 @@ EV has passed):
 
 - AV in lane 0 (or on the shoulder): PULL_OVER - stop at the curb side of lane 0 / on the shoulder.
 - AV in lane k > 0, ``ttp >= too_late_s`` and a safe gap in lane 0: PULL_OVER (change to lane 0 and stop).
-- ... no safe gap in lane 0: SLOW_IN_LANE, re-checked every cycle; PULL_OVER once the gap opens while
-  there is still time.
-- ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late).
+- ... no safe gap in lane 0 because of a faster car there: SLOW_IN_LANE (let it pass), re-checked every
+  cycle; PULL_OVER once the gap opens while there is still time. Because of a slower car: no command,
+  the AV keeps its speed past it (slowing would keep it beside that car and in the EV's way) and pulls
+  over as soon as the gap behind the AV is safe.
+- ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late); if
+  the EV then stops closing (it is held up behind the AV) and lane 0 has a gap, PULL_OVER after all.
 - ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
   there is one and a safe gap, else SLOW_IN_LANE.
-- RESUME once every EV the AV yielded to is ``pass_margin_m`` ahead, its alert is cleared, or it is
-  forgotten; RESUME waits for a safe gap in the lane it merges into.
+- RESUME once no EV is behind the AV or less than ``pass_margin_m`` ahead of it (whatever its track id:
+  a track may switch ids while the EV passes), and none has been for ``resume_hold_s`` (a track lost
+  for a moment next to the AV is not a pass); RESUME waits for a safe gap in the lane it merges into.
 
 Gap check (lane change / merge into lane L): every other track in lane L needs a bumper-to-bumper
 clearance of at least ``gap_min_m + gap_time_s * v_follower + max(0, v_follower - v_leader) * t_change``
@@ -43,6 +47,7 @@ from ddm.geometry import RoadFrame
 from ddm.paths import (
     PlannedPath,
     lane_change_length,
+    min_stop_distance_m,
     plan_keep_lane_slow,
     plan_lane_change,
     plan_resume,
@@ -53,6 +58,8 @@ from ddm.world import Track
 from protocol.messages import Manoeuvre, VehicleMode
 
 Action = Literal["none", "hold"] | Manoeuvre
+SELF_RADIUS_M = 2.0
+"""A track whose centre is this close to the AV's is the AV itself (two cars' centres never are)."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,8 @@ class Response:
     ev_track_ids: set[int] = field(default_factory=set)
     slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
     since_s: float = 0.0
+    ev_near_s: float = 0.0
+    """Last time an EV was behind the AV or passing it (the caller updates it from ``Decision.ev_near``)."""
 
     def commit(self, decision: Decision, now: float) -> None:
         m = decision.manoeuvre
@@ -93,6 +102,7 @@ class Response:
             if decision.ev_track_id is not None:
                 self.ev_track_ids.add(decision.ev_track_id)
             self.slow_because = decision.slow_because
+            self.ev_near_s = now
         self.since_s = now
 
 
@@ -119,6 +129,10 @@ class Decision:
     time_to_pass_s: float | None = None
     ev_gap_m: float | None = None
     slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
+    stop_within_m: float | None = None
+    """PULL_OVER: stop within this distance (room behind a leader in the target lane)."""
+    ev_near: bool = False
+    """An EV is behind the AV (within ``ev_lookbehind_m``) or passing it (ahead by < ``pass_margin_m``)."""
     ego_s_m: float = 0.0
     ego_d_m: float = 0.0
     ego_heading_error_rad: float = 0.0
@@ -172,24 +186,54 @@ def assess_evs(ego_s: float, ego_v_long: float, ego_len: float, evs: list[Track]
     return threats, ahead
 
 
+class GapCheck(tuple):
+    """``(ok, explanation)`` of ``gap_check``; ``blocker_speed_mps`` is the speed along the road of the
+    vehicle that makes the gap unsafe (None when the gap is safe)."""
+
+    def __new__(cls, ok: bool, why: str, blocker_speed_mps: float | None = None,
+                room_ahead_m: float | None = None) -> GapCheck:
+        self = super().__new__(cls, (ok, why))
+        self.blocker_speed_mps = blocker_speed_mps
+        self.room_ahead_m = room_ahead_m
+        """``stopping`` checks: how far the AV may travel before it must be stopped behind the leader
+        (None: no leader in the lane)."""
+        return self
+
+
 def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, target_lane: int,
               others: list[Track], frame: RoadFrame, change_time_s: float, cfg: DdmConfig,
-              exclude: set[int] = frozenset()) -> tuple[bool, str]:
-    """Is there a safe gap for the AV in ``target_lane``? (ok, explanation)."""
+              exclude: set[int] = frozenset(), stopping: bool = False) -> GapCheck:
+    """Is there a safe gap for the AV in ``target_lane``? (ok, explanation).
+
+    ``stopping``: the AV will stop in that lane (pull-over), so a leader only has to leave it room
+    to stop behind it even if the leader brakes too: clearance + v_l^2 / (2 comfort) >= gap_min +
+    v_AV^2 / (2 max_decel); the room left is returned (``room_ahead_m``) to place the stop point. A
+    follower needs a gap that does not close during the change and room to stop behind the AV's stop."""
     cand = [o for o in others if o.track_id not in exclude]
     if not cand:
-        return True, f"lane {target_lane} empty"
+        return GapCheck(True, f"lane {target_lane} empty")
     s, d = frame.to_frenet(np.array([o.x_m for o in cand]), np.array([o.y_m for o in cand]))
     vl = frame.longitudinal_speed(s, [o.vx_mps for o in cand], [o.vy_mps for o in cand])
     lo = target_lane * frame.lane_width_m
     hi = lo + frame.lane_width_m
     worst = ""
+    room: float | None = None
     for k, o in enumerate(cand):
         half_w = max(o.width_m, 1.5) / 2.0
         if d[k] + half_w <= lo or d[k] - half_w >= hi:
             continue  # not in the target lane
         ds = float(s[k]) - ego_s
         clearance = abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0
+        if ds >= 0 and stopping:  # leader of a stop: room to stop behind it
+            v_l = max(float(vl[k]), 0.0)
+            r = clearance + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
+            need_m = min_stop_distance_m(frame.lane_width_m, ego_v, 0.0, cfg)
+            if r < need_m or clearance < cfg.gap_min_m:
+                return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
+                                f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l)
+            room = r if room is None else min(room, r)
+            worst = worst or f"room to stop in lane {target_lane}"
+            continue
         if ds >= 0:  # leader: the AV follows it
             v_f, v_l = ego_v, float(vl[k])
             role = "leader"
@@ -197,16 +241,25 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             v_f, v_l = float(vl[k]), ego_v_after
             role = "follower"
         need = cfg.gap_min_m + cfg.gap_time_s * max(v_f, 0.0) + max(0.0, v_f - v_l) * change_time_s
+        if stopping and role == "follower":
+            # the AV ends stopped at least v^2 / (2 max_decel) ahead: the follower needs room to stop
+            # behind that (reacting after gap_time_s), and a gap that does not close during the change
+            v_f = max(v_f, 0.0)
+            av_stop_m = ego_v * ego_v / (2.0 * cfg.max_decel_mps2)
+            follower_stop_m = v_f * cfg.gap_time_s + v_f * v_f / (2.0 * cfg.comfort_decel_mps2)
+            need = max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s,
+                       cfg.gap_min_m + follower_stop_m - av_stop_m)
         if clearance < need:
-            return False, (f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                           f"{clearance:.1f} m < {need:.1f} m needed")
+            return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
+                            f"{clearance:.1f} m < {need:.1f} m needed", float(vl[k]))
         worst = worst or f"gaps in lane {target_lane} ok"
-    return True, worst or f"lane {target_lane} clear"
+    return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
 
 def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cfg: DdmConfig,
-           response: Response) -> Decision:
-    """One vehicle's EV response (see module docstring). ``others``: tracks near the AV (any kind)."""
+           response: Response, now: float | None = None) -> Decision:
+    """One vehicle's EV response (see module docstring). ``others``: tracks near the AV (any kind).
+    ``now``: with it, a yielding AV resumes only after no EV has been near for ``resume_hold_s``."""
     s_arr, d_arr = frame.to_frenet(ego.x_m, ego.y_m)
     s_e, d_e = float(s_arr[0]), float(d_arr[0])
     h_err = _wrap(ego.heading_rad - float(frame.heading_at(s_e)))
@@ -214,11 +267,13 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
     lane_e = int(frame.lane_of(d_e))
     lane_e = 0 if lane_e < 0 and d_e < 0 else lane_e  # on the shoulder: treat as lane 0
     base = dict(ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=ego.speed_mps)
-    evs = [e for e in evs if ego.track_id is None or e.track_id != ego.track_id]  # never yield to itself
+    # never yield to itself: its own track, or an 'EV' where the AV is (an RSU track that switched cars)
+    evs = [e for e in evs if (ego.track_id is None or e.track_id != ego.track_id)
+           and math.hypot(e.x_m - ego.x_m, e.y_m - ego.y_m) >= SELF_RADIUS_M]
     ev_ids = {e.track_id for e in evs}
     exclude = ev_ids | ({ego.track_id} if ego.track_id is not None else set())
     # tracks that are the AV itself but not bound (pose within a car length and a half width)
-    near_self = {o.track_id for o in others if math.hypot(o.x_m - ego.x_m, o.y_m - ego.y_m) < 2.0}
+    near_self = {o.track_id for o in others if math.hypot(o.x_m - ego.x_m, o.y_m - ego.y_m) < SELF_RADIUS_M}
     traffic = [o for o in others if o.track_id not in exclude and o.track_id not in near_self]
     threats, ahead = assess_evs(s_e, v_e, ego.length_m, evs, frame, cfg)
     urgent = [t for t in threats if t.triggered]
@@ -232,23 +287,27 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
         lc = lane_change_length(frame.lane_centre_offset(0) - d_e, max(v_e, 2.0), 0.0, cfg)
         t_change = lc / max(v_e, 2.0)
         v_after = max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
-        return gap_check(s_e, v_e, v_after, ego.length_m, 0, traffic, frame, t_change, cfg)
+        return gap_check(s_e, v_e, v_after, ego.length_m, 0, traffic, frame, t_change, cfg, stopping=True)
 
+    passing = {tid: dist for tid, dist in ahead.items() if dist < cfg.pass_margin_m}
+    base["ev_near"] = bool(threats or passing)
     if urgent:
         t = urgent[0]
         common = dict(base, ev_track_id=t.track_id, time_to_pass_s=t.time_to_pass_s, ev_gap_m=t.gap_m)
         if response.phase == "yielding":
-            if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and response.slow_because == "gap"
-                    and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s):
-                ok, why = pull_over_gap(t)
+            if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and response.slow_because in ("gap", "too_late")
+                    and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s and t.lane != 0):
+                gap = pull_over_gap(t)
+                ok, why = gap
                 if ok:
                     return Decision(Manoeuvre.PULL_OVER, f"gap opened ({why}); pull over to lane 0: {describe(t)}",
-                                    target_lane=0, **common)
+                                    target_lane=0, stop_within_m=gap.room_ahead_m, **common)
             return Decision("hold", f"keep {response.manoeuvre.value if response.manoeuvre else 'manoeuvre'}: "
                             f"{describe(t)}", target_lane=response.target_lane, **common)
         if lane_e <= 0:
+            ahead = gap_check(s_e, v_e, v_e, ego.length_m, 0, traffic, frame, 0.0, cfg, stopping=True)
             return Decision(Manoeuvre.PULL_OVER, f"in lane 0, stop at the curb: {describe(t)}", target_lane=0,
-                            **common)
+                            stop_within_m=ahead.room_ahead_m, **common)
         if t.time_to_pass_s < cfg.too_late_s:
             return Decision(Manoeuvre.SLOW_IN_LANE, f"too late to change lane (< {cfg.too_late_s:.0f} s): "
                             f"{describe(t)}", target_lane=lane_e, slow_because="too_late", **common)
@@ -263,21 +322,30 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
                                     f"({why}): {describe(t)}", target_lane=left, **common)
             return Decision(Manoeuvre.SLOW_IN_LANE, f"EV drives in lane 0, no safe lane to the left: "
                             f"{describe(t)}", target_lane=lane_e, slow_because="ev_in_lane0", **common)
-        ok, why = pull_over_gap(t)
+        gap = pull_over_gap(t)
+        ok, why = gap
         if ok:
             return Decision(Manoeuvre.PULL_OVER, f"pull over to lane 0 ({why}): {describe(t)}", target_lane=0,
+                            stop_within_m=gap.room_ahead_m, **common)
+        if gap.blocker_speed_mps is not None and gap.blocker_speed_mps < v_e - cfg.min_closing_mps:
+            # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
+            return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
                             **common)
         return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e}: {describe(t)}",
                         target_lane=lane_e, slow_because="gap", **common)
 
     if response.phase == "yielding":
-        # still passing: an EV we yield to is behind (not triggering any more) or less than the margin ahead
-        for tid in sorted(response.ev_track_ids):
-            if tid in ahead and ahead[tid] < cfg.pass_margin_m:
-                return Decision("hold", f"EV track {tid} passing, {ahead[tid]:.0f} m ahead "
-                                f"(< {cfg.pass_margin_m:.0f} m)", ev_track_id=tid, **base)
-            if any(t.track_id == tid for t in threats):
-                return Decision("hold", f"EV track {tid} still behind", ev_track_id=tid, **base)
+        # still passing: an EV (the one we yield to, or one with a new track id after a track switch)
+        # is behind (not triggering any more) or less than the margin ahead
+        for tid in sorted(passing):
+            return Decision("hold", f"EV track {tid} passing, {passing[tid]:.0f} m ahead "
+                            f"(< {cfg.pass_margin_m:.0f} m)", ev_track_id=tid, **base)
+        if threats:
+            t = threats[0]
+            return Decision("hold", f"EV track {t.track_id} still behind", ev_track_id=t.track_id, **base)
+        if now is not None and now - response.ev_near_s < cfg.resume_hold_s:
+            return Decision("hold", f"no EV near for {now - response.ev_near_s:.1f} s "
+                            f"(resume after {cfg.resume_hold_s:.1f} s)", **base)
         target = max(lane_e, 0)
         if abs(d_e - frame.lane_centre_offset(target)) > 0.5 * frame.lane_width_m:
             lc = lane_change_length(frame.lane_centre_offset(target) - d_e, 6.0, 0.0, cfg)
@@ -310,7 +378,10 @@ def plan(decision: Decision, frame: RoadFrame, cfg: DdmConfig, vehicle_width_m: 
     s0, d0, h, v = decision.ego_s_m, decision.ego_d_m, decision.ego_heading_error_rad, decision.ego_speed_mps
     if m == Manoeuvre.PULL_OVER:
         d_stop = stop_offset_m(frame, vehicle_width_m, frame.road.shoulder_width_m, cfg)
-        return plan_stop(frame, s0, d0, h, v, d_stop, cfg)
+        ttp = decision.time_to_pass_s
+        within_s = ttp - cfg.stop_margin_s if ttp is not None and math.isfinite(ttp) else None
+        return plan_stop(frame, s0, d0, h, v, d_stop, cfg, stop_within_s=within_s,
+                         max_stop_dist_m=decision.stop_within_m)
     lane = decision.target_lane if decision.target_lane is not None else max(int(frame.lane_of(d0)), 0)
     centre = frame.lane_centre_offset(lane)
     if m == Manoeuvre.SLOW_IN_LANE:

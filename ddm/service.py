@@ -210,7 +210,9 @@ class DdmService:
             if not evs and resp.phase == "normal":
                 continue  # nothing to yield to, nothing to resume from
             others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
-            decision = decide(ego, evs, others, self.frame, self.config, resp)
+            decision = decide(ego, evs, others, self.frame, self.config, resp, now)
+            if decision.ev_near:
+                resp.ev_near_s = now
             what = (str(decision.action), decision.ev_track_id)
             if what != self._last_reason.get(vid):
                 log.info("%s: %s (%s)", vid, decision.action, decision.reason)

@@ -17,7 +17,9 @@ Pure core (no I/O, no clock: every call takes ``now``, the DDM's time of recepti
 - EVs: an object with ``obj_type=ev`` and ``ev_state=confirmed`` marks its track as EV for
   ``ev_object_hold_s``; an active EvAlert marks the track it names (via the RSU's object id, else by
   position) until cleared or not refreshed for ``ev_alert_timeout_s``; a cleared alert removes the
-  mark and suppresses the object-level mark on that track until a new alert.
+  mark and suppresses the object-level mark on that track until a new alert; an alert cleared because
+  the EV left that RSU's view (``clear_reason=out_of_view``) leaves the mark to time out, so the EV
+  stays an EV while the next RSU gathers its own evidence.
 - RSU liveness: last object list and last health per RSU; ``stale_rsus(now)``.
 - Autonomous vehicles: each VehicleState is bound to the nearest track (``vehicle_gate_m``).
 """
@@ -33,10 +35,10 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from ddm.config import DdmConfig
-from protocol.messages import AlertState, EvAlert, EvState, ObjectList, ObjectType, VehicleState
+from protocol.messages import AlertState, ClearReason, EvAlert, EvState, ObjectList, ObjectType, VehicleState
 
 _OBJ_FIELDS = attrgetter(
-    "object_id", "pos_x_m", "pos_y_m", "vel_x_mps", "vel_y_mps", "length_m", "width_m", "ev_score"
+    "object_id", "pos_x_m", "pos_y_m", "vel_x_mps", "vel_y_mps", "length_m", "width_m", "ev_score", "age_s"
 )
 _OBJ_COV = attrgetter("pos_cov_m2")
 _TYPE_CODES = {t: i for i, t in enumerate(ObjectType)}
@@ -199,7 +201,7 @@ class CorridorWorld:
 
     # ------------------------------------------------------------------ filter
     def _kf_axis(self, slots: np.ndarray, dt: np.ndarray, z_p: np.ndarray, z_v: np.ndarray,
-                 r_p: np.ndarray, axis: str) -> None:
+                 r_p: np.ndarray, axis: str, r_v: np.ndarray | float | None = None) -> None:
         """Predict by dt then update with (position, velocity) measurements, one axis, vectorised."""
         pos, vel = (self.x, self.vx) if axis == "x" else (self.y, self.vy)
         npp, npv, nvv = ("pxx", "pxv", "pvv_x") if axis == "x" else ("pyy", "pyv", "pvv_y")
@@ -213,7 +215,7 @@ class CorridorWorld:
         pv = pv + dt * vv + q * dt * dt / 2
         vv = vv + q * dt
         # update: H = I, R = diag(r_p, r_v); K = P (P + R)^-1 (2x2 closed form)
-        r_v = self.config.vel_meas_var_m2ps2
+        r_v = self.config.vel_meas_var_m2ps2 if r_v is None else r_v
         s11, s12, s22 = pp + r_p, pv, vv + r_v
         det = s11 * s22 - s12 * s12
         i11, i12, i22 = s22 / det, -s12 / det, s11 / det
@@ -257,7 +259,7 @@ class CorridorWorld:
         n = len(objs)
         if n == 0:
             return 0
-        rows = np.array(list(map(_OBJ_FIELDS, objs)), dtype=float).reshape(n, 8)
+        rows = np.array(list(map(_OBJ_FIELDS, objs)), dtype=float).reshape(n, 9)
         cov = np.array(list(map(_OBJ_COV, objs)), dtype=float).reshape(n, 3)
         ids = rows[:, 0].astype(np.int64)
         zx, zy, zvx, zvy = rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4]
@@ -299,6 +301,8 @@ class CorridorWorld:
                 sy = np.maximum(vary[None, :] + ryy[unm][:, None], cfg.min_pos_var_m2)
                 d2 = dx * dx / sx + dy * dy / sy
                 dv = np.hypot(zvx[unm][:, None] - self.vx[cand][None, :], zvy[unm][:, None] - self.vy[cand][None, :])
+                # an RSU track younger than velocity_settle_s has no usable velocity yet: gate on position
+                dv = np.where(rows[unm, 8][:, None] < cfg.velocity_settle_s, 0.0, dv)
                 ok = (d2 <= cfg.gate_chi2) & (dv <= cfg.gate_speed_mps)
                 if ok.any():
                     cost = np.where(ok, d2 + (dv / cfg.gate_speed_mps) ** 2, 1e6)
@@ -323,8 +327,15 @@ class CorridorWorld:
             infl = lag * lag * cfg.vel_meas_var_m2ps2
             rxx, ryy = rxx + infl, ryy + infl
             dt = np.maximum(dt, 0.0)
-        self._kf_axis(st, dt, zx, zvx, rxx, "x")
-        self._kf_axis(st, dt, zy, zvy, ryy, "y")
+        # a young RSU track's velocity is still converging from zero: barely trust it
+        young = rows[:, 8] < cfg.velocity_settle_s
+        r_v = np.where(young, cfg.young_vel_meas_var_m2ps2, cfg.vel_meas_var_m2ps2)
+        fresh = self.hits[st] == 0
+        if (fresh & young).any():  # tracks born from young objects: velocity unknown
+            f = st[fresh & young]
+            self.pvv_x[f] = self.pvv_y[f] = cfg.young_vel_meas_var_m2ps2
+        self._kf_axis(st, dt, zx, zvx, rxx, "x", r_v)
+        self._kf_axis(st, dt, zy, zvy, ryy, "y", r_v)
         self.t[st] = np.maximum(self.t[st], t_meas)
         self.seen[st] = now
         self.hits[st] += 1
@@ -414,6 +425,13 @@ class CorridorWorld:
         if alert.state == AlertState.CLEARED:
             if slot is None and rec.track_id is not None:
                 slot = self._slot_of_gid.get(rec.track_id)
+            if alert.clear_reason == ClearReason.OUT_OF_VIEW:
+                # the EV left this RSU's view, it did not stop being an EV: its mark runs out on its own
+                # (ev_alert_timeout_s after the last refresh) unless the next RSU alerts on it first
+                if slot is not None and self._alert_of_slot.get(slot) == alert.alert_id:
+                    self._alert_of_slot.pop(slot, None)
+                rec.track_id = None if slot is None else int(self.gid[slot])
+                return rec.track_id
             if slot is not None:
                 self.ev_alert_until[slot] = 0.0
                 self.ev_obj_until[slot] = 0.0
@@ -502,7 +520,7 @@ class CorridorWorld:
             sa, sb = int(live[a]), int(live[b])
             if not (self.alive[sa] and self.alive[sb]):
                 continue
-            if math.hypot(self.vx[sa] - self.vx[sb], self.vy[sa] - self.vy[sb]) > self.config.gate_speed_mps / 2:
+            if math.hypot(self.vx[sa] - self.vx[sb], self.vy[sa] - self.vy[sb]) > self.config.gate_speed_mps:
                 continue
             ra = {k[0] for k in self._slot_keys.get(sa, ())}
             rb = {k[0] for k in self._slot_keys.get(sb, ())}

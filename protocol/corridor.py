@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -213,6 +213,9 @@ class RsuConfig:
     camera: CameraConfig
     calibration: tuple[tuple[float, float, float, float], ...] = ()
     """Surveyed pairs (u_px, v_px, x_m, y_m): pixel -> road-plane world position (thesis App. B)."""
+    max_range_m: float | None = None
+    """The RSU reports objects up to this ground distance from its mast (its zone of responsibility:
+    farther away a pixel spans metres and vehicles merge in the image); None: whatever it sees."""
 
     @property
     def position(self) -> tuple[float, float]:
@@ -263,6 +266,19 @@ class Corridor:
             if v.vehicle_id == vehicle_id:
                 return v
         raise KeyError(f"corridor {self.corridor_id!r} has no vehicle {vehicle_id!r}")
+
+    def with_vehicle(self, vehicle_id: str, **changes: Any) -> Corridor:
+        """A copy with one vehicle's start/speed changed (e.g. a scenario's AV start), validated as on load."""
+        old = self.vehicle(vehicle_id)
+        new = replace(old, **changes)
+        if not (0.0 <= new.start_s_m <= self.road.length_m):
+            raise CorridorError(f"vehicle {vehicle_id!r}: start_s_m {new.start_s_m} is off the road "
+                                f"(0..{self.road.length_m:.1f} m)")
+        if not (0 <= new.start_lane < self.road.lanes):
+            raise CorridorError(f"vehicle {vehicle_id!r}: start_lane {new.start_lane} is not a lane (0..{self.road.lanes - 1})")
+        if not (math.isfinite(new.cruise_speed_mps) and 0.0 < new.cruise_speed_mps <= 70.0):
+            raise CorridorError(f"vehicle {vehicle_id!r}: cruise_speed_mps {new.cruise_speed_mps} must be in (0, 70]")
+        return replace(self, vehicles=tuple(new if v is old else v for v in self.vehicles))
 
     def to_latlon(self, x_m: float, y_m: float) -> tuple[float, float]:
         """Local east/north metres -> WGS-84 degrees (local tangent plane; < 1 cm error over km)."""
@@ -346,7 +362,8 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
     for rr in top.tables("rsu"):
         rid = rr.text("id", ident=True)
         x, y = rr.num("x_m"), rr.num("y_m")
-        rsus.append(RsuConfig(rid, _load_camera(rr.table("camera"), x, y), _load_calibration(rr)))
+        max_range = rr.num("max_range_m", positive=True) if "max_range_m" in rr.data else None
+        rsus.append(RsuConfig(rid, _load_camera(rr.table("camera"), x, y), _load_calibration(rr), max_range))
     ids = [r.rsu_id for r in rsus]
     if len(set(ids)) != len(ids):
         raise top.fail("rsu", "unique RSU ids", ids)

@@ -119,6 +119,14 @@ class AlertState(StrEnum):
     CLEARED = "cleared"
 
 
+class ClearReason(StrEnum):
+    """Why an RSU cleared an EV alert: the lights went off (the vehicle is no longer an EV on duty),
+    or the vehicle left this RSU's view (it may still be an EV, seen by the next RSU)."""
+
+    LIGHTS_OFF = "lights_off"
+    OUT_OF_VIEW = "out_of_view"
+
+
 class HazardState(StrEnum):
     APPEAR = "appear"
     PERSIST = "persist"
@@ -268,6 +276,8 @@ class EvAlert(Envelope):
     confidence: Probability
     first_seen: NonNegFloat
     evidence: EvEvidence = Field(default_factory=lambda: EvEvidence())
+    clear_reason: ClearReason | None = None
+    """With state ``cleared``: why (None: not given, treated as lights off)."""
     auth: Signature | None = None
 
 

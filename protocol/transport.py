@@ -387,6 +387,12 @@ class DsrcLink(Transport):
         with self._cv:
             return len(self._queue)
 
+    def next_due(self) -> float | None:
+        """Delivery time of the earliest queued message (None when none is queued): a lockstep
+        scheduler advances its clock to it."""
+        with self._cv:
+            return self._queue[0][0] if self._queue else None
+
     def _run(self) -> None:
         while True:
             with self._cv:

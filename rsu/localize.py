@@ -193,7 +193,9 @@ class Localizer:
     def __init__(self, corridor: Corridor, rsu: RsuConfig | str, *, method: str = "transform",
                  interpolation: str = "homography+rbf", vehicle_length_m: float = 4.5,
                  pixel_base_px: float = 1.0, pixel_fraction: float = 0.02, accel_sigma_mps2: float = 3.0,
-                 min_heading_speed_mps: float = 1.0, forget_after_s: float = 2.0) -> None:
+                 min_heading_speed_mps: float = 1.0, forget_after_s: float = 2.0,
+                 max_range_m: float | None = None, border_px: float = 2.0,
+                 max_box_fraction: float = 0.6) -> None:
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.corridor = corridor
@@ -212,6 +214,9 @@ class Localizer:
         self.accel_sigma_mps2 = accel_sigma_mps2
         self.min_heading_speed_mps = min_heading_speed_mps
         self.forget_after_s = forget_after_s
+        self.max_range_m = self.rsu.max_range_m if max_range_m is None else max_range_m
+        self.border_px = float(border_px)
+        self.max_box_fraction = float(max_box_fraction)
         self._tracks: dict[int, _WorldTrack] = {}
 
     # ------------------------------------------------------------------ single frame
@@ -233,7 +238,23 @@ class Localizer:
         cov_px[:, 0, 0], cov_px[:, 1, 1] = sig[:, 0] ** 2, sig[:, 1] ** 2
         cov = jac @ cov_px @ jac.transpose(0, 2, 1)
         valid &= np.isfinite(cov).all(axis=(1, 2))
+        valid &= self.reportable(boxes, xy)
         return xy, cov, valid
+
+    def reportable(self, boxes: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """Boxes whose ground point can be trusted: not cut by the left, right or bottom image border
+        (a truncated box's bottom centre is the border, not the wheels), not absurdly large (a tracker's
+        runaway prediction or a lighting-change blob), and within the RSU's ``max_range_m``."""
+        cam = self.rsu.camera
+        w, h = float(cam.width_px), float(cam.height_px)
+        b = self.border_px
+        ok = (boxes[:, 0] > b) & (boxes[:, 2] < w - b) & (boxes[:, 3] < h - b)
+        ok &= (boxes[:, 2] - boxes[:, 0] <= self.max_box_fraction * w) & (boxes[:, 3] - boxes[:, 1] <= self.max_box_fraction * h)
+        if self.max_range_m is not None:
+            cx, cy = self.rsu.position
+            with np.errstate(invalid="ignore"):
+                ok &= np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) <= self.max_range_m
+        return ok
 
     # ------------------------------------------------------------------ tracks over time
     def _road_heading(self, x: float, y: float) -> float:

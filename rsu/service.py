@@ -203,6 +203,17 @@ class RsuService:
                 self._writer.release()
         return code
 
+    def process_frame(self, frame: Frame) -> None:
+        """Process one frame pushed by the caller (lockstep runner) and publish what is due."""
+        self._process(frame)
+        self._maybe_health()
+
+    def close_outputs(self) -> None:
+        """Finish the annotated video (``run`` does this itself when its source ends)."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+
     def _process(self, frame: Frame) -> None:
         try:
             result = self.pipeline.process(frame)
@@ -237,7 +248,8 @@ class RsuService:
                       heading_rad=o.heading_rad, lane=o.lane, confidence=float(np.clip(e.confidence, 0.0, 1.0)),
                       first_seen=max(e.first_seen_s, 0.0),
                       evidence=EvEvidence(frames=e.frames, flash_hz=e.flash_hz,
-                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0))))
+                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0))),
+                      clear_reason=e.clear_reason)
         self.transport.publish(self.ev_key, msg)
         self._seq["ev"] += 1
         self.alerts_published[str(e.state)] += 1

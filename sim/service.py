@@ -78,6 +78,14 @@ class SimService:
         with self._lock:
             self._pending_states[msg.vehicle_id] = msg
 
+    def set_av_state(self, msg: VehicleState) -> None:
+        """Take an AV state directly (lockstep: the plant's true pose, not a radio message)."""
+        self._on_state("", msg)
+
+    def close_subscription(self) -> None:
+        """Stop listening to vehicle state on the transport (the lockstep runner feeds ``set_av_state``)."""
+        self._sub.close()
+
     def stop(self) -> None:
         self._stop.set()
 

@@ -38,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--corridor", metavar="FILE", default=None, help="corridor TOML (default: deploy/corridors/rellis.toml)")
     run.add_argument("--corridor-id", metavar="ID", default=None, help="override the corridor id (key prefix), e.g. for tests")
     run.add_argument("--vehicle", metavar="ID", default="av1", help="vehicle id in the corridor file (default av1)")
+    run.add_argument("--start-s", type=_non_negative, default=None, metavar="M",
+                     help="start station along the road (m; default: the corridor file's, e.g. a scenario's AV start)")
+    run.add_argument("--start-lane", type=int, default=None, metavar="N", help="start lane (0 = rightmost; default: corridor file)")
+    run.add_argument("--speed", type=_positive, default=None, metavar="MPS", help="cruise speed (default: corridor file)")
     run.add_argument("--localisation", choices=["gnss", "rsu", "both"], default="gnss",
                      help="own GNSS, the RSUs' track of the car, or both (default gnss)")
     run.add_argument("--gnss-sigma", type=_non_negative, default=0.2, metavar="M", help="GNSS noise sigma (m, default 0.2)")
@@ -71,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from protocol.clock import WallClock
-    from protocol.corridor import load_corridor
+    from protocol.corridor import CorridorError, load_corridor
     from protocol.transport import ZenohTransport
     from vehicle.core import CoreConfig
     from vehicle.failsafe import FailsafeConfig
@@ -83,9 +87,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.corridor_id:
         corridor = dataclasses.replace(corridor, corridor_id=args.corridor_id)
     try:
-        corridor.vehicle(args.vehicle)
+        vc = corridor.vehicle(args.vehicle)
+        corridor = corridor.with_vehicle(
+            args.vehicle, start_s_m=vc.start_s_m if args.start_s is None else args.start_s,
+            start_lane=vc.start_lane if args.start_lane is None else args.start_lane,
+            cruise_speed_mps=vc.cruise_speed_mps if args.speed is None else args.speed)
     except KeyError as exc:
         print(f"iea-vehicle: {exc.args[0]}", file=sys.stderr)
+        return 2
+    except CorridorError as exc:
+        print(f"iea-vehicle: {exc}", file=sys.stderr)
         return 2
     settings = ZenohSettings.from_args(args)
     config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=args.link_timeout,

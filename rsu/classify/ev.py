@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from protocol.messages import AlertState, DetectedObject, EvState, LightState
+from protocol.messages import AlertState, ClearReason, DetectedObject, EvState, LightState
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
 
 CropScore = Callable[[np.ndarray], float]
@@ -198,6 +198,9 @@ class AlertEvent:
     frames: int
     flash_hz: float | None
     mean_score: float
+    clear_reason: ClearReason | None = None
+    """With ``CLEARED``: lights off (the track is still seen) or out of view (it was not seen for
+    ``leave_after_s``)."""
 
 
 @dataclass
@@ -244,11 +247,11 @@ class EvAlertManager:
                         obj, now_s, conf, frames, hz, mean)
             elif a is not None:  # evidence cleared (lights off) or fell back
                 a.obj = obj
-                events.append(self._event(AlertState.CLEARED, tid, a))
+                events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.LIGHTS_OFF))
                 del self.active[tid]
         for tid, a in list(self.active.items()):
             if tid not in seen and now_s - a.last_seen_s >= self.leave_after_s:
-                events.append(self._event(AlertState.CLEARED, tid, a))
+                events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.OUT_OF_VIEW))
                 del self.active[tid]
             elif now_s - a.last_sent_s >= self.refresh_period_s - 1e-9 and not any(
                     e.track_id == tid for e in events):
@@ -259,5 +262,6 @@ class EvAlertManager:
         return events
 
     @staticmethod
-    def _event(state: AlertState, tid: int, a: _Active) -> AlertEvent:
-        return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score)
+    def _event(state: AlertState, tid: int, a: _Active, reason: ClearReason | None = None) -> AlertEvent:
+        return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score,
+                          reason)

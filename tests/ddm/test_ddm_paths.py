@@ -39,8 +39,8 @@ def test_pull_over_from_lane_1_stays_within_curvature_and_decel_limits(speed):
     p = plan_stop(FRAME, s0, d0, 0.0, speed, d_stop, CFG)
     x0, y0, _ = FRAME.road.pose_at(s0, d0)
     assert p.waypoints[0] == pytest.approx((x0, y0))  # starts at the vehicle
-    kappa_limit = min(CFG.max_curvature_1pm, CFG.max_lat_accel_mps2 / speed**2)
-    assert p.max_curvature_1pm <= kappa_limit * 1.05
+    # the car brakes during the change: the comfort limit applies to v^2 kappa (checked below)
+    assert p.max_curvature_1pm <= CFG.max_curvature_1pm
     assert p.decel_mps2 <= CFG.comfort_decel_mps2 + 1e-9 <= 3.0
     # speeds never increase and reach 0 at the stop point, which lies on the target offset
     v = np.array(p.speeds_mps)
@@ -54,10 +54,27 @@ def test_pull_over_from_lane_1_stays_within_curvature_and_decel_limits(speed):
     assert lat.max() <= CFG.max_lat_accel_mps2 * 1.05
 
 
+def test_pull_over_brakes_harder_to_stop_before_the_ev_or_behind_a_leader():
+    s0, d0 = 120.0, FRAME.lane_centre_offset(1)
+    d_stop = stop_offset_m(FRAME, 1.9, FRAME.road.shoulder_width_m, CFG)
+    relaxed = plan_stop(FRAME, s0, d0, 0.0, 13.4, d_stop, CFG)
+    hurried = plan_stop(FRAME, s0, d0, 0.0, 13.4, d_stop, CFG, stop_within_s=6.0)
+    assert relaxed.decel_mps2 <= CFG.comfort_decel_mps2 + 1e-9
+    assert CFG.comfort_decel_mps2 < hurried.decel_mps2 <= CFG.max_decel_mps2
+    assert 2.0 * hurried.stop_distance_m / 13.4 <= 6.0 + 1e-6  # stopped within the 6 s asked
+    short = plan_stop(FRAME, s0, d0, 0.0, 13.4, d_stop, CFG, max_stop_dist_m=42.0)
+    assert short.stop_distance_m == pytest.approx(42.0) and short.decel_mps2 <= CFG.max_decel_mps2
+    for p in (hurried, short):  # urgent, but within the urgent lateral acceleration at the speed driven
+        v = np.array(p.speeds_mps)
+        xs, ys = np.array(p.waypoints).T
+        assert (v[1:-1] ** 2 * polyline_curvature(xs, ys)).max() <= CFG.urgent_lat_accel_mps2 * 1.05
+
+
 def test_stop_on_shoulder_only_when_it_fits():
-    assert stop_offset_m(FRAME, 1.9, 2.5, CFG) == pytest.approx(-1.25)  # RELLIS: 2.5 m shoulder fits 1.9 + 2 x 0.3
-    assert stop_offset_m(FRAME, 1.9, 1.0, CFG) == pytest.approx(1.25)  # curb side of lane 0
-    assert stop_offset_m(FRAME, 1.9, 2.5, DdmConfig(stop_on_shoulder=False)) == pytest.approx(1.25)
+    shoulder = DdmConfig(stop_on_shoulder=True)
+    assert stop_offset_m(FRAME, 1.9, 2.5, shoulder) == pytest.approx(-1.25)  # RELLIS: 2.5 m shoulder fits 1.9 + 2 x 0.3
+    assert stop_offset_m(FRAME, 1.9, 1.0, shoulder) == pytest.approx(1.25)  # too narrow: curb side of lane 0
+    assert stop_offset_m(FRAME, 1.9, 2.5, CFG) == pytest.approx(1.25)  # default: curb side of lane 0
 
 
 def test_paths_follow_a_curved_road():

@@ -27,7 +27,7 @@ def test_ev_from_behind_in_av_lane_gives_exactly_one_pull_over():
     assert r.manoeuvres() == ["pull_over"]
     cmd = r.commands[0]
     assert cmd.target_lane == 0 and cmd.vehicle_id == "av1" and "time to pass" in cmd.reason
-    assert cmd.stop_point is not None and cmd.stop_point[1] < 0  # RELLIS shoulder (2.5 m) fits the car
+    assert cmd.stop_point is not None and 0.9 < cmd.stop_point[1] < 1.9  # curb side of lane 0 (one lane right)
     assert cmd.speed_profile_mps[-1] == 0.0 and len(cmd.speed_profile_mps) == len(cmd.waypoints)
     assert len(r.commands) == 1  # acked on first reception: never re-sent
     # the AV was stopped on the shoulder, then resumed once the EV was 30 m ahead
@@ -59,7 +59,9 @@ def test_alert_cleared_resumes():
     r.ev_alert_on = False
     r.cars["ev"].vx = 12.0  # lights off, the EV falls back behind traffic
     r.alert(AlertState.CLEARED)
-    r.run(0.2)
+    r.run(0.5)
+    assert r.manoeuvres() == ["pull_over"]  # resume_hold_s: not at once
+    r.run(1.5)
     assert r.manoeuvres() == ["pull_over", "resume"]
     assert "cleared or lost" in r.commands[-1].reason
     r.run(3.0)
@@ -95,7 +97,8 @@ def test_lost_acks_are_retransmitted_until_acked():
 
 
 def test_rejected_command_is_logged_and_replanned(caplog):
-    r = ev_behind_rig(auto_ack=False)
+    # too_late_s 6 s: the re-plan 1.1 s later falls below it, so it differs from the first plan
+    r = ev_behind_rig(auto_ack=False, config=DdmConfig(startup_listen_s=0.5, too_late_s=6.0))
     r.ev_alert_on = True
     r.run(0.6, alert_every_s=0.5)
     first = r.commands[0]
