@@ -10,7 +10,8 @@ from pathlib import Path
 
 from protocol.corridor import CorridorError, load_corridor
 from protocol.transport import ZenohSettings, ZenohTransport
-from rsu.classify.ev import TrackEvClassifier
+from rsu.classify.classifiers import load_classifier
+from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
 from rsu.classify.evaluation import CLASSIFIERS
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
@@ -59,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-classifier", choices=["lamps", "none"], default="lamps",
                     help="lamps: per-track flashing light bar evidence (rsu.classify.ev), publishes EvAlert; "
                          "none: no EV classification")
+    ap.add_argument("--ev-crop-classifier", default="none",
+                    help="per-crop EV probability fused into each track's evidence: none, cnn "
+                         "(models/ev_cnn.onnx), hsv8-gb (models/ev_hsv8_gb.onnx) or PATH.onnx[:FEATURE]")
+    ap.add_argument("--ev-box-gate", action="store_true",
+                    help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
+                         "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     ZenohSettings.add_arguments(ap)
@@ -137,7 +144,11 @@ def main(argv: list[str] | None = None) -> int:
             detector = MotionDetector()
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
-        classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
+        classifier = None
+        if args.ev_classifier == "lamps":
+            crop_score = None if args.ev_crop_classifier == "none" else load_classifier(args.ev_crop_classifier)
+            gate = SingleVehicleGate(rsu.camera, corridor.road) if args.ev_box_gate else None
+            classifier = TrackEvClassifier(crop_score=crop_score, box_gate=gate)
         if args.source == "sim":
             source = None  # needs the transport: opened below
         elif Path(args.source).is_dir():

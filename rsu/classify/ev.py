@@ -6,7 +6,9 @@ track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in e
 (clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
 detector's box can cut the light bar off the roof), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
 callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
-bar: far vehicles and merged blobs of distant traffic flicker like lamps), and forgets tracks unseen for
+bar: far vehicles and merged blobs of distant traffic flicker like lamps) and, with a ``box_gate`` (e.g.
+:class:`SingleVehicleGate`, from the camera's calibration), boxes too wide for one vehicle at their
+range (several vehicles merged into one blob), and forgets tracks unseen for
 ``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
 
 :class:`EvAlertManager` turns the per-track EV states into ``EvAlert`` events (pure: the caller gives
