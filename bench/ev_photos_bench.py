@@ -32,7 +32,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from rsu.classify.classifiers import load_classifier  # noqa: E402
-from rsu.classify.evaluation import evaluate_scenes  # noqa: E402
+from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig, measure_lamps  # noqa: E402
 from rsu.detect import OnnxDetector  # noqa: E402
 
@@ -59,6 +59,8 @@ def main(argv=None) -> int:
     ap.add_argument("--folder", default=str(REAL / "ev_images"))
     ap.add_argument("--detector", default=str(REAL / "yolox_nano" / "yolox_nano.onnx"))
     ap.add_argument("--score-threshold", type=float, default=0.3)
+    ap.add_argument("--cv", action="store_true",
+                    help="also 5-fold cross-validate feature x classifier pairs fitted on the real crops (train extra)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if not Path(args.folder).is_dir() or not Path(args.detector).is_file():
@@ -67,12 +69,22 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     det = OnnxDetector(args.detector, score_threshold=args.score_threshold, intra_op_threads=1)
     models = [load_classifier("cnn"), load_classifier("hsv8-gb"), LampRule()]
-    scores, counts = evaluate_scenes(args.folder, det, models)
+    scene_crops = load_scene_crops(args.folder, det)
+    scores, counts = evaluate_scenes(args.folder, det, models, scene_crops=scene_crops)
     best = max(scores, key=lambda s: s.f_measure)
+    cv = []
+    if args.cv:
+        from rsu.classify.evaluation import cross_validate_scenes
+
+        cv = cross_validate_scenes(*scene_crops, ["hsv8_top", "colour_hist", "hog"],
+                                   ["svm", "random_forest", "hist_gb", "logistic"])
     figures = dict(**counts, best=best.classifier, accuracy=best.accuracy, precision=best.precision,
                    recall=best.recall, f_measure=best.f_measure,
                    scores={s.classifier: dict(accuracy=s.accuracy, precision=s.precision, recall=s.recall,
                                               f_measure=s.f_measure, ms_per_crop=s.ms_per_crop) for s in scores},
+                   cross_validated={f"{s.feature}+{s.classifier}": dict(accuracy=s.accuracy, precision=s.precision,
+                                                                      recall=s.recall, f_measure=s.f_measure)
+                                    for s in cv},
                    runtime_s=time.perf_counter() - t0)
     print(f"{counts['images']} photos ({counts['ev_images']} EV), a vehicle found in {counts['with_vehicle']}; "
           f"best by F-measure: {best.classifier} (accuracy {best.accuracy:.3f}, precision {best.precision:.3f}, "

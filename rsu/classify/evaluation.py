@@ -69,7 +69,7 @@ def make_classifier(name: str, seed: int = 0):
     except ImportError as exc:  # pragma: no cover - depends on the installed extras
         raise RuntimeError("fitting the Table 2 classifiers needs scikit-learn: pip install -e .[train]") from exc
     return {
-        "svm": lambda: make_pipeline(StandardScaler(), SVC(kernel="rbf", C=1.0, gamma="scale", probability=False,
+        "svm": lambda: make_pipeline(StandardScaler(), SVC(kernel="rbf", C=1.0, gamma="scale",
                                                           random_state=seed)),
         "adaboost": lambda: AdaBoostClassifier(n_estimators=50, random_state=seed),
         "random_forest": lambda: RandomForestClassifier(n_estimators=100, n_jobs=1, random_state=seed),
@@ -178,10 +178,9 @@ def largest_vehicle_crop(image: np.ndarray, detector, above_fraction: float = 0.
     return image[ya:yb, xa:xb]
 
 
-def evaluate_scenes(root: str | Path, detector, models: Sequence, log=print) -> tuple[list[Score], dict]:
-    """Whole-scene photos in ``root/{emergency_vehicle,non_emergency}`` (or ``ev``/``non_ev``): detect the
-    vehicles, classify the largest one with each model; an image without a detected vehicle counts as
-    predicted non-EV. Returns the scores (ms per crop: classification only) and counts."""
+def load_scene_crops(root: str | Path, detector) -> tuple[list[np.ndarray | None], np.ndarray]:
+    """Whole-scene photos in ``root/{emergency_vehicle,non_emergency}`` (or ``ev``/``non_ev``) -> the
+    largest detected vehicle of each (None when the detector finds none) and the labels (1 = EV)."""
     import cv2
 
     from rsu.classify.ravev import IMAGE_SUFFIXES
@@ -189,16 +188,25 @@ def evaluate_scenes(root: str | Path, detector, models: Sequence, log=print) -> 
     root = Path(root)
     crops: list[np.ndarray | None] = []
     labels = []
-    for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name in SCENE_CLASSES):
-        for f in sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
-            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if img is None:
-                continue
-            crops.append(largest_vehicle_crop(img, detector))
-            labels.append(SCENE_CLASSES[d.name])
+    if root.is_dir():
+        for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name in SCENE_CLASSES):
+            for f in sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
+                img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+                if img is None:
+                    continue
+                crops.append(largest_vehicle_crop(img, detector))
+                labels.append(SCENE_CLASSES[d.name])
     if not labels:
         raise FileNotFoundError(f"no photos under {root}/{{emergency_vehicle,non_emergency}}")
-    y = np.asarray(labels)
+    return crops, np.asarray(labels)
+
+
+def evaluate_scenes(root: str | Path, detector, models: Sequence, log=print,
+                    scene_crops: tuple[list, np.ndarray] | None = None) -> tuple[list[Score], dict]:
+    """Detect the vehicles of each whole-scene photo (:func:`load_scene_crops`, or ``scene_crops``
+    already loaded), classify the largest one with each model; an image without a detected vehicle
+    counts as predicted non-EV. Returns the scores (ms per crop: classification only) and counts."""
+    crops, y = scene_crops if scene_crops is not None else load_scene_crops(root, detector)
     found = [i for i, c in enumerate(crops) if c is not None]
     counts = dict(images=len(y), ev_images=int(y.sum()), with_vehicle=len(found))
     out = []
@@ -213,3 +221,28 @@ def evaluate_scenes(root: str | Path, detector, models: Sequence, log=print) -> 
             f"{s.ms_per_crop:.2f} ms/crop")
         out.append(s)
     return out, counts
+
+
+def cross_validate_scenes(crops: Sequence[np.ndarray | None], labels: np.ndarray, features: Sequence[str],
+                          classifiers: Sequence[str], folds: int = 5, seed: int = 0, log=print) -> list[Score]:
+    """Stratified k-fold accuracy/precision/recall/F of feature x classifier pairs fitted on the real
+    crops themselves (what a classifier trained on real photos reaches, next to the sim-trained ones);
+    photos without a vehicle count as predicted non-EV. Needs scikit-learn (``train`` extra)."""
+    from sklearn.model_selection import StratifiedKFold
+
+    labels = np.asarray(labels)
+    idx = np.array([i for i, c in enumerate(crops) if c is not None])
+    out = []
+    for feat in features:
+        x = extract_batch(feat, [crops[i] for i in idx])
+        for name in classifiers:
+            prob = np.zeros(len(labels))
+            skf = StratifiedKFold(n_splits=folds, shuffle=True, random_state=seed)
+            for tr, te in skf.split(x, labels[idx]):
+                model = make_classifier(name, seed).fit(x[tr], labels[idx][tr])
+                prob[idx[te]] = _positive_prob(model, x[te])
+            s = Score(feat, f"cv:{name}", *metrics(labels, prob), 0.0, len(labels))
+            log(f"  {feat:12s} {s.classifier:18s} acc {s.accuracy:.4f} P {s.precision:.4f} R {s.recall:.4f} "
+                f"F {s.f_measure:.4f}  ({folds}-fold on the real crops)")
+            out.append(s)
+    return out

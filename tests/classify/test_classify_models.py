@@ -125,3 +125,32 @@ def test_evaluate_models_times_each_crop(tmp_path):
     write_ravev(tmp_path, n=4)
     (s,) = evaluate_models(tmp_path, [FeatureClassifier()], log=lambda *_: None)
     assert s.n_val == 8 and s.ms_per_crop > 0 and 0 <= s.accuracy <= 1
+
+
+def test_evaluate_scenes_classifies_the_largest_detected_vehicle(tmp_path):
+    from rsu.classify.evaluation import evaluate_scenes
+    from rsu.detect import Detections
+
+    class TwoBoxes:
+        name = "fake"
+
+        def detect(self, image):  # a small box on the left, a large one on the right (the lamps' car)
+            boxes = np.array([[0, 60, 20, 80], [40, 20, 100, 90]], np.float32)
+            return Detections(boxes, np.ones(2, np.float32), np.zeros(2, np.int64))
+
+    class LampProbe:
+        name, feature = "probe", "lamps"
+
+        def predict(self, crops):
+            return np.array([float((c[..., 2] > 200).mean() > 0.02) for c in crops])
+
+    for cls, lamp in (("emergency_vehicle", True), ("non_emergency", False)):
+        (tmp_path / cls).mkdir()
+        for i in range(3):
+            img = np.full((100, 120, 3), 80, np.uint8)
+            if lamp:
+                img[22:30, 50:90] = (0, 0, 255)  # a red lamp on the large vehicle's roof
+            cv2.imwrite(str(tmp_path / cls / f"{i}.png"), img)
+    (s,), counts = evaluate_scenes(tmp_path, TwoBoxes(), [LampProbe()], log=lambda *_: None)
+    assert counts == dict(images=6, ev_images=3, with_vehicle=6)
+    assert (s.accuracy, s.precision, s.recall) == (1.0, 1.0, 1.0)
