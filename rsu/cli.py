@@ -13,7 +13,9 @@ import cv2
 from protocol.corridor import CorridorError, load_corridor
 from protocol.security import TrustList, load_signer
 from protocol.transport import ZenohSettings, ZenohTransport
-from rsu.classify.ev import TrackEvClassifier
+from rsu.classify.classifiers import load_classifier
+from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
+from rsu.classify.evaluation import CLASSIFIERS
 from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
 from rsu.hazard import HazardDetector
@@ -28,7 +30,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="iea-rsu",
         description="Roadside unit: detect and track every vehicle (SORT), localise it on the corridor and "
                     "publish ObjectList every frame and Health at 1 Hz over Zenoh.",
-        epilog="example: iea-rsu --rsu rsu1 --source ../shared/data/real/traffic_videos/ambdet_video_3.mp4 "
+        epilog="EV classifier comparison (thesis Table 2.2): iea-rsu eval-classifier DATASET (see its --help). "
+               "example: iea-rsu --rsu rsu1 --source ../shared/data/real/traffic_videos/ambdet_video_3.mp4 "
                "--detector onnx --model ../shared/data/real/yolox_nano/yolox_nano.onnx --annotate out.mp4")
     ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
     ap.add_argument("--corridor-id", default=None, help="override the corridor id used in key expressions")
@@ -67,6 +70,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--hazard-background", metavar="IMAGE", default=None,
                     help="a frame of the empty road from this camera: the hazard detector starts from it instead of "
                          "learning the road over its first seconds (debris already there at start is then found)")
+    ap.add_argument("--ev-crop-classifier", default="none",
+                    help="per-crop EV probability fused into each track's evidence: none, cnn "
+                         "(models/ev_cnn.onnx), hsv8-gb (models/ev_hsv8_gb.onnx) or PATH.onnx[:FEATURE]")
+    ap.add_argument("--ev-box-gate", action="store_true",
+                    help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
+                         "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
     ap.add_argument("--key", metavar="PEM", default=None,
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
@@ -77,7 +86,57 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def build_eval_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="iea-rsu eval-classifier",
+        description="Thesis Table 2.2 rerun: fit every feature x classifier pair on DATASET/train and print "
+                    "accuracy, precision, recall, F-measure (App. A) and ms per crop on DATASET/val; the shipped "
+                    "ONNX classifiers (models/ev_cnn.onnx, models/ev_hsv8_gb.onnx) are scored too.",
+        epilog="build a dataset from simulator renders: iea-sim export-dataset --out DIR --frames 2000 --seed 1 "
+               "--stride-s 1.05, then: iea-rsu eval-classifier DIR/cls. Fitting needs the 'train' extra.")
+    ap.add_argument("dataset", help="RAVEV-layout folder: DATASET/{train,val}/{ev,non_ev}/*.png")
+    ap.add_argument("--features", nargs="+", default=["hog", "colour_hist", "pixels", "hsv8", "hsv8_top"],
+                    help="feature descriptors (rsu.classify.features.FEATURES)")
+    ap.add_argument("--classifiers", nargs="+", default=list(CLASSIFIERS), choices=CLASSIFIERS)
+    ap.add_argument("--max-train-per-class", type=int, default=1500,
+                    help="seeded subset of each train class (bounds the fitting time); 0: all")
+    ap.add_argument("--no-fit", action="store_true", help="score the shipped ONNX classifiers only")
+    ap.add_argument("--json", action="store_true", help="last line: one JSON object with every score")
+    return ap
+
+
+def eval_main(argv: list[str]) -> int:
+    import json
+
+    from rsu.classify.classifiers import load_classifier
+    from rsu.classify.evaluation import evaluate_fitted, evaluate_models, format_table, scores_json
+
+    args = build_eval_parser().parse_args(argv)
+    scores = []
+    try:
+        shipped = []
+        for name in ("cnn", "hsv8-gb"):
+            try:
+                shipped.append(load_classifier(name))
+            except FileNotFoundError as exc:
+                print(f"iea-rsu eval-classifier: {exc}", file=sys.stderr)
+        scores += evaluate_models(args.dataset, shipped)
+        if not args.no_fit:
+            scores += evaluate_fitted(args.dataset, args.features, args.classifiers,
+                                      max_train_per_class=args.max_train_per_class or None)
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:
+        print(f"iea-rsu eval-classifier: {exc}", file=sys.stderr)
+        return 2
+    print(format_table(scores))
+    if args.json:
+        print(json.dumps({"scores": scores_json(scores)}))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "eval-classifier":
+        return eval_main(argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     log = logging.getLogger("iea-rsu")
@@ -103,7 +162,11 @@ def main(argv: list[str] | None = None) -> int:
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
         signer = load_signer(args.key, args.key_id, TrustList.from_corridor(corridor)) if args.key else None
         localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
-        classifier = TrackEvClassifier() if args.ev_classifier == "lamps" else None
+        classifier = None
+        if args.ev_classifier == "lamps":
+            crop_score = None if args.ev_crop_classifier == "none" else load_classifier(args.ev_crop_classifier)
+            gate = SingleVehicleGate(rsu.camera, corridor.road) if args.ev_box_gate else None
+            classifier = TrackEvClassifier(crop_score=crop_score, box_gate=gate)
         hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
                    if args.hazards == "static" else None)
         if hazards is not None and args.hazard_background:

@@ -8,13 +8,25 @@ classifies tracks, not frames). Two cues are combined:
    paint: V >= 240 and S >= 120; tuned on simulator renders, seeds 1-2, where sunlit red paint
    reaches V ~ 239 and lamps saturate). Emergency lamps flash at 1-4 Hz, alternating red/blue or strobing;
    so the lamp signal of an EV *modulates*: it switches between clearly-on and clearly-off within a
-   fraction of a second. Brake and tail lights switch once and then stay steady (and sit low on the
-   body, mostly outside the band), a red or blue car is steady paint that is rarely lamp-bright. A
-   frame gives **flash evidence** when, within the last ``flash_window_s``, a lamp colour has been
-   both clearly on (fraction >= ``lamp_on_fraction``) and clearly off (<= ``lamp_off_ratio`` of that
-   peak) at least ``min_transitions`` times over at least ``min_on_samples`` lit frames, i.e. it
-   blinked (a brake light switching on once, or one glint, does not); once a long enough history exists the
-   blink rate must also lie in ``[flash_min_hz, flash_max_hz]``.
+   fraction of a second, and each flash is *short* (at most half a period, 0.5 s at 1 Hz). Brake and
+   tail lights switch once and then stay steady (and sit low on the body, mostly outside the band),
+   a red or blue car is steady paint that is rarely lamp-bright. Each colour's signal is cut into lit
+   runs with hysteresis (lit at >= max(``lamp_on_fraction``, half the window's peak), dark at <=
+   ``lamp_off_ratio`` of the peak); a run seen dark before and after is a *complete flash*. A frame
+   gives **flash evidence** when, within the last ``flash_window_s``:
+   - no colour that counts was lit longer than ``max_on_s`` (a steady lamp that only *seems* to
+     blink because the box around it jitters, or a merged blob shifts, is lit for long stretches; so
+     is brake pumping, 0.3-0.5 Hz), and
+   - a *flash* is a complete run that followed a dark stretch at least ``min_dark_ratio`` of its own
+     length (flashers are dark about half the time or more; a steady lamp that drops out of the band
+     for a frame is not);
+   - either one colour flashed twice at most ``max_dark_s`` apart, or a complete flash of
+     one colour handed over to the other colour (it lit within ``handover_s`` of the flash's end, or
+     together with it): red/blue alternation, seen after a single flash, which is what makes the
+     confirmation fast (about half a period after the lights go on);
+   - with at least ``min_on_samples`` lit samples in the pattern (a one-frame glint is no flash);
+   once a long enough history shows the lamp, its blink rate must also lie in
+   ``[flash_min_hz, flash_max_hz]``.
 2. **Crop score.** Any per-crop classifier's EV probability (the CNN of thesis 2.4.2.3 or a feature
    classifier), accumulated as log-odds.
 
@@ -74,11 +86,18 @@ class EvidenceConfig:
     """A lamp colour counts as on above this fraction of the band's pixels."""
     lamp_off_ratio: float = 0.2
     """... and as off below this share of its recent peak."""
-    flash_window_s: float = 1.5
+    flash_window_s: float = 2.0
+    max_on_s: float = 0.6
+    """A flash lasts at most this long (half a period at 1 Hz, with a frame of slack); a colour lit longer
+    in the window is a steady lamp and gives no evidence."""
+    max_dark_s: float = 1.0
+    """Two flashes of one colour count when at most this far apart."""
+    handover_s: float = 0.2
+    """A flash of one colour hands over to the other when that one lights within this time of its end."""
+    min_dark_ratio: float = 0.5
+    """A flash must follow a dark stretch at least this share of its own length (duty cycle <= ~2/3)."""
     min_on_samples: int = 2
-    """... and a single bright frame (a glint) is not a blink."""
-    min_transitions: int = 2
-    """A blink is on->off or off->on->off: a brake light switching on once is a single transition."""
+    """Lit samples a flash pattern needs (a colour's two flashes need one more): one glint is no flash."""
     flash_min_hz: float = 0.7
     flash_max_hz: float = 6.0
     rate_check_after_s: float = 1.4
@@ -112,6 +131,84 @@ def blink_transitions(values: np.ndarray, on_level: float, off_level: float) -> 
     return n
 
 
+@dataclass(frozen=True)
+class LampRun:
+    """One lit stretch of a lamp colour: first and last lit sample times, lit samples, and whether it
+    was seen dark just before it and just after it (a *complete* flash)."""
+
+    start_s: float
+    end_s: float
+    samples: int
+    dark_before: bool
+    dark_after: bool
+    frame_s: float
+    dark_before_s: float = 0.0
+    """How long it was dark before this run (since the previous run, or the start of the window)."""
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s + self.frame_s
+
+    @property
+    def complete(self) -> bool:
+        return self.dark_before and self.dark_after
+
+    def is_flash(self, min_dark_ratio: float) -> bool:
+        """A complete run that was dark before it for at least ``min_dark_ratio`` of its own length:
+        flashers have duty cycles near or below 50 %, a steady lamp dropping out for a frame has not."""
+        return self.complete and self.dark_before_s >= min_dark_ratio * self.duration_s
+
+
+def lamp_runs(t: np.ndarray, x: np.ndarray, on_level: float, off_level: float, frame_s: float) -> list[LampRun]:
+    """Lit runs of a lamp signal with hysteresis (lit at or above ``on_level``, dark at or below
+    ``off_level``, in between: unchanged)."""
+    runs: list[LampRun] = []
+    state: bool | None = None
+    start = last = 0
+    n = 0
+    before = False
+    prev_end = float(t[0]) - frame_s if len(t) else 0.0
+    for i, v in enumerate(x):
+        new = True if v >= on_level else False if v <= off_level else state
+        if new and not state:
+            start, n, before = i, 0, state is False
+        if new:
+            n += 1 if v >= on_level else 0
+            last = i
+        if state and new is False:
+            runs.append(LampRun(float(t[start]), float(t[last]), n, before, True, frame_s,
+                                float(t[start]) - prev_end - frame_s))
+            prev_end = float(t[last])
+        if new is not None:
+            state = new
+    if state:
+        runs.append(LampRun(float(t[start]), float(t[last]), n, before, False, frame_s,
+                            float(t[start]) - prev_end - frame_s))
+    return runs
+
+
+def flash_pattern(red: list[LampRun], blue: list[LampRun], cfg: EvidenceConfig) -> bool:
+    """Flash evidence from the short lit runs of the two lamp colours in the window (module docstring):
+    two complete flashes of one colour at most ``max_dark_s`` apart, or a complete flash of one colour
+    handing over to (or lit together with) the other colour, with at least ``min_on_samples`` lit
+    samples in all (one glitch frame is not a flash)."""
+    for runs in (red, blue):
+        flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
+        for a, b in zip(flashes, flashes[1:], strict=False):
+            if b.start_s - a.end_s <= cfg.max_dark_s and a.samples + b.samples > cfg.min_on_samples:
+                return True
+    for first, other in ((red, blue), (blue, red)):
+        for a in first:
+            if not a.is_flash(cfg.min_dark_ratio):
+                continue
+            for b in other:
+                lit = a.samples + b.samples
+                if a.start_s <= b.start_s <= a.end_s + cfg.handover_s and lit >= cfg.min_on_samples and (
+                        b.start_s > a.start_s or lit > cfg.min_on_samples):
+                    return True
+    return False
+
+
 @dataclass
 class TrackEvidence:
     """The temporal EV state of one track (see the module docstring for the rule)."""
@@ -136,28 +233,31 @@ class TrackEvidence:
         t = t[keep]
         if len(t) < 3:
             return False
+        frame_s = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        runs: dict[str, list[LampRun]] = {}
         best_hz = None
-        flashing = False
-        for series in (self._red, self._blue):
+        for colour, series in (("red", self._red), ("blue", self._blue)):
             x = np.fromiter(series, float)[keep]
             peak = float(x.max())
             if peak < cfg.lamp_on_fraction:
                 continue
-            on_level = max(cfg.lamp_on_fraction, 0.6 * peak)
-            n = blink_transitions(x, on_level, cfg.lamp_off_ratio * peak)
-            if n < cfg.min_transitions or int(np.count_nonzero(x >= on_level)) < cfg.min_on_samples:
-                continue
+            on_level = max(cfg.lamp_on_fraction, 0.5 * peak)
+            rs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
+            if any(r.duration_s > cfg.max_on_s for r in rs):
+                continue  # lit longer than a 1 Hz flash: a steady lamp (tail/brake light, paint, glow)
+            runs[colour] = rs
             lit = np.flatnonzero(x >= on_level)
-            span = float(t[-1] - t[lit[0]])  # history since the lamp was first seen lit in the window
-            hz = n / (2.0 * span) if span > 0 else None
-            if span >= cfg.rate_check_after_s and hz is not None and not (cfg.flash_min_hz <= hz <= cfg.flash_max_hz):
-                continue
-            flashing = True
-            if hz is not None and span >= cfg.rate_check_after_s:
+            span = float(t[-1] - t[lit[0]])
+            n = blink_transitions(x, on_level, cfg.lamp_off_ratio * peak)
+            if span >= cfg.rate_check_after_s:
+                hz = n / (2.0 * span)
+                if not cfg.flash_min_hz <= hz <= cfg.flash_max_hz:
+                    del runs[colour]
+                    continue
                 best_hz = hz if best_hz is None else max(best_hz, hz)
         if best_hz is not None:
             self.flash_hz = best_hz
-        return flashing
+        return flash_pattern(runs.get("red", []), runs.get("blue", []), cfg)
 
     def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None) -> EvState:
         cfg = self.config

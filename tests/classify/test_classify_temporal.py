@@ -74,10 +74,31 @@ def test_lights_already_on_when_the_track_appears():
     ("stop-and-go brake pumping every 3 s", lambda t: (ON if (t % 6.0) < 3.0 else 0.0, 0.0)),
     ("dark", lambda t: (0.0, 0.0)),
     ("one glitch frame", lambda t: (ON, ON) if abs(t - 2.0) < 0.03 else (0.0, 0.0)),
+    # a steady tail light that drops out of the measured band for a frame now and then (the box jitters)
+    ("tail light in a jittering box", lambda t: (0.0 if int(t * FPS) % 11 in (0, 5) else ON, 0.0)),
+    ("brake pumping every 2 s (1 s on, 1 s off)", lambda t: (ON if (t % 2.0) < 1.0 else 0.0, 0.0)),
+    ("blue paint glint every 0.7 s", lambda t: (0.0, ON) if int(t * FPS) % 10 == 0 else (0.0, 0.0)),
 ])
 def test_lookalikes_never_confirm(name, signal):
     _, states = run(signal, duration_s=12.0)
     assert first_time(states, EvState.CONFIRMED) is None, name
+
+
+def test_a_red_flash_handing_over_to_blue_is_enough_evidence():
+    """Alternation is seen after one red flash: confirmation about half a period after lights-on."""
+    _, states = run(alternating(2.0, on_at=1.0))
+    t = first_time(states, EvState.CONFIRMED)
+    assert t is not None and t - 1.0 <= 0.25 + 2.0 / FPS + 1e-6
+
+
+def test_runs_of_a_lamp_signal_with_hysteresis():
+    from rsu.classify.temporal import lamp_runs
+
+    t = np.arange(12) / FPS
+    x = np.array([0, 1, 1, 0.5, 1, 0, 0, 1, 1, 0, 1, 1.0])
+    runs = lamp_runs(t, x, on_level=0.8, off_level=0.2, frame_s=1 / FPS)
+    assert [(r.samples, r.complete) for r in runs] == [(3, True), (2, True), (2, False)]
+    assert runs[0].duration_s == pytest.approx(4 / FPS)
 
 
 def test_a_crop_classifier_alone_cannot_confirm_without_flashing():
