@@ -86,6 +86,8 @@ class DdmConfig:
     pass_margin_m: float = 30.0
     """The pass is done once the EV is this far ahead of the AV (CARMA: 152.4 m at highway speeds;
     30 m is > 1.5 s of EV travel at 20 m/s and two car lengths beyond the AV's own length)."""
+    ev_predict_s: float = 10.0
+    """An EV lost from view is predicted (at its last speed) for this long before the AV may resume."""
     resume_hold_s: float = 1.5
     """A yielding AV resumes only once no EV has been behind or passing it for this long (RSU tracks
     of two cars side by side can merge or switch for a moment while the EV passes)."""

@@ -23,8 +23,10 @@ EV has passed):
 - ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
   there is one and a safe gap, else SLOW_IN_LANE.
 - RESUME once no EV is behind the AV or less than ``pass_margin_m`` ahead of it (whatever its track id:
-  a track may switch ids while the EV passes), and none has been for ``resume_hold_s`` (a track lost
-  for a moment next to the AV is not a pass); RESUME waits for a safe gap in the lane it merges into.
+  a track may switch ids while the EV passes), none has been for ``resume_hold_s`` (a track lost
+  for a moment next to the AV is not a pass), and an EV lost from view (an RSU died) is, driving on
+  at its last speed, predicted ``pass_margin_m`` ahead (for up to ``ev_predict_s``); RESUME waits for a
+  safe gap in the lane it merges into.
 
 Gap check (lane change / merge into lane L): every other track in lane L needs a bumper-to-bumper
 clearance of at least ``gap_min_m + gap_time_s * v_follower + max(0, v_follower - v_leader) * t_change``
@@ -88,6 +90,9 @@ class Response:
     since_s: float = 0.0
     ev_near_s: float = 0.0
     """Last time an EV was behind the AV or passing it (the caller updates it from ``Decision.ev_near``)."""
+    ev_last: tuple[float, float, float] | None = None
+    """(station m, speed along the road m/s, time s) of the nearest EV behind when last seen (the caller
+    updates it from ``Decision.ev_s_m``/``ev_speed_mps``): a lost EV is assumed to drive on."""
 
     def commit(self, decision: Decision, now: float) -> None:
         m = decision.manoeuvre
@@ -97,6 +102,7 @@ class Response:
             self.phase, self.manoeuvre, self.target_lane = "normal", None, None
             self.ev_track_ids = set()
             self.slow_because = ""
+            self.ev_last = None
         else:
             self.phase, self.manoeuvre, self.target_lane = "yielding", m, decision.target_lane
             if decision.ev_track_id is not None:
@@ -131,6 +137,9 @@ class Decision:
     slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
     stop_within_m: float | None = None
     """PULL_OVER: stop within this distance (room behind a leader in the target lane)."""
+    ev_s_m: float | None = None
+    """Station of the EV the decision is about (behind the AV)."""
+    ev_speed_mps: float | None = None
     ev_near: bool = False
     """An EV is behind the AV (within ``ev_lookbehind_m``) or passing it (ahead by < ``pass_margin_m``)."""
     ego_s_m: float = 0.0
@@ -293,7 +302,8 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
     base["ev_near"] = bool(threats or passing)
     if urgent:
         t = urgent[0]
-        common = dict(base, ev_track_id=t.track_id, time_to_pass_s=t.time_to_pass_s, ev_gap_m=t.gap_m)
+        common = dict(base, ev_track_id=t.track_id, time_to_pass_s=t.time_to_pass_s, ev_gap_m=t.gap_m,
+                      ev_s_m=t.s_m, ev_speed_mps=t.speed_mps)
         if response.phase == "yielding":
             if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and lane_e > 0 and t.time_to_pass_s >= cfg.too_late_s
                     and t.lane != 0):  # slowed for a gap, too late, or an EV in lane 0 that has left it
@@ -342,7 +352,18 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
                             f"(< {cfg.pass_margin_m:.0f} m)", ev_track_id=tid, **base)
         if threats:
             t = threats[0]
-            return Decision("hold", f"EV track {t.track_id} still behind", ev_track_id=t.track_id, **base)
+            return Decision("hold", f"EV track {t.track_id} still behind", ev_track_id=t.track_id,
+                            ev_s_m=t.s_m, ev_speed_mps=t.speed_mps, **base)
+        still_seen = any(o.track_id in response.ev_track_ids for o in others)  # seen, not an EV any more
+        if now is not None and response.ev_last is not None and not still_seen:
+            # the EV we yield to is out of sight (an RSU died, tracks switched): it drives on at its
+            # last speed; hold until it must be pass_margin_m ahead (within ev_predict_s)
+            s_ev, v_ev, t_ev = response.ev_last
+            age = now - t_ev
+            ahead_m = s_ev + max(v_ev, cfg.min_ev_speed_mps) * age - s_e
+            if age <= cfg.ev_predict_s and ahead_m < cfg.pass_margin_m:
+                return Decision("hold", f"EV out of sight for {age:.1f} s, predicted {ahead_m:+.0f} m from the AV "
+                                f"(resume once {cfg.pass_margin_m:.0f} m ahead)", **base)
         if now is not None and now - response.ev_near_s < cfg.resume_hold_s:
             return Decision("hold", f"no EV near for {now - response.ev_near_s:.1f} s "
                             f"(resume after {cfg.resume_hold_s:.1f} s)", **base)

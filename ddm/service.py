@@ -318,6 +318,8 @@ class DdmService:
             decision = decide(ego, evs, others, self.frame, self.config, resp, now)
             if decision.ev_near:
                 resp.ev_near_s = now
+            if decision.ev_s_m is not None and decision.ev_speed_mps is not None:
+                resp.ev_last = (decision.ev_s_m, decision.ev_speed_mps, now)
             what = (str(decision.action), decision.ev_track_id)
             if what != self._last_reason.get(vid):
                 log.info("%s: %s (%s)", vid, decision.action, decision.reason)

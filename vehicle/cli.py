@@ -47,8 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--gnss-sigma", type=_non_negative, default=0.2, metavar="M", help="GNSS noise sigma (m, default 0.2)")
     run.add_argument("--gnss-rate", type=_positive, default=10.0, metavar="HZ", help="GNSS rate (default 10 Hz)")
     run.add_argument("--gnss-latency", type=_non_negative, default=0.1, metavar="S", help="GNSS latency (default 0.1 s)")
-    run.add_argument("--link-timeout", type=_positive, default=2.0, metavar="S",
-                     help="fail-safe: stop when no command or DDM health for this long in a manoeuvre (default 2 s)")
+    run.add_argument("--link-timeout", type=_positive, default=3.5, metavar="S",
+                     help="fail-safe: stop when no command or DDM health (1 Hz) for this long in a manoeuvre "
+                          "(default 3.5 s)")
     run.add_argument("--localisation-stale", type=_positive, default=1.0, metavar="S",
                      help="fail-safe: stop when the newest fix is older than this (default 1 s)")
     run.add_argument("--seed", type=int, default=0, help="seed of the simulated sensors")

@@ -16,7 +16,9 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class FailsafeConfig:
-    link_timeout_s: float = 2.0
+    link_timeout_s: float = 3.5
+    """No command or DDM Health (1 Hz) for this long during a manoeuvre: minimal-risk stop. Three missed
+    heartbeats and a half: a single lost Health on a lossy radio must not stop the car."""
     localisation_stale_s: float = 1.0
     mrm_decel_mps2: float = 2.5
     """Deceleration of the minimal-risk stop (comfortable, below the 3 m/s^2 cap)."""

@@ -25,7 +25,7 @@ def sim_crops(seed=7):
     world = World(sc, seed=seed)
     cams = [SimCamera(sc.corridor, r.rsu_id, seed=seed) for r in sc.corridor.rsus[:2]]
     ev, non_ev = [], []
-    while world.t_s < 6.5:
+    while world.t_s < 8.0:
         world.step(0.35)
         if world.t_s < 4.5:  # lights on at 4 s
             continue

@@ -102,3 +102,44 @@ def test_reason_is_carried_by_every_decision():
         d = decide(ego(), evs, [], FRAME, CFG, Response())
         assert d.action == "none" and d.reason
     assert math.isfinite(CFG.act_time_to_pass_s)
+
+
+def test_slower_car_beside_in_lane_0_keeps_speed_faster_one_slows():
+    ev = trk(2, 60.0, 1, 18.0, ev=True)  # 40 m behind
+    slow = trk(3, 100.0, 0, 5.0)  # a yielding car beside the AV in lane 0
+    d = decide(ego(), [ev], [ev, slow], FRAME, CFG, Response())
+    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
+    fast = trk(4, 96.0, 0, 22.0)  # a faster car coming up beside: let it pass
+    d = decide(ego(), [ev], [ev, fast], FRAME, CFG, Response())
+    assert d.action == Manoeuvre.SLOW_IN_LANE and d.slow_because == "gap"
+
+
+def test_pull_over_stops_behind_a_car_stopping_ahead_in_lane_0():
+    ev = trk(2, 60.0, 1, 18.0, ev=True)
+    leader = trk(3, 150.0, 0, 4.0)  # 45 m ahead, slowing to yield
+    d = decide(ego(), [ev], [ev, leader], FRAME, CFG, Response())
+    assert d.action == Manoeuvre.PULL_OVER and d.stop_within_m is not None
+    p = plan(d, FRAME, CFG, 1.9, 13.4)
+    # stopped behind where the leader would stop braking comfortably, with the minimum gap
+    assert p.stop_distance_m <= d.stop_within_m + 1e-6
+    too_close = trk(3, 112.0, 0, 0.0)  # stopped 7 m ahead: no room to stop behind it at 13.4 m/s
+    d = decide(ego(), [ev], [ev, too_close], FRAME, CFG, Response())
+    assert d.action != Manoeuvre.PULL_OVER and "no room to stop" in d.reason
+
+
+def test_an_ev_lost_from_view_is_predicted_before_resuming():
+    resp = Response()
+    ev = trk(2, 70.0, 1, 15.0, ev=True)
+    d = decide(ego(v=0.0, lane=0), [ev], [ev], FRAME, CFG, resp, now=10.0)
+    resp.commit(d, 10.0)
+    resp.ev_last = (d.ev_s_m, d.ev_speed_mps, 10.0)
+    # the EV's track is gone (its RSU died): 30 m behind at 15 m/s -> ahead by 30 m after 4 s
+    held = decide(ego(v=0.0, lane=0), [], [], FRAME, CFG, resp, now=12.0)
+    assert held.action == "hold" and "out of sight" in held.reason
+    later = decide(ego(v=0.0, lane=0), [], [], FRAME, CFG, resp, now=14.5)
+    assert later.action == Manoeuvre.RESUME
+
+
+def test_an_ev_at_the_avs_own_position_is_the_av_itself():
+    ghost = trk(9, 100.5, 1, 13.4, ev=True)  # an RSU track that switched onto the AV
+    assert decide(ego(), [ghost], [ghost], FRAME, CFG, Response()).action == "none"
