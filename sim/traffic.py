@@ -42,6 +42,9 @@ LANE_CHECK_PERIOD_S = 1.0
 LATERAL_GAIN_PER_S = 0.9
 LATERAL_SPEED_MAX_MPS = 1.1
 BRAKE_LIGHT_DECEL_MPS2 = 0.6
+EXTERNAL_CUT_IN_HEADWAY_S = 2.0
+"""Drivers change in front of the externally driven AV only with this much time headway (plus what the
+speed difference eats in 3 s): the vehicle process follows its commanded path and has no car-following."""
 EV_REACT_BEHIND_M = 90.0
 EV_PASSED_AHEAD_M = 15.0
 YIELD_SPEED_FACTOR = 0.35
@@ -227,6 +230,8 @@ class IdmTraffic:
                     fgap = s[i] - s[f] - (length[i] + length[f]) / 2
                     if fgap < 1.0:
                         continue
+                    if vs[f].external and fgap < EXTERNAL_CUT_IN_HEADWAY_S * spd[f] + max(0.0, spd[f] - spd[i]) * 3.0 + 5.0:
+                        continue  # the AV drives its commanded path and does not brake for a cut-in
                     a_f = idm_accel(spd[f:f + 1], v0[f:f + 1], np.array([fgap]), np.array([spd[f] - spd[i]]),
                                     t_gap[f:f + 1], a_max[f:f + 1])[0]
                     if a_f < -MOBIL_SAFE_DECEL_MPS2:
