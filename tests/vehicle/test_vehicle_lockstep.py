@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from protocol.messages import AckStatus, VehicleMode
+from vehicle.failsafe import FailsafeConfig
 from vehicle.lockstep import field_test_scenario, run_scenario
 
 
@@ -85,7 +86,7 @@ def test_failsafe_stop_when_the_ddm_goes_silent():
     c = r.record.columns()
     core = r.sim.core
     assert core.mode == VehicleMode.MINIMAL_RISK and "link lost" in core.watchdog.reason
-    assert core.watchdog.triggered_at_s == pytest.approx(sc.command_at_s + 2.0, abs=0.05)
+    assert core.watchdog.triggered_at_s == pytest.approx(sc.command_at_s + FailsafeConfig().link_timeout_s, abs=0.05)
     assert [a.status for a in r.acks] == [AckStatus.ACCEPTED, AckStatus.REJECTED]
     assert r.acks[1].reason.startswith("aborted: link lost")
     assert c["speed_mps"][-1] < 0.01  # stopped
