@@ -255,6 +255,9 @@ class DdmService:
         resp = self.responses.setdefault(vs.vehicle_id, Response())
         if vs.mode in (VehicleMode.MANOEUVRE, VehicleMode.STOPPED):
             resp.phase, resp.manoeuvre, resp.since_s = "yielding", None, now
+            # a restarted DDM has not heard the EV yet: no RESUME before the RSUs' alerts (2 Hz) have
+            # had ev_alert_timeout_s to reach it
+            resp.ev_near_s = now + self.config.ev_alert_timeout_s
         log.info("vehicle %s executes command %s (mode %s) from a previous DDM: adopted", vs.vehicle_id, cid,
                  vs.mode.value)
 

@@ -191,3 +191,17 @@ def test_commands_get_through_a_lossy_radio_link():
     r.run(1.0, dt=0.05, alert_every_s=0.5)
     assert len([c for c in r.commands if c.command_id == cid]) == n  # and then retransmission stopped
     link.close()
+
+
+def test_restarted_ddm_does_not_resume_before_it_hears_the_ev():
+    """A new DDM adopts the vehicle's command; while the RSUs' alerts have not reached it yet (here they
+    are silent), it holds the yield for ev_alert_timeout_s instead of resuming at once."""
+    r = ev_behind_rig()
+    r.ev_alert_on = True
+    r.run(1.0, alert_every_s=0.5)
+    assert r.manoeuvres() == ["pull_over"]
+    r.svc.close()
+    r.ev_alert_on = False  # the restarted DDM hears no alert for a while (and the objects do not flag the EV)
+    r.svc = DdmService(r.bus, r.clock, r.corridor, DdmConfig(startup_listen_s=1.0))
+    r.run(1.0 + r.svc.config.ev_alert_timeout_s - 0.5)
+    assert r.manoeuvres() == ["pull_over"]  # adopted and held, no RESUME
