@@ -32,6 +32,12 @@ sooner on tuning seeds but raised 2 false alerts on held-out ev_two_lanes_dense 
 the default. The code before this rule (single transitions counted as blinks) measured recall 1.0,
 15 false alerts, median 1.6 s on the same held-out runs (before the zone-of-responsibility filter of
 the localiser landed on main, which now drops far blobs too).
+
+With the project detector (``--detector project``, now the default: the RSUs of the demo and the
+lockstep corridor run it), same held-out runs, unloaded machine: track recall 0.958 (23/24: rsu2 missed
+the EV in ev_two_lanes_dense 101), false alerts 0, median lights-on -> alert 0.30 s (max 0.67 s),
+6.6-7.6 ms/frame. Tight boxes keep the light bar in the measured band, so the evidence confirms within
+a flash or two; the one miss is an EV partly hidden in dense traffic.
 """
 
 from __future__ import annotations
@@ -79,7 +85,16 @@ WARMUP_FRAMES = 30
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
+PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
+
+
 def make_detector(kind: str):
+    """``project``: the project's detector (what the RSUs of the demo and the lockstep corridor run),
+    every vehicle one class; ``onnx``: the COCO YOLOX-nano; ``motion``: MOG2."""
+    if kind == "project":
+        det = OnnxDetector(PROJECT_MODEL, intra_op_threads=1)
+        det.class_map = {0: 0, 1: 0}
+        return det
     if kind == "onnx":
         return OnnxDetector(YOLOX, score_threshold=0.25, intra_op_threads=1)
     return MotionDetector()
@@ -196,7 +211,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[101, 102], help="held-out seeds (tuning used 1-4)")
-    ap.add_argument("--detector", choices=["motion", "onnx"], default="motion")
+    ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
+                    help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
     ap.add_argument("--min-visible-s", type=float, default=1.0,
                     help="an EV counts as a track for a camera when seen lit at least this long")
