@@ -67,7 +67,7 @@ from protocol.messages import AlertState  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.ev import EvAlertManager, SingleVehicleGate, TrackEvClassifier  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig  # noqa: E402
-from rsu.detect import MotionDetector, OnnxDetector  # noqa: E402
+from rsu.detect import MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
 from rsu.localize import Localizer  # noqa: E402
 from rsu.service import RsuPipeline  # noqa: E402
@@ -85,16 +85,11 @@ WARMUP_FRAMES = 30
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
-PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
-
-
 def make_detector(kind: str):
     """``project``: the project's detector (what the RSUs of the demo and the lockstep corridor run),
     every vehicle one class; ``onnx``: the COCO YOLOX-nano; ``motion``: MOG2."""
     if kind == "project":
-        det = OnnxDetector(PROJECT_MODEL, intra_op_threads=1)
-        det.class_map = {0: 0, 1: 0}
-        return det
+        return vehicle_detector(intra_op_threads=1)
     if kind == "onnx":
         return OnnxDetector(YOLOX, score_threshold=0.25, intra_op_threads=1)
     return MotionDetector()

@@ -56,7 +56,7 @@ from dataclasses import dataclass, replace  # noqa: E402
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort  # noqa: E402
 from models.evaluate_detector import ZONE_M  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
-from rsu.detect import Detector, MotionDetector, OnnxDetector  # noqa: E402
+from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.localize import GroundProjector, Localizer  # noqa: E402
@@ -70,7 +70,6 @@ REAL = ROOT.parent / "shared" / "data" / "real"
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO = REAL / "traffic_videos" / "ambdet_video_3.mp4"
 SIZE_720P = (1280, 720)
-PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
 WORLD_DT_S = 0.05
 FPS_SCENARIO = ("ev_two_lanes_dense", "rsu2")
 """Sim clip for the fps figures: the dense two-lane scenario, 10-20 labelled vehicles per frame."""
@@ -248,7 +247,7 @@ def render_sim_clip(scenario: str, rsu_id: str, seed: int, duration_s: float, zo
 
 def project_detector(threads: int = 1) -> OnnxDetector:
     """The project's detector as the RSU runs it in Framework B (every vehicle one class)."""
-    return OnnxDetector(PROJECT_MODEL, intra_op_threads=threads, class_map={0: 0, 1: 0}, name="project")
+    return vehicle_detector(PROJECT_MODEL, intra_op_threads=threads, name="project")
 
 
 def sim_detectors() -> dict[str, Callable[[], Detector]]:

@@ -44,7 +44,7 @@ from protocol.corridor import Corridor
 from protocol.messages import VehicleState
 from protocol.transport import DsrcLink, LocalBus, Transport
 from rsu.classify.ev import TrackEvClassifier
-from rsu.detect import MotionDetector, OnnxDetector
+from rsu.detect import PROJECT_MODEL, MotionDetector, vehicle_detector
 from rsu.frames import Frame
 from rsu.hazard import HazardDetector
 from rsu.localize import Localizer
@@ -144,14 +144,7 @@ class CorridorLockstep:
         det = self.config.detector
         if det == "motion":
             return MotionDetector()
-        if det == "project":
-            from deploy.demo import PROJECT_MODEL
-
-            det = str(PROJECT_MODEL)
-        detector = OnnxDetector(det, intra_op_threads=1)
-        if detector.layout == "project":  # Framework B: every vehicle one class (as iea-rsu does)
-            detector.class_map = {0: 0, 1: 0}
-        return detector
+        return vehicle_detector(PROJECT_MODEL if det == "project" else det, intra_op_threads=1)
 
     def _add_rsu(self, rsu_id: str) -> None:
         r = self.corridor.rsu(rsu_id)

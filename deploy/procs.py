@@ -162,14 +162,13 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
         pass
 
 
-PROJECT_MODEL = ROOT / "models" / "iea_det_tiny.onnx"
-
-
 def detector_args(detector: str) -> list[str]:
     """iea-rsu options for a detector name: ``project`` (the project's ONNX model, models/), ``motion``
     (MOG2), or the path of an ONNX model."""
     if detector == "motion":
         return ["--detector", "motion"]
+    from rsu.detect import PROJECT_MODEL
+
     model = PROJECT_MODEL if detector == "project" else Path(detector)
     if not model.is_file():
         raise FileNotFoundError(f"detector model {model} not found (use --detector motion, or train it: make models)")

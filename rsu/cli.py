@@ -16,7 +16,7 @@ from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.classifiers import load_classifier
 from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
 from rsu.classify.evaluation import CLASSIFIERS
-from rsu.detect import MotionDetector, OnnxDetector
+from rsu.detect import MotionDetector, vehicle_detector
 from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
 from rsu.hazard import HazardDetector
 from rsu.localize import INTERPOLATIONS, Localizer
@@ -152,11 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                 print("iea-rsu: --detector onnx needs --model PATH", file=sys.stderr)
                 return 2
             providers = args.providers if args.providers in (None, "auto") else args.providers.split(",")
-            detector = OnnxDetector(args.model, score_threshold=args.score_threshold, providers=providers,
-                                    intra_op_threads=args.threads)
-            if args.framework == "B" and detector.layout == "project":
-                # one 'vehicle' class: score = obj x max(p(vehicle), p(ev)), one box per vehicle after NMS
-                detector.class_map = {0: 0, 1: 0}
+            detector = vehicle_detector(args.model, framework=args.framework, score_threshold=args.score_threshold,
+                                        providers=providers, intra_op_threads=args.threads)
         else:
             detector = MotionDetector()
         tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)

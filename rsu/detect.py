@@ -40,6 +40,10 @@ PROJECT_CLASSES = ("vehicle", "ev")
 COCO_TO_PROJECT: dict[int, int] = {2: VEHICLE, 3: VEHICLE, 5: VEHICLE, 7: VEHICLE}
 """COCO car, motorcycle, bus, truck -> vehicle."""
 PROJECT_TO_PROJECT: dict[int, int] = {0: VEHICLE, 1: EV}
+ONE_VEHICLE_CLASS: dict[int, int] = {0: VEHICLE, 1: VEHICLE}
+"""Framework B with the project's model: score = obj x max(p(vehicle), p(ev)), one box per vehicle."""
+PROJECT_MODEL = Path(__file__).resolve().parent.parent / "models" / "iea_det_tiny.onnx"
+"""The project's own detector (``make models``; model card models/iea_det_tiny.md)."""
 LAYOUTS = ("yolox-coco", "project")
 YOLOX_STRIDES = (8, 16, 32)
 PAD_VALUE = 114
@@ -241,6 +245,16 @@ class OnnxDetector:
 
 
 # ----------------------------------------------------------------------------- motion detector
+def vehicle_detector(model_path: str | Path = PROJECT_MODEL, *, framework: str = "B", **kwargs) -> OnnxDetector:
+    """An ONNX detector as an RSU runs it: in Framework B (one class, thesis 2.3) a model of the project's
+    layout scores both of its classes as one vehicle class (``ONE_VEHICLE_CLASS``), so an EV gets one box,
+    not a second one from class-aware NMS. ``kwargs`` go to ``OnnxDetector``."""
+    det = OnnxDetector(model_path, **kwargs)
+    if framework == "B" and det.layout == "project":
+        det.class_map = dict(ONE_VEHICLE_CLASS)
+    return det
+
+
 class MotionDetector:
     """MOG2 background subtraction for a fixed camera: moving blobs -> vehicle boxes (no model).
 
