@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from deploy.procs import PROJECT_MODEL, ServiceGroup, child_env, corridor_services, detector_args  # noqa: F401
+from deploy.procs import ServiceGroup, child_env, corridor_services
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -44,8 +44,6 @@ class RunMonitor:
     events: dict[str, float] = field(default_factory=dict)
     facts: dict[str, Any] = field(default_factory=dict)
     sim_time_s: float = 0.0
-    sim_offset_s: float | None = None
-    """wall stamp - sim time, to put sim events on the wall clock."""
     av: Any = None
     ev: Any = None
     vehicle_state: Any = None
@@ -114,8 +112,6 @@ class RunMonitor:
 
     def _on_world(self, snap: Any) -> None:
         self.sim_time_s = snap.sim_time_s
-        if self.sim_offset_s is None:
-            self.sim_offset_s = snap.stamp - snap.sim_time_s
         av = next((a for a in snap.actors if a.kind.value == "av"), None)
         ev = next((a for a in snap.actors if a.kind.value == "ev"), None)
         self.av, self.ev = av, ev
