@@ -332,7 +332,7 @@ class DdmService:
                 self.counters["decisions"] += 1
                 self.hazard_responses.pop(vid, None)  # the EV command supersedes any hazard command
             elif resp.phase == "normal" and decision.action == "none":
-                self._decide_hazard(vid, ego, now)
+                self._decide_hazard(vid, ego, now, others)
         self._send_due(now)
         if t0 is not None and self._issued_in_call:
             ms = (time.perf_counter() - t0) * 1000.0
@@ -343,24 +343,32 @@ class DdmService:
     def _command(self, vid: str, decision: Decision, resp: Response, now: float) -> None:
         path = plan(decision, self.frame, self.config, self.vehicle_width.get(vid, 1.9),
                     self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
+        self._issued_in_call = True
+        self._issue(vid, decision, path, resp, self._rollback, now)
+
+    def _issue(self, vid: str, decision: Decision | HazardDecision, path, memory: Response | HazardResponse,
+               rollback: dict, now: float) -> None:
+        """Issue a decision's command and commit it to the vehicle's policy memory; the memory as it was
+        is kept in ``rollback`` (by command id) to restore if the command is rejected or expires."""
         target_lane = decision.target_lane if decision.target_lane is not None else 0
         cmd = self.commands.issue(
             vid, now, manoeuvre=decision.manoeuvre, reason=decision.reason, target_lane=target_lane,
             waypoints=path.waypoints, speed_profile_mps=path.speeds_mps, target_speed_mps=path.target_speed_mps,
             stop_point=path.stop_point,
         )
-        self._rollback[cmd.command_id] = copy.deepcopy(resp)
-        resp.commit(decision, now)
-        self._issued_in_call = True
+        rollback[cmd.command_id] = copy.deepcopy(memory)
+        memory.commit(decision, now)
         self._process_events(now)
 
-    def _decide_hazard(self, vid: str, ego: Ego, now: float) -> None:
-        """The hazard policy for one vehicle the EV policy leaves alone."""
+    def _decide_hazard(self, vid: str, ego: Ego, now: float, others: list | None = None) -> None:
+        """The hazard policy for one vehicle the EV policy leaves alone (``others``: the tracks near it,
+        when the EV policy already looked them up)."""
         active = self.hazards.active()
         hresp = self.hazard_responses.setdefault(vid, HazardResponse())
         if not active and hresp.phase == "normal":
             return
-        others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
+        if others is None:
+            others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
         d = decide_hazard(ego, active, others, self.frame, self.config, self.hazard_config, hresp,
                           self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
         what = (str(d.action), d.hazard_id)
@@ -372,16 +380,8 @@ class DdmService:
             self.counters["hazard_decisions"] += 1
 
     def _command_hazard(self, vid: str, d: HazardDecision, hresp: HazardResponse, now: float) -> None:
-        path = d.path
-        assert path is not None
-        cmd = self.commands.issue(
-            vid, now, manoeuvre=d.manoeuvre, reason=d.reason, target_lane=d.target_lane or 0,
-            waypoints=path.waypoints, speed_profile_mps=path.speeds_mps, target_speed_mps=path.target_speed_mps,
-            stop_point=path.stop_point,
-        )
-        self._hazard_rollback[cmd.command_id] = copy.deepcopy(hresp)
-        hresp.commit(d, now)
-        self._process_events(now)
+        assert d.path is not None
+        self._issue(vid, d, d.path, hresp, self._hazard_rollback, now)
 
     def _send_due(self, now: float) -> None:
         for cmd in self.commands.on_tick(now):
