@@ -204,7 +204,7 @@ class CorridorLockstep:
         if self.vehicle is not None:
             self.sim.set_av_state(self._true_state(now))
         self.sim.step_once()
-        self._snapshot = self.sim.world.snapshot(stamp=now)
+        self._snapshot = self.sim.last_snapshot
 
     def _true_state(self, now: float) -> VehicleState:
         """The plant's true pose (physics, not a radio message) for the simulator."""

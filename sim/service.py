@@ -16,7 +16,7 @@ import cv2
 
 from protocol.clock import Clock, RateTimer, WallClock
 from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
-from protocol.messages import Health, HealthStatus, Role, VehicleState
+from protocol.messages import Health, HealthStatus, Role, VehicleState, WorldSnapshot
 from protocol.transport import Transport
 from sim.render import Renderer
 from sim.scenario import Scenario
@@ -58,6 +58,8 @@ class SimService:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._step_ms = 0.0
+        self.last_snapshot: WorldSnapshot | None = None
+        """The snapshot the last ``step_once`` published."""
         self._recorders = []
         for rec in recordings or []:
             rsu = scenario.corridor.rsu(rec.rsu_id)
@@ -107,6 +109,7 @@ class SimService:
         self.world.step(self.dt_s)
         self._step_ms = (time.perf_counter() - t0) * 1e3
         snap = self.world.snapshot(stamp=self.clock.now(), src=self.src, seq=self.published)
+        self.last_snapshot = snap
         self.transport.publish(sim_world_key(self.corridor_id), snap)
         self.published += 1
         for rec in self._recorders:
