@@ -79,7 +79,9 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             "restart": "unless-stopped",
         },
     }
-    sim = iea_service("sim", ["sim", "run", scenario], "sim", None)
+    # With a vehicle service the world waits for its first state: the two containers start in any order.
+    sim_cmd = ["sim", "run", scenario] + (["--wait-for-av", "60"] if av_start else [])
+    sim = iea_service("sim", sim_cmd, "sim", None)
     sim["build"] = {"context": ".", "dockerfile": "Dockerfile"}  # the one image all IEA services share
     services["sim"] = sim
     for r in chosen:

@@ -47,6 +47,8 @@ class ServiceGroup:
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     specs: dict[str, ServiceSpec] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
+    log_start: dict[str, int] = field(default_factory=dict)
+    """Size of each service's log when it was last started: what it wrote since begins there."""
 
     def __post_init__(self) -> None:
         self.run_dir = Path(self.run_dir)
@@ -64,6 +66,7 @@ class ServiceGroup:
             raise RuntimeError(f"service {name} is already running (pid {old.pid})")
         self.specs[name] = ServiceSpec(name, list(args), restart)
         with open(self.log_path(name), "a") as log:  # the child keeps its own descriptor
+            self.log_start[name] = log.tell()
             proc = subprocess.Popen([sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                     cwd=ROOT, start_new_session=True)
         self.procs[name] = proc
@@ -137,12 +140,17 @@ class ServiceGroup:
         return out
 
     def wait_for_log(self, name: str, text: str, timeout_s: float) -> bool:
-        """Poll ``name``'s log until it contains ``text`` (e.g. the router's "router ready")."""
+        """Poll ``name``'s log until what it wrote since its last start contains ``text`` (e.g. the router's
+        "router ready"; a line from an earlier run in the same log does not count)."""
         deadline = time.monotonic() + timeout_s
         path = self.log_path(name)
+        offset = self.log_start.get(name, 0)
         while time.monotonic() < deadline:
-            if path.exists() and text in path.read_text(errors="replace"):
-                return True
+            if path.exists():
+                with open(path, "rb") as f:
+                    f.seek(offset)
+                    if text in f.read().decode(errors="replace"):
+                        return True
             if not self.running(name):
                 return False
             time.sleep(0.05)
@@ -160,6 +168,10 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
         os.killpg(p.pid, sig)
     except ProcessLookupError:
         pass
+
+
+SIM_WAIT_FOR_AV_S = 30.0
+"""How long the simulator holds the world for the vehicle process's first state."""
 
 
 def detector_args(detector: str) -> list[str]:
@@ -205,7 +217,9 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     out = [ServiceSpec("ddm", ["-m", "ddm", "run", *common, *keys.get("ddm", []), *z])]
     for rsu in rsus:
         corridor.rsu(rsu)  # unknown ids fail here, naming the corridor's RSUs
-        args = ["-m", "rsu", "--rsu", rsu, "--source", "sim", *common, *keys.get(rsu, []), *detector_args(detector)]
+        # Every RSU shares this host's cores: one thread each, or their thread pools spin against each other.
+        args = ["-m", "rsu", "--rsu", rsu, "--source", "sim", "--threads", "1", *common, *keys.get(rsu, []),
+                *detector_args(detector)]
         if annotate:
             args += ["--annotate", str(Path(run_dir) / f"{rsu}.mp4")]
         if seed is not None:
@@ -213,6 +227,8 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         out.append(ServiceSpec(rsu, [*args, *z]))
     out.append(ServiceSpec("vehicle", [*vehicle, *(vehicle_extra or []), *z]))
     sim = ["-m", "sim", "run", scenario, *common]
+    if av is not None:  # the world starts when the vehicle process is up and driving, not before
+        sim += ["--wait-for-av", str(SIM_WAIT_FOR_AV_S)]
     if duration_s is not None:
         sim += ["--duration", str(duration_s)]
     if seed is not None:

@@ -52,7 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--score-threshold", type=float, default=0.3)
     ap.add_argument("--providers", default=None,
                     help="onnxruntime providers, comma-separated, or 'auto' (default CPUExecutionProvider)")
-    ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="CPU threads for the detector (onnxruntime intra-op) and OpenCV (default: all cores); "
+                         "use 1 when several RSUs share one machine (iea demo / iea up do)")
     ap.add_argument("--framework", choices=["A", "B"], default="B",
                     help="B: one class, track every vehicle (thesis 2.3); A: a tracker per class (thesis 2.2)")
     ap.add_argument("--max-age", type=int, default=1)
@@ -140,6 +142,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     log = logging.getLogger("iea-rsu")
+    if args.threads is not None:
+        if args.threads < 1:
+            print(f"iea-rsu: --threads must be >= 1, got {args.threads}", file=sys.stderr)
+            return 2
+        cv2.setNumThreads(args.threads)
     try:
         corridor = load_corridor(args.corridor)
         rsu = corridor.rsu(args.rsu)

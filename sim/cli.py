@@ -29,6 +29,10 @@ def _add_run(sub) -> None:
     p.add_argument("--speed", type=float, default=1.0, help="time scale: 2.0 runs twice as fast as real time")
     p.add_argument("--duration", type=float, default=None, help="stop after this many sim seconds")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument("--wait-for-av", type=float, default=None, metavar="S",
+                   help="hold the world at t = 0 until the scenario's AV reports its state from a vehicle process "
+                        "(at most S seconds, then start with the scripted AV); use it when a vehicle process drives "
+                        "the AV, so the world and the car start together")
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
     ZenohSettings.add_arguments(p)
 
@@ -39,6 +43,8 @@ def _cmd_run(args) -> int:
     from sim.scenario import load_scenario
     from sim.service import Recording, SimService
 
+    if args.wait_for_av is not None and not args.wait_for_av >= 0:
+        raise ValueError(f"--wait-for-av wants seconds >= 0, got {args.wait_for_av}")
     corridor = load_corridor(args.corridor) if args.corridor else None
     sc = load_scenario(args.scenario, corridor).with_overrides(seed=args.seed, lighting=args.lighting)
     recs = []
@@ -54,7 +60,7 @@ def _cmd_run(args) -> int:
                          recordings=recs)
         signal.signal(signal.SIGTERM, lambda *_: svc.stop())
         signal.signal(signal.SIGINT, lambda *_: svc.stop())
-        n = svc.run()
+        n = svc.run(wait_for_av_s=args.wait_for_av)
         logging.getLogger("iea.sim").info("published %d snapshots", n)
     finally:
         transport.close()

@@ -128,8 +128,33 @@ class SimService:
                       latency_ms={"world_step": self._step_ms}, rejected=rej,
                       detail=f"scenario {self.scenario.name} t={self.world.t_s:.2f}s av_updates={self.av_updates}")
 
-    def run(self) -> int:
-        """Run until the scenario's duration or stop(); returns the number of snapshots published."""
+    def wait_for_avs(self, timeout_s: float, poll_s: float = 0.02) -> bool:
+        """Hold the world at t = 0 until every AV of the scenario has sent its state (or ``timeout_s``).
+
+        A vehicle process starts driving its own plant as soon as it is up. Started beside the simulator
+        it may be up seconds later (imports, Zenoh discovery on a loaded host); a world that ran from the
+        scenario's script meanwhile would see its AV jump back to the start pose, and the traffic behind
+        it (the EV) close up. Returns True when every AV reported; False: the world starts scripted.
+        """
+        deadline = self.clock.now() + timeout_s
+        while not self._stop.is_set():
+            with self._lock:
+                missing = self._vehicle_ids - set(self._pending_states)
+            if not missing:
+                log.info("every AV reported (%s): the world starts", ", ".join(sorted(self._vehicle_ids)))
+                return True
+            if self.clock.now() >= deadline:
+                log.warning("no state from %s within %.1f s: the world starts with the scripted AV",
+                            ", ".join(sorted(missing)), timeout_s)
+                return False
+            self.clock.sleep(poll_s)
+        return False
+
+    def run(self, wait_for_av_s: float | None = None) -> int:
+        """Run until the scenario's duration or stop(); returns the number of snapshots published.
+        ``wait_for_av_s``: first hold the world until the AVs report (:meth:`wait_for_avs`)."""
+        if wait_for_av_s is not None and self._vehicle_ids:
+            self.wait_for_avs(wait_for_av_s)
         start = self.clock.now()
         health_timer = RateTimer(HEALTH_PERIOD_S)
         next_t = start

@@ -72,6 +72,18 @@ def test_service_group_restarts_on_failure_only(tmp_path):
         g.stop_all(timeout_s=5)
 
 
+def test_wait_for_log_reads_only_what_the_service_wrote_since_its_last_start(tmp_path):
+    """A run folder reused by a later run keeps the old log: its "router ready" must not count."""
+    g = ServiceGroup(tmp_path)
+    g.log_path("router").write_text("router ready: tcp/127.0.0.1:1 (an earlier run)\n")
+    try:
+        g.start("router", ["-c", "import time; time.sleep(0.8); print('router ready', flush=True); time.sleep(5)"])
+        assert not g.wait_for_log("router", "router ready", 0.3)
+        assert g.wait_for_log("router", "router ready", 10.0)
+    finally:
+        g.stop_all(timeout_s=5)
+
+
 @pytest.mark.timeout(90)
 def test_up_services_started_before_the_router_wait_for_it(tmp_path, corridor_id):
     """A client whose router is not up yet waits for it (connect/timeout_ms -1) instead of exiting."""

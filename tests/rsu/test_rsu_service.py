@@ -171,3 +171,10 @@ def test_classifier_hook_marks_ev_tracks():
     last = {o.object_id: o for o in lists[-1].objects}
     kinds = sorted((o.bbox_px[0] < 640, o.obj_type, o.ev_score) for o in last.values())
     assert kinds == [(False, ObjectType.VEHICLE, 0.1), (True, ObjectType.EV, 0.9)]
+
+
+def test_cli_rejects_a_thread_count_below_one(capsys):
+    from rsu.cli import main
+
+    assert main(["--rsu", "rsu1", "--source", "sim", "--threads", "0"]) == 2
+    assert "--threads must be >= 1" in capsys.readouterr().err

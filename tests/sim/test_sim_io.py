@@ -159,6 +159,30 @@ def test_service_publishes_snapshots_at_20hz_and_follows_the_av_state():
     assert 2 <= len(health) <= 3 and health[0].role.value == "sim" and health[-1].rejected.get("unknown_vehicle") == 1
 
 
+def test_service_holds_the_world_until_the_av_reports():
+    """--wait-for-av: the world starts at the vehicle process's first state, not with a scripted AV that
+    would jump back when the car comes up late; without a state it starts scripted after the timeout."""
+    import threading
+
+    bus = LocalBus()
+    svc = SimService(load_scenario("rellis_ev_yield"), bus, corridor_id="tw", duration_s=0.1)
+    assert not svc.wait_for_avs(0.2)  # nobody drives av1: gives up after the timeout
+    st = VehicleState(src="veh", stamp=1.0, vehicle_id="av1", pos_x_m=40.0, pos_y_m=5.5, lat_deg=30.6,
+                      lon_deg=-96.4, heading_rad=0.0, speed_mps=13.4, mode=VehicleMode.DRIVING)
+    timer = threading.Timer(0.3, lambda: bus.publish(vehicle_key("tw", "av1", "state"), st))
+    got: list[WorldSnapshot] = []
+    bus.subscribe(sim_world_key("tw"), lambda _k, m: got.append(m))
+    t0 = time.monotonic()
+    timer.start()
+    try:
+        svc.run(wait_for_av_s=10.0)
+    finally:
+        timer.cancel()
+    assert 0.25 < time.monotonic() - t0 < 5.0
+    assert got and got[0].sim_time_s == pytest.approx(0.05)
+    assert next(a for a in got[0].actors if a.actor_id == "av1").pos_x_m == pytest.approx(40.0, abs=1.0)
+
+
 def test_cli_help_and_render(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     r = subprocess.run([sys.executable, "-m", "sim", "--help"], capture_output=True, text=True, env=env, timeout=60)
