@@ -101,11 +101,18 @@ class DdmConfig:
     """Required bumper-to-bumper clearance whatever the speeds (about one car length)."""
     replan_backoff_s: float = 0.5
     """After a rejected or expired command, wait this long before planning anew."""
+    replan_shorter_m: float = 3.0
+    """A pull-over is planned anew (a shorter stop) when a vehicle ahead in lane 0 leaves at least this
+    much less room than the commanded stop needs (a car the RSUs saw only after the command)."""
+    replan_min_speed_mps: float = 1.0
+    """... while the AV still moves faster than this (a nearly stopped car has nothing to re-plan)."""
 
     # ------------------------------------------------------------------ planning (ddm/paths.py)
     comfort_decel_mps2: float = 2.0
     """Deceleration to the stop (<= 3 m/s^2 asked by the issue; Apollo's pull-over allows 4.5)."""
     max_decel_mps2: float = 3.0
+    creep_speed_mps: float = 2.0
+    """A pull-over with less room ahead than its lane change needs brakes hard to this speed and creeps on."""
     urgent_lat_accel_mps2: float = 3.0
     """An urgent pull-over (the EV is close) may steer up to this lateral acceleration (the vehicle
     accepts paths up to 4 m/s^2)."""

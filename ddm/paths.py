@@ -134,7 +134,9 @@ def plan_stop(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, 
     The deceleration is the comfort one, raised (up to ``max_decel_mps2``) to be stopped within
     ``stop_within_s`` (e.g. before the EV arrives) and within ``max_stop_dist_m`` (e.g. behind a car
     that is stopping ahead in the target lane; never shorter than ``min_stop_distance_m``). The lane
-    change is ``braking_lane_change_length`` long and ends at least 5 m before the stop.
+    change is ``braking_lane_change_length`` long and ends at least 5 m before the stop. When the lane
+    change needs more road than ``max_stop_dist_m`` leaves, the speed profile brakes at
+    ``max_decel_mps2`` to ``creep_speed_mps``, creeps on and stops at the comfort deceleration.
     """
     v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
     decel = cfg.comfort_decel_mps2
@@ -159,15 +161,24 @@ def plan_stop(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, 
             lc, stop_dist = layout(float(a), float(lat))
             if 2.0 * stop_dist / v0 <= stop_within_s:
                 break
+    creep = False
     if max_stop_dist_m is not None and max_stop_dist_m > 0 and stop_dist > max_stop_dist_m:
         shortest = min_stop_distance_m(d_target - d0, v0, kroad, cfg)
         stop_dist = max(max_stop_dist_m, shortest)
         lc = min(lc, stop_dist - 5.0)
-    decel = v0 * v0 / (2.0 * stop_dist)
+        # the lane change needs more road than the room behind the car ahead: brake at max_decel_mps2
+        # anyway and cover the rest at a creep (the DDM plans again as that car moves on or stops)
+        creep = max_stop_dist_m < stop_dist - 1e-6 and v0 > cfg.creep_speed_mps
     s = _sample(s0, stop_dist + cfg.path_tail_m, cfg)
     rel = s - s0
     d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
-    v = np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * rel))
+    if creep:
+        decel = cfg.max_decel_mps2
+        v = np.maximum(cfg.creep_speed_mps, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * rel)))
+        v = np.minimum(v, np.sqrt(np.maximum(0.0, 2.0 * cfg.comfort_decel_mps2 * (stop_dist - rel))))
+    else:
+        decel = v0 * v0 / (2.0 * stop_dist)
+        v = np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * rel))
     v[rel >= stop_dist - 1e-6] = 0.0
     sx, sy, _ = frame.road.pose_at(s0 + stop_dist, d_target)
     return _build(frame, s, d, v, 0.0, (float(sx), float(sy)), d_target, lc, stop_dist, decel)

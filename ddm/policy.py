@@ -93,11 +93,22 @@ class Response:
     ev_last: tuple[float, float, float] | None = None
     """(station m, speed along the road m/s, time s) of the nearest EV behind when last seen (the caller
     updates it from ``Decision.ev_s_m``/``ev_speed_mps``): a lost EV is assumed to drive on."""
+    stop_s_m: float | None = None
+    """PULL_OVER: station up to which the command plans for the lane ahead to be free: its stop, or the room
+    behind a vehicle ahead it already allowed for (then it creeps). The caller sets it with ``note_stop``
+    once it has planned the path; a vehicle that turns up in lane 0 later is checked against it."""
+
+    def note_stop(self, decision: Decision, stop_distance_m: float | None) -> None:
+        """Remember how far the commanded pull-over counts on an empty lane (station along the road)."""
+        if decision.manoeuvre == Manoeuvre.PULL_OVER and stop_distance_m is not None:
+            room = stop_distance_m if decision.stop_within_m is None else min(stop_distance_m, decision.stop_within_m)
+            self.stop_s_m = decision.ego_s_m + room
 
     def commit(self, decision: Decision, now: float) -> None:
         m = decision.manoeuvre
         if m is None:
             return
+        self.stop_s_m = None
         if m == Manoeuvre.RESUME:
             self.phase, self.manoeuvre, self.target_lane = "normal", None, None
             self.ev_track_ids = set()
@@ -265,6 +276,31 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
 
+def leader_room_m(ego_s: float, ego_v: float, ego_len: float, lane: int, others: list[Track], frame: RoadFrame,
+                  cfg: DdmConfig) -> float | None:
+    """How far the AV may still travel in ``lane`` before it must stand behind the nearest vehicle ahead
+    there, should that vehicle brake now at the comfort deceleration: min over leaders of clearance +
+    v_l^2 / (2 comfort) - gap_min (the room of ``gap_check(stopping=True)``, also when it is short or
+    negative). None: nobody ahead in that lane."""
+    if not others:
+        return None
+    s, d = frame.to_frenet(np.array([o.x_m for o in others]), np.array([o.y_m for o in others]))
+    vl = frame.longitudinal_speed(s, [o.vx_mps for o in others], [o.vy_mps for o in others])
+    lo = lane * frame.lane_width_m
+    hi = lo + frame.lane_width_m
+    room: float | None = None
+    for k, o in enumerate(others):
+        half_w = max(o.width_m, 1.5) / 2.0
+        ds = float(s[k]) - ego_s
+        if ds < 0 or d[k] + half_w <= lo or d[k] - half_w >= hi:
+            continue
+        clearance = ds - (ego_len + max(o.length_m, 3.0)) / 2.0
+        v_l = max(float(vl[k]), 0.0)
+        r = clearance + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
+        room = r if room is None else min(room, r)
+    return room
+
+
 def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cfg: DdmConfig,
            response: Response, now: float | None = None) -> Decision:
     """One vehicle's EV response (see module docstring). ``others``: tracks near the AV (any kind).
@@ -312,6 +348,13 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
                 if ok:
                     return Decision(Manoeuvre.PULL_OVER, f"gap opened ({why}); pull over to lane 0: {describe(t)}",
                                     target_lane=0, stop_within_m=gap.room_ahead_m, **common)
+            if (response.manoeuvre == Manoeuvre.PULL_OVER and response.stop_s_m is not None
+                    and v_e > cfg.replan_min_speed_mps):
+                room = leader_room_m(s_e, v_e, ego.length_m, 0, traffic, frame, cfg)
+                if room is not None and s_e + room < response.stop_s_m - cfg.replan_shorter_m:
+                    return Decision(Manoeuvre.PULL_OVER, f"vehicle ahead in lane 0: stop within {max(room, 0.0):.0f} m "
+                                    f"instead of {response.stop_s_m - s_e:.0f} m: {describe(t)}", target_lane=0,
+                                    stop_within_m=max(room, 0.1), **common)
             return Decision("hold", f"keep {response.manoeuvre.value if response.manoeuvre else 'manoeuvre'}: "
                             f"{describe(t)}", target_lane=response.target_lane, **common)
         if lane_e <= 0:

@@ -358,6 +358,8 @@ class DdmService:
         )
         rollback[cmd.command_id] = copy.deepcopy(memory)
         memory.commit(decision, now)
+        if isinstance(memory, Response):
+            memory.note_stop(decision, path.stop_distance_m)
         self._process_events(now)
 
     def _decide_hazard(self, vid: str, ego: Ego, now: float, others: list | None = None) -> None:

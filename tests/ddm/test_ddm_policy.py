@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
-from ddm.policy import Ego, Response, decide, gap_check, plan
+from ddm.policy import Decision, Ego, Response, decide, gap_check, plan
 from ddm.world import Track
 from protocol.corridor import load_corridor
 from protocol.messages import Manoeuvre, ObjectType
@@ -125,6 +126,48 @@ def test_pull_over_stops_behind_a_car_stopping_ahead_in_lane_0():
     too_close = trk(3, 112.0, 0, 0.0)  # stopped 7 m ahead: no room to stop behind it at 13.4 m/s
     d = decide(ego(), [ev], [ev, too_close], FRAME, CFG, Response())
     assert d.action != Manoeuvre.PULL_OVER and "no room to stop" in d.reason
+
+
+def test_a_pull_over_is_shortened_for_a_car_seen_in_lane_0_after_the_command():
+    """The RSUs may see a slow car ahead in lane 0 only after the pull-over was commanded (it was beyond
+    their range): the committed stop must not run into it (the AV has no car following of its own)."""
+    ev = trk(2, 50.0, 1, 19.0, ev=True)
+    resp = Response()
+    d = decide(ego(), [ev], [ev], FRAME, CFG, resp)  # lane 0 empty: the comfort stop, ~45 m on
+    assert d.action == Manoeuvre.PULL_OVER and d.stop_within_m is None
+    p = plan(d, FRAME, CFG, 1.9, 13.4)
+    resp.commit(d, 0.0)
+    resp.note_stop(d, p.stop_distance_m)
+    assert resp.stop_s_m == pytest.approx(d.ego_s_m + p.stop_distance_m)  # no room limit: the stop itself
+    # 1 s later: still nothing ahead, or a car far enough ahead: keep the command
+    moving = ego(x=113.0, y=lane_y(1) - 0.8, v=11.4)
+    ev1 = trk(2, 69.0, 1, 19.0, ev=True)
+    assert decide(moving, [ev1], [ev1], FRAME, CFG, resp).action == "hold"
+    far = trk(7, 200.0, 0, 10.0)
+    assert decide(moving, [ev1], [ev1, far], FRAME, CFG, resp).action == "hold"
+    # a car yielding at 4.4 m/s, 20 m ahead in lane 0 (the demo's collision): stop shorter, behind it
+    slow = trk(7, 129.2, 0, 4.4)  # 24.8 m ahead of the AV when the command was issued, unseen then
+    r = decide(moving, [ev1], [ev1, slow], FRAME, CFG, resp)
+    assert r.action == Manoeuvre.PULL_OVER and "vehicle ahead in lane 0" in r.reason
+    p2 = plan(r, FRAME, CFG, 1.9, 11.4)
+    s_move = r.ego_s_m
+    assert s_move + p2.stop_distance_m < resp.stop_s_m - CFG.replan_shorter_m
+    # the shortest stop the lane change allows; the AV on the new profile never reaches the slow car
+    # (driving on at 4.4 m/s), where the old profile closed to within 1 m of it
+    def min_clearance(path, v_leader: float, gap0: float) -> float:
+        xy = np.asarray(path.waypoints)
+        ds = np.hypot(*np.diff(xy, axis=0).T)
+        v = np.asarray(path.speeds_mps)
+        v_mid = np.maximum((v[:-1] + v[1:]) / 2.0, 0.05)
+        t = np.concatenate([[0.0], np.cumsum(np.where(v[1:] > 0, ds / v_mid, np.inf))])
+        s_av = np.concatenate([[0.0], np.cumsum(ds)])
+        ok = np.isfinite(t)
+        return float(np.min(gap0 + v_leader * t[ok] - s_av[ok])) - 4.8
+
+    assert min_clearance(p, 4.4, 24.8) < 0.5 and min_clearance(p2, 4.4, 16.2) > 2.0
+    resp.commit(r, 1.0)
+    resp.note_stop(r, p2.stop_distance_m)
+    assert decide(moving, [ev1], [ev1, slow], FRAME, CFG, resp).action == "hold"  # re-planned once, not every cycle
 
 
 def test_an_ev_lost_from_view_is_predicted_before_resuming():
