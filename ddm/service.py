@@ -326,6 +326,10 @@ class DdmService:
             what = (str(decision.action), decision.ev_track_id)
             if what != self._last_reason.get(vid):
                 log.info("%s: %s (%s)", vid, decision.action, decision.reason)
+                if log.isEnabledFor(logging.DEBUG):
+                    log.debug("%s at (%.1f, %.1f), track %s; tracks near: %s", vid, ego.x_m, ego.y_m, ego.track_id,
+                              ", ".join(f"{o.track_id}:({o.x_m:.1f}, {o.y_m:.1f}) {o.obj_type} lane {o.lane}"
+                                        for o in others) or "none")
             self._last_reason[vid] = what
             if decision.manoeuvre is not None:
                 self._command(vid, decision, resp, now)

@@ -2,8 +2,13 @@
 
 A thin adapter from :class:`sim.camera_source.SimCamera` (which subscribes to ``iea/{c}/sim/world`` and
 renders this RSU's view) to the RSU's :class:`rsu.frames.FrameSource` contract, so simulated frames go
-through exactly the code path of a video file. The RSU only ever sees the rendered pixels, the sim time
-stamp and the frame number: the snapshot (ground truth) never leaves ``SimCamera``.
+through exactly the code path of a live camera. The RSU only ever sees the rendered pixels, a capture
+time and the frame number: the snapshot (ground truth) never leaves ``SimCamera``.
+
+The capture time is the snapshot's publication stamp on the simulator's clock (UNIX seconds in a
+real-time run), as a live camera stamps its frames with the wall clock: the RSU's ``ObjectList``
+``measurement_time`` must be on the clock the DDM runs on, or the DDM drops every list as too old
+(it did, before: the scenario time of a few seconds looked decades old next to UNIX time).
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ class SimSource:
         f = self.camera.read(timeout)
         if f is None:
             raise SourceStalled(f"{self.source_id}: no world snapshot for {timeout:.1f} s")
-        return Frame(f.image, f.timestamp_s, f.frame_number, self.source_id)
+        stamp = f.stamp_s if f.stamp_s is not None else f.timestamp_s
+        return Frame(f.image, stamp, f.frame_number, self.source_id)
 
     def close(self) -> None:
         self.camera.close()

@@ -28,6 +28,9 @@ class Frame:
     timestamp_s: float
     frame_number: int
     camera_id: str
+    stamp_s: float | None = None
+    """When the simulator published the snapshot, on its clock (UNIX seconds in a real-time run): the
+    capture time a live camera would stamp the frame with. ``timestamp_s`` is the scenario time."""
 
 
 class SimCamera:
@@ -70,7 +73,7 @@ class SimCamera:
         """Render one frame of the snapshot (lockstep path); the frame number is the camera's counter."""
         n = self.frame_index(snapshot.sim_time_s)
         img = self.renderer.render(snapshot, frame_index=n)
-        return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id)
+        return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id, float(snapshot.stamp))
 
     def read(self, timeout_s: float = 1.0) -> Frame | None:
         """The next frame at the camera's rate: renders the newest snapshot that falls in a camera frame

@@ -54,6 +54,22 @@ def test_sim_camera_renders_snapshots_from_the_transport(corridor):
     cam.close()
 
 
+def test_rsu_sim_source_stamps_frames_with_the_simulators_clock(corridor):
+    """The RSU's frames carry the snapshot's publication stamp (UNIX time in a real-time run), not the
+    scenario time: the DDM, on the wall clock, dropped every ObjectList stamped a few seconds after 1970."""
+    from rsu.sim_source import SimSource
+
+    bus = LocalBus()
+    src = SimSource(corridor, "rsu2", bus, seed=1)
+    w = World(load_scenario("rellis_ev_yield"))
+    w.run_until(5.0)
+    wall = time.time()
+    bus.publish(sim_world_key(corridor.corridor_id), w.snapshot(stamp=wall))
+    f = src.read(timeout_s=0.5)
+    assert f.timestamp_s == pytest.approx(wall) and f.frame_number == 75
+    src.close()
+
+
 def _read_yolo(path):
     return [tuple(float(v) for v in line.split()) for line in Path(path).read_text().splitlines()]
 
