@@ -11,6 +11,17 @@ bar: far vehicles and merged blobs of distant traffic flicker like lamps) and, w
 range (several vehicles merged into one blob), and forgets tracks unseen for
 ``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
 
+Evidence survives a broken track. SORT with the reference settings (max_age 1, min_hits 3, thesis 2.2)
+drops a track after one frame without a match and reports its successor only after three hits, so a
+vehicle whose box changes shape faster than the filter's aspect ratio follows (an EV driving away from
+the camera, seen first from the side, then from behind) gets a new id every few seconds; each new id
+used to start its lamp history from nothing, and an EV that is confirmed only after two flashes could
+lose every one of them to such switches (Framework A's weakness, thesis 2.2, reappearing inside
+Framework B). So when a track id appears that the classifier has not seen, it takes over the evidence
+of a track lost within the last ``handover_after_s`` whose last box, moved on at that box's own
+velocity (:func:`extrapolate_box`), overlaps it by IoU >= ``handover_iou`` (SORT's own association
+threshold, 0.3): one new id per lost track, best overlap first (:func:`match_lost_tracks`).
+
 :class:`EvAlertManager` turns the per-track EV states into ``EvAlert`` events (pure: the caller gives
 the frame time): ``active`` when a track becomes confirmed, a refresh every ``refresh_period_s``
 (2 Hz) while active, ``cleared`` when its evidence clears (lights off) or the track has not been seen
@@ -26,6 +37,7 @@ import numpy as np
 
 from protocol.messages import AlertState, ClearReason, DetectedObject, EvState, LightState
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
+from rsu.track import iou_matrix
 
 CropScore = Callable[[np.ndarray], float]
 
@@ -113,6 +125,47 @@ class TrackInfo:
     evidence: TrackEvidence
     first_seen_s: float
     last_seen_s: float
+    box: np.ndarray | None = None
+    """Last xyxy box (pixels)."""
+    centre_velocity_pxps: np.ndarray | None = None
+    """Velocity (u', v') of the box centre in pixels per second, smoothed over the track's frames."""
+    handed_over_from: tuple[int, ...] = ()
+    """Ids whose evidence this track took over (oldest first, the last 8)."""
+
+
+def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
+    """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
+    a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
+    turns its side or back to the camera, which is often why the track was lost), and over the half
+    second of a hand-over a vehicle's apparent size changes far less than its position."""
+    box = np.asarray(box, float)
+    if centre_velocity_pxps is None:
+        return box
+    vx, vy = (float(v) * dt_s for v in centre_velocity_pxps)
+    return box + np.array([vx, vy, vx, vy])
+
+
+def match_lost_tracks(new_boxes: np.ndarray, lost_boxes: np.ndarray, min_iou: float) -> list[tuple[int, int]]:
+    """Pairs (new index, lost index) with IoU >= ``min_iou``, best overlap first, each box used once
+    (greedy; deterministic: ties go to the lower indices)."""
+    new_boxes = np.asarray(new_boxes, float).reshape(-1, 4)
+    lost_boxes = np.asarray(lost_boxes, float).reshape(-1, 4)
+    if not len(new_boxes) or not len(lost_boxes):
+        return []
+    iou = np.nan_to_num(iou_matrix(new_boxes, lost_boxes), nan=0.0)
+    order = np.argsort(-iou, axis=None, kind="stable")
+    pairs: list[tuple[int, int]] = []
+    used_new: set[int] = set()
+    used_lost: set[int] = set()
+    for flat in order:
+        i, j = divmod(int(flat), iou.shape[1])
+        if iou[i, j] < min_iou:
+            break
+        if i not in used_new and j not in used_lost:
+            pairs.append((i, j))
+            used_new.add(i)
+            used_lost.add(j)
+    return pairs
 
 
 class TrackEvClassifier:
@@ -121,9 +174,16 @@ class TrackEvClassifier:
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
                  top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
                  above_fraction: float = 0.0, min_box_px: float = 40.0, forget_after_s: float = 2.0,
-                 max_tracks: int = 512, box_gate: Callable[[Iterable[float], int, int], bool] | None = None) -> None:
+                 max_tracks: int = 512, box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
+                 handover_after_s: float = 0.5, handover_iou: float = 0.3) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
+        if handover_after_s < 0 or not 0.0 < handover_iou <= 1.0:
+            raise ValueError("handover_after_s must be >= 0 and handover_iou in (0, 1]")
+        self.handover_after_s = float(handover_after_s)
+        """A new id takes over a lost track's evidence only if that track was seen this recently (0.5 s:
+        SORT's 1 missed frame plus 3 hits before a new id is reported is 4-5 frames at 15 fps)."""
+        self.handover_iou = float(handover_iou)
         self.config = config or EvidenceConfig()
         self.crop_score = crop_score
         if not 0.0 <= above_fraction <= 1.0 or not 0.0 < top_fraction <= 1.0:
@@ -160,11 +220,19 @@ class TrackEvClassifier:
         now = float(frame.timestamp_s)
         image = frame.image
         out: dict[int, tuple[float, LightState, EvState]] = {}
-        for tid, box in zip(tracks.track_ids, tracks.boxes, strict=True):
-            tid = int(tid)
+        ids = [int(t) for t in tracks.track_ids]
+        boxes = np.asarray(tracks.boxes, float).reshape(-1, 4)
+        if self.handover_after_s > 0 and any(tid not in self.tracks for tid in ids):
+            self._hand_over(now, ids, boxes)
+        for tid, box in zip(ids, boxes, strict=True):
             info = self.tracks.get(tid)
             if info is None:
                 info = self.tracks[tid] = TrackInfo(TrackEvidence(self.config), now, now)
+            if info.box is not None and now > info.last_seen_s:
+                v = (box[:2] + box[2:] - info.box[:2] - info.box[2:]) / (2.0 * (now - info.last_seen_s))
+                info.centre_velocity_pxps = v if info.centre_velocity_pxps is None else 0.5 * (
+                    info.centre_velocity_pxps + v)
+            info.box = box.copy()
             info.last_seen_s = now
             ev = info.evidence
             if min(box[2] - box[0], box[3] - box[1]) < self.min_box_px or (
@@ -178,6 +246,21 @@ class TrackEvClassifier:
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out
+
+    def _hand_over(self, now_s: float, ids: list[int], boxes: np.ndarray) -> None:
+        """New ids take over the evidence of recently lost tracks they overlap (module docstring)."""
+        current = set(ids)
+        lost = [tid for tid, i in self.tracks.items() if tid not in current and i.box is not None
+                and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
+        new = [k for k, tid in enumerate(ids) if tid not in self.tracks]
+        if not lost or not new:
+            return
+        predicted = np.array([extrapolate_box(self.tracks[t].box, self.tracks[t].centre_velocity_pxps,
+                                              now_s - self.tracks[t].last_seen_s) for t in lost])
+        for i, j in match_lost_tracks(boxes[new], predicted, self.handover_iou):
+            info = self.tracks.pop(lost[j])
+            info.handed_over_from = (*info.handed_over_from, lost[j])[-8:]
+            self.tracks[ids[new[i]]] = info
 
     def _forget(self, now_s: float) -> None:
         gone = [tid for tid, i in self.tracks.items() if now_s - i.last_seen_s > self.forget_after_s]

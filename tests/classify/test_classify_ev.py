@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from protocol.messages import AlertState, DetectedObject, EvState, LightState
-from rsu.classify.ev import EvAlertManager, TrackEvClassifier, clip_box
+from rsu.classify.ev import EvAlertManager, TrackEvClassifier, clip_box, extrapolate_box, match_lost_tracks
 from rsu.frames import Frame
 from rsu.track import TrackSet
 
@@ -92,7 +92,7 @@ def test_tracks_are_forgotten_when_gone():
     for k in range(10, 30):
         clf(Frame(scene(k / FPS), k / FPS, k, "cam"), tracks([(3, BOX_B)]))
     assert set(clf.tracks) == {3}
-    capped = TrackEvClassifier(max_tracks=4)
+    capped = TrackEvClassifier(max_tracks=4, handover_after_s=0.0)  # new ids on one box: no hand-over here
     for k in range(10):
         capped(Frame(scene(k / FPS), k / FPS, k, "cam"), tracks([(100 + k, BOX_B)]))
     assert len(capped.tracks) == 4 and max(capped.tracks) == 109
@@ -143,3 +143,64 @@ def test_boxes_too_small_to_resolve_a_light_bar_are_not_measured():
     assert clf.tracks[5].evidence.frames == 0
     _, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)], clf=TrackEvClassifier(min_box_px=20))
     assert states[-1][1][5][2] == EvState.CONFIRMED
+
+
+def moving_ev_scene(t, x0=40.0, speed_pxps=75.0, flash_frames=2, period_frames=7):
+    """A white EV body moving right whose red-only bar strobes ``flash_frames`` out of every
+    ``period_frames`` frames (about 2 Hz), and a steady red car parked at BOX_B."""
+    img = np.full((240, 640, 3), 90, np.uint8)
+    x = int(round(x0 + speed_pxps * t))
+    img[100:160, x:x + 80] = (230, 230, 230)
+    img[100:160, 300 + 200:380 + 200] = (30, 30, 190)
+    if int(round(t * FPS)) % period_frames < flash_frames:
+        img[102:110, x + 10:x + 70] = (0, 0, 255)
+    return img, (float(x), 100.0, float(x + 80), 160.0)
+
+
+def run_fragmented(clf, n_frames=int(4 * FPS), visible=9, hidden=3, other_at=None):
+    """The EV's track is reported for ``visible`` frames, then not at all for ``hidden`` frames (SORT lost
+    it and its successor is not yet confirmed), then under a new id, and so on; ``other_at``: from that
+    frame a new id also appears on the parked red car."""
+    confirmed = []
+    for k in range(n_frames):
+        t = k / FPS
+        img, box = moving_ev_scene(t)
+        seg, pos = divmod(k, visible + hidden)
+        entries = [(100 + seg, box)] if pos < visible else []
+        if other_at is not None and k >= other_at:
+            entries.append((7, (500.0, 100.0, 580.0, 160.0)))
+        out = clf(Frame(img, t, k, "cam"), tracks(entries))
+        confirmed += [(t, tid) for tid, v in out.items() if v[2] == EvState.CONFIRMED]
+    return confirmed
+
+
+def test_evidence_survives_track_id_switches():
+    # each id sees at most one complete flash of one colour: alone, no id can confirm
+    assert run_fragmented(TrackEvClassifier(handover_after_s=0.0)) == []
+    clf = TrackEvClassifier()
+    confirmed = run_fragmented(clf, other_at=20)
+    assert confirmed and confirmed[0][0] < 2.0
+    assert {tid for _, tid in confirmed} <= {100, 101, 102, 103, 104}  # never the red car
+    last = max(tid for _, tid in confirmed)
+    assert clf.tracks[last].handed_over_from[:2] == (100, 101)
+
+
+def test_a_new_track_elsewhere_does_not_take_over_the_evidence():
+    clf = TrackEvClassifier()
+    img, box = moving_ev_scene(0.0)
+    clf(Frame(img, 0.0, 0, "cam"), tracks([(1, box)]))
+    clf(Frame(img, 1 / FPS, 1, "cam"), tracks([(2, (500.0, 100.0, 580.0, 160.0))]))
+    assert 1 in clf.tracks and clf.tracks[2].handed_over_from == ()
+    # too old to hand over
+    clf(Frame(img, 2.0, 2, "cam"), tracks([(3, box)]))
+    assert clf.tracks[3].handed_over_from == ()
+
+
+def test_lost_track_boxes_are_moved_on_before_matching():
+    box = np.array([0.0, 0.0, 40.0, 30.0])
+    v = np.array([100.0, 0.0])  # centre moving 100 px/s to the right
+    new = np.array([[30.0, 0.0, 70.0, 30.0], [200.0, 0.0, 240.0, 30.0]])
+    assert match_lost_tracks(new, box[None], 0.3) == []  # IoU 0.14 where it was last seen
+    assert match_lost_tracks(new, extrapolate_box(box, v, 0.3)[None], 0.3) == [(0, 0)]
+    two = np.array([[0.0, 0.0, 40.0, 30.0], [5.0, 0.0, 45.0, 30.0]])
+    assert match_lost_tracks(two, two[::-1], 0.3) == [(0, 1), (1, 0)]  # one each, best overlap first

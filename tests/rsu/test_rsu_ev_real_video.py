@@ -8,6 +8,22 @@ about 1 s). The roadside clip is hopeless for a lamp rule: handheld, a yellow bo
 rule raises there (at 4.2 s) is on a dark car's red tail light shaken by the camera, not on the
 ambulance, so it is left out (a false alert a red-only lamp rule cannot tell from a blink). No
 clip-specific tuning is done.
+
+Measured on the escort clip (per-track lamp series, YOLOX + SORT as below, every frame of its 5.4 s):
+the police escort (track 1, 0-1.24 s) carries its red/blue bar *above* the COCO box; measured in a band
+extended 20 % above the box with relaxed thresholds (S >= 80, V >= 150) its red half is lit on every
+frame from 0 to 0.92 s (brighter from 0.32 s; not one dark frame, where at 25 fps a 1-4 Hz flasher
+would show several) and then leaves the image on the left; the blue half is lit from 0.52 to 1.04 s,
+dark only once it leaves too. In view the bar reads as a steady lamp, which the rule must not alert
+on (brake lights). The ambulance
+(track 24, bar visible 2.08-3.12 s) has a blue bar whose halves strobe fast under heavy motion blur
+from the panning camera: the blue signal dips for single frames (duty ~80 %, ~5 Hz), i.e. a steady
+lamp dropping out for a frame, which the rule rejects on purpose (``min_dark_ratio``). Only extreme
+relaxations confirm anything (S >= 80, V >= 150 and a lamp fraction of 0.5 % of the band: track 24 at
+2.2 s; S >= 100, V >= 200, 0.5 %, band 20 % above the box: track 1 at 1.0 s), each on a different
+setting, which is tuning to this clip and would admit red/blue paint and jitter elsewhere: not done.
+A sound fix needs a different cue (a per-crop classifier trained on real light bars, fused as the
+issue's crop score, or a spatial left/right alternation measure inside the bar), not a threshold.
 """
 
 from __future__ import annotations
@@ -59,7 +75,8 @@ def test_no_ev_alert_on_traffic_videos(video):
 
 @pytest.mark.shared
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known miss: washed-out, thin light bars in real clips (see module docstring)",
+@pytest.mark.xfail(reason="known miss: no flash pattern the lamp rule may accept (steady-looking bar, 1-frame dips under "
+                          "motion blur; see module docstring)",
                    strict=False)
 @pytest.mark.parametrize("video", ["india_ambulance_police_escort.mp4"])
 def test_ev_videos_raise_an_alert(video):
