@@ -24,6 +24,7 @@ breaks one thing, and returns a ``FaultOutcome`` measured from what a client of 
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 import uuid
@@ -44,6 +45,8 @@ class Recorder:
     t0: float = field(default_factory=time.time)
     heard: dict[str, list[float]] = field(default_factory=dict)
     ddm_health: list[tuple[float, str, list[str]]] = field(default_factory=list)
+    ddm_fused: list[tuple[float, int, int]] = field(default_factory=list)
+    """(time, tracks in the DDM's picture, object lists it dropped as too old so far), from its Health."""
     ev_reports: list[tuple[float, str, str]] = field(default_factory=list)
     commands: dict[str, tuple[float, str, int]] = field(default_factory=dict)
     acks: list[tuple[float, str, str]] = field(default_factory=list)
@@ -63,6 +66,8 @@ class Recorder:
             self.heard.setdefault(service, []).append(now)
             if kind == "Health" and pk.domain == "ddm":
                 self.ddm_health.append((now, msg.status.value, list(msg.stale)))
+                m = re.search(r"tracks=(\d+)", msg.detail)
+                self.ddm_fused.append((now, int(m.group(1)) if m else -1, int(msg.drops.get("old_measurements", 0))))
             elif kind == "EvAlert" and msg.state.value == "active":
                 self.ev_reports.append((now, msg.rsu_id, "alert"))
             elif kind == "ObjectList":
@@ -128,6 +133,8 @@ def rsu_killed(run_root: Path | None = None, stale_limit_s: float = 2.0, timeout
     details.update(stale_after_s=None if stale_at is None else round(stale_at - t_kill, 3),
                    ev_reported_after_kill_by=later_ev, reports_from_killed=len(victim_after),
                    resume_before_ev_passed=len(early_resume), ev_passed=passed_at is not None,
+                   ddm_max_tracks=max((n for _, n, _ in rec.ddm_fused), default=None),
+                   ddm_old_measurements=max((d for _, _, d in rec.ddm_fused), default=None),
                    metrics=up.metrics())
     ok = stale_at is not None and stale_at - t_kill <= stale_limit_s and bool(later_ev) and not early_resume \
         and not victim_after

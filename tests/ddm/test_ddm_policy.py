@@ -10,7 +10,7 @@ from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
-from ddm.policy import Decision, Ego, Response, decide, gap_check, plan
+from ddm.policy import Ego, Response, decide, gap_check, plan
 from ddm.world import Track
 from protocol.corridor import load_corridor
 from protocol.messages import Manoeuvre, ObjectType

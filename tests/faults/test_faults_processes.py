@@ -35,6 +35,10 @@ def test_rsu_killed_ddm_reports_it_stale_and_neighbours_keep_the_ev(rsu_kill):
     assert d["reports_from_killed"] == 0  # ... and stayed silent
     assert d["stale_after_s"] is not None and d["stale_after_s"] <= 2.0, d
     assert d["ev_reported_after_kill_by"], "no neighbouring RSU reported the EV after the kill"
+    # the DDM fuses the RSUs' object lists (the AV, the EV and the traffic), not only their EV alerts: frames
+    # rendered from the simulator carry its wall-clock stamp. Stamped with scenario time, every object was
+    # dropped as too old (hundreds a second); a few may be, while the RSUs' first inferences warm up.
+    assert d["ddm_max_tracks"] >= 3 and d["ddm_old_measurements"] < 100, d
 
 
 def test_rsu_killed_ddm_keeps_yielding_until_the_ev_passed(rsu_kill):
