@@ -101,6 +101,9 @@ class DdmConfig:
     """Required bumper-to-bumper clearance whatever the speeds (about one car length)."""
     replan_backoff_s: float = 0.5
     """After a rejected or expired command, wait this long before planning anew."""
+    relink_gap_s: float = 0.5
+    """A vehicle silent this long (20 Hz state) was out of radio reach: heard again with its command still
+    unacknowledged, that command is planned again from the car's fresh state."""
     replan_shorter_m: float = 3.0
     """A pull-over is planned anew (a shorter stop) when a vehicle ahead in lane 0 leaves at least this
     much less room than the commanded stop needs (a car the RSUs saw only after the command)."""

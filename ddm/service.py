@@ -241,10 +241,33 @@ class DdmService:
             if first and len(self.world.vehicles) >= MAX_VEHICLES:
                 self._reject("vehicle_limit", f"{key}: already {MAX_VEHICLES} vehicles")
                 return
+            if not first:
+                self._check_relink(msg.vehicle_id, now - self.world.vehicles[msg.vehicle_id].received_s, now)
             self.world.ingest_vehicle_state(msg, now)
             self.counters["vehicle_states"] += 1
             if first:
                 self._maybe_adopt(msg, now)
+
+    def _check_relink(self, vid: str, silent_s: float, now: float) -> None:
+        """The vehicle is heard again after ``silent_s`` without state (a radio outage) while its command is
+        still unacknowledged: the retransmissions carry a path planned from where the car was, which it
+        has driven past (it rejects a path that starts behind it). Plan again from its fresh state now,
+        instead of waiting for the next retransmission, the rejection and the re-plan backoff."""
+        if silent_s < self.config.relink_gap_s:
+            return
+        cur = self.commands.state_of(vid)
+        if cur is None or cur.state != CommandState.SENT:
+            return
+        before = self._rollback.pop(cur.command_id, None)
+        if before is not None:
+            self.responses[vid] = before
+        before_hz = self._hazard_rollback.pop(cur.command_id, None)
+        if before_hz is not None:
+            self.hazard_responses[vid] = before_hz
+        self._replan_after.pop(vid, None)
+        self.counters["cmd_replanned_after_outage"] += 1
+        log.warning("%s heard again after %.1f s with command %s unacknowledged: planning it again from the "
+                    "car's fresh state", vid, silent_s, cur.command_id)
 
     def _maybe_adopt(self, vs: VehicleState, now: float) -> None:
         """A vehicle executing a command this DDM never issued (a predecessor did): adopt it."""
