@@ -10,10 +10,12 @@ so decoding (protocol.codec) is part of what it absorbs.
    service loop stepped at 20 Hz of simulated time): updates_per_s = objects / wall time.
 2. Backlog: the same frames paced in real time at 10 Hz (the clock follows the wall clock); the lag of
    the last frame behind its schedule and its growth per second show whether the DDM keeps up.
-3. Decision latency: with the loaded picture, an AV and an EV 50 m behind it; repeatedly an active
-   EvAlert (-> a yield command) and a cleared one (-> resume). Latency = from the alert's callback
-   entry in the service to the return of the command's publish (the service's own measurement), and
-   end to end from publishing the alert bytes to the command reaching a subscriber.
+3. Decision latency: with the loaded picture, autonomous vehicles along the corridor (one per 250 m
+   of road, beyond each other's EV look-behind), each with an EV 40-70 m behind it; for each in turn
+   an active EvAlert (-> its yield command) then a cleared one. Every alert is decided for every
+   vehicle, as in service. Latency = from the alert's callback entry in the service to the return of
+   the command's publish (the service's own measurement), and end to end from publishing the alert
+   bytes to the command reaching a subscriber. ``--alerts`` repeats the round over the vehicles.
 
     python bench/ddm_bench.py [--quick] [--json]
 """
@@ -66,12 +68,17 @@ class SettableClock:
         self.t += d
 
 
-def make_corridor(n_rsu: int) -> Corridor:
+AV_SPACING_M = 250.0
+"""One autonomous vehicle per this much road in the latency run (> the EV look-behind of 150 m)."""
+
+
+def make_corridor(n_rsu: int, n_avs: int = 1) -> Corridor:
     road = Road(0.0, 0.0, 0.0, (Segment("straight", 50.0 * n_rsu + 100.0),), lanes=LANES, lane_width_m=LANE_W)
     cam = dict(height_m=10.7, yaw_rad=0.0, pitch_rad=0.23, roll_rad=0.0, width_px=1280, height_px=720,
                fx_px=1100.0, fy_px=1100.0, cx_px=640.0, cy_px=360.0)
     rsus = tuple(RsuConfig(f"rsu{i}", CameraConfig(x_m=50.0 * i + 25.0, y_m=-4.5, **cam)) for i in range(n_rsu))
-    return Corridor("bench", "bench", 30.633, -96.479, road, rsus, (VehicleConfig("av1", 0.0, 1, 13.4),))
+    avs = tuple(VehicleConfig(f"av{k + 1}", 0.0, 1, 13.4) for k in range(n_avs))
+    return Corridor("bench", "bench", 30.633, -96.479, road, rsus, avs)
 
 
 def make_frames(cor: Corridor, n_rsu: int, per_rsu: int, n_frames: int, t0: float, seed: int = 0):
@@ -109,8 +116,8 @@ def make_frames(cor: Corridor, n_rsu: int, per_rsu: int, n_frames: int, t0: floa
     return frames, (x, y, speed, lane, length, ids)
 
 
-def vehicle_state(t: float, x: float, y: float, v: float) -> bytes:
-    return encode(VehicleState(src="av1", stamp=t, vehicle_id="av1", pos_x_m=x, pos_y_m=y, lat_deg=30.6,
+def vehicle_state(t: float, x: float, y: float, v: float, vehicle_id: str = "av1") -> bytes:
+    return encode(VehicleState(src=vehicle_id, stamp=t, vehicle_id=vehicle_id, pos_x_m=x, pos_y_m=y, lat_deg=30.6,
                                lon_deg=-96.4, heading_rad=0.0, speed_mps=v, mode=VehicleMode.DRIVING))
 
 
@@ -174,7 +181,7 @@ def paced(cor: Corridor, frames, t0: float) -> dict:
                 seconds=0.1 * len(frames))
 
 
-def latency(cor: Corridor, frames, cars, t0: float, n_alerts: int) -> dict:
+def latency(cor: Corridor, frames, cars, t0: float, n_rounds: int) -> dict:
     x, y, speed, lane, length, ids = cars
     bus = LocalBus()
     clock = SimClock(t0)
@@ -184,42 +191,57 @@ def latency(cor: Corridor, frames, cars, t0: float, n_alerts: int) -> dict:
         for key, payload, _ in items:
             bus.publish_bytes(key, payload)
         svc.step()
-    # the AV: a car in lane 1 in the middle of the corridor; the EV: a lane-1 car 40-70 m behind it
+    # each AV: the lane-1 car nearest to its slot's centre; its EV: a lane-1 car 40-70 m behind it
     f_last = min(9, len(frames) - 1)
     xf = (x + speed * 0.1 * f_last) % length
-    mid = length / 2
     cand = np.nonzero(lane == 1)[0]
-    av = int(cand[np.argmin(np.abs(xf[cand] - mid))])
-    behind = cand[(xf[av] - xf[cand] > 40.0) & (xf[av] - xf[cand] < 70.0)]
-    ev = int(behind[0])
+    centres = np.array([50.0 * i + 25.0 for i in range(len(cor.rsus))])
     t = clock.now()
-    bus.publish_bytes(vehicle_key("bench", "av1", "state"), vehicle_state(t, float(xf[av]), float(y[av]), 8.0))
-    rsu = int(np.argmin(np.abs(np.array([50.0 * i + 25.0 for i in range(len(cor.rsus))]) - xf[ev])))
+    pairs = []
+    for k, v in enumerate(cor.vehicles):
+        slot = AV_SPACING_M * (k + 0.5) + 75.0
+        av = int(cand[np.argmin(np.abs(xf[cand] - slot))])
+        behind = cand[(xf[av] - xf[cand] > 40.0) & (xf[av] - xf[cand] < 70.0)]
+        if not len(behind):
+            continue
+        ev = int(behind[0])
+        rsu = int(np.argmin(np.abs(centres - xf[ev])))
+        bus.publish_bytes(vehicle_key("bench", v.vehicle_id, "state"),
+                          vehicle_state(t, float(xf[av]), float(y[av]), 8.0, v.vehicle_id))
+        pairs.append((v.vehicle_id, ev, rsu))
     received = []
-    bus.subscribe(vehicle_key("bench", "av1", "cmd"), lambda k, m: received.append((time.perf_counter(), m)))
+    for vid, _, _ in pairs:
+        bus.subscribe(vehicle_key("bench", vid, "cmd"), lambda k, m: received.append((time.perf_counter(), m)))
 
-    def alert(k: int, state: AlertState) -> bytes:
-        return encode(EvAlert(src=f"rsu{rsu}", stamp=t, alert_id=f"ev{k}", state=state, rsu_id=f"rsu{rsu}",
+    def alert(n: int, ev: int, rsu: int, state: AlertState) -> bytes:
+        return encode(EvAlert(src=f"rsu{rsu}", stamp=t, alert_id=f"ev{n}", state=state, rsu_id=f"rsu{rsu}",
                               object_id=int(ids[rsu, ev]), pos_x_m=float(xf[ev]), pos_y_m=float(y[ev]),
                               lat_deg=30.6, lon_deg=-96.4, vel_x_mps=16.0, speed_mps=16.0, confidence=0.9,
                               first_seen=t))
 
-    key = rsu_key("bench", f"rsu{rsu}", "ev")
     e2e = []
     kinds = []
-    for k in range(n_alerts):
-        for state in (AlertState.ACTIVE, AlertState.CLEARED):
-            payload = alert(k, state)
-            n0 = len(received)
-            t_send = time.perf_counter()
-            bus.publish_bytes(key, payload)
-            if len(received) > n0:
-                e2e.append((received[n0][0] - t_send) * 1e3)
-                kinds.append(received[n0][1].manoeuvre.value)
+    n = 0
+    for _ in range(n_rounds):
+        for vid, ev, rsu in pairs:
+            for state in (AlertState.ACTIVE, AlertState.CLEARED):
+                payload = alert(n, ev, rsu, state)
+                n0 = len(received)
+                t_send = time.perf_counter()
+                bus.publish_bytes(rsu_key("bench", f"rsu{rsu}", "ev"), payload)
+                if len(received) > n0:
+                    e2e.append((received[n0][0] - t_send) * 1e3)
+                    kinds.append(received[n0][1].manoeuvre.value)
+            n += 1
+        # a new round: every AV back to normal (as after its RESUME), so the next alert is a new decision
+        for vid, _, _ in pairs:
+            svc.responses.pop(vid, None)
     lat = np.array(svc.decision_latency_ms)
     e2e_a = np.array(e2e)
+    if not len(lat) or not len(e2e_a):
+        raise SystemExit(f"ddm_bench: no EV alert led to a command ({len(pairs)} vehicles placed); see the DDM's log")
     svc.close()
-    return dict(decision_latency_p50_ms=float(np.percentile(lat, 50)),
+    return dict(vehicles=len(pairs), decision_latency_p50_ms=float(np.percentile(lat, 50)),
                 decision_latency_p99_ms=float(np.percentile(lat, 99)),
                 decision_latency_max_ms=float(lat.max()), decisions=int(len(lat)),
                 end_to_end_p50_ms=float(np.percentile(e2e_a, 50)), end_to_end_p99_ms=float(np.percentile(e2e_a, 99)),
@@ -232,14 +254,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object on the last line")
     p.add_argument("--rsus", type=int, default=None)
     p.add_argument("--seconds", type=float, default=None, help="simulated seconds of frames (default 6)")
-    p.add_argument("--alerts", type=int, default=None)
+    p.add_argument("--alerts", type=int, default=None,
+                   help="rounds of alerts over the corridor's vehicles (default 5; --quick 2)")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     n_rsu = a.rsus or (8 if a.quick else 64)
     secs = a.seconds or (2.0 if a.quick else 6.0)
-    n_alerts = a.alerts or (20 if a.quick else 300)
+    n_rounds = a.alerts or (2 if a.quick else 5)
     t0 = 1000.0
-    cor = make_corridor(n_rsu)
+    cor = make_corridor(n_rsu, max(1, int((50.0 * n_rsu - 100.0) // AV_SPACING_M)))
     g0 = time.perf_counter()
     frames, cars = make_frames(cor, n_rsu, 30, int(round(secs * 10)), t0)
     print(f"generated {len(frames)} frames x {n_rsu} RSUs x 30 objects in {time.perf_counter() - g0:.1f} s")
@@ -252,8 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     pc = paced(cor, frames, t0)
     print(f"paced 10 Hz for {pc['seconds']:.1f} s: lag at end {pc['lag_end_s'] * 1e3:.1f} ms, "
           f"max {pc['lag_max_s'] * 1e3:.1f} ms, backlog growth {pc['backlog_growth_s_per_s'] * 1e3:.2f} ms/s")
-    lt = latency(cor, frames, cars, t0, n_alerts)
-    print(f"decision latency (alert callback -> command published) over {lt['decisions']} decisions with "
+    lt = latency(cor, frames, cars, t0, n_rounds)
+    print(f"decision latency (alert callback -> command published) over {lt['decisions']} decisions for "
+          f"{lt['vehicles']} vehicles with "
           f"{lt['tracks_in_picture']} tracks: p50 {lt['decision_latency_p50_ms']:.2f} ms, "
           f"p99 {lt['decision_latency_p99_ms']:.2f} ms (target p99 <= {TARGET_P99_MS:.0f} ms); end to end "
           f"p50 {lt['end_to_end_p50_ms']:.2f} ms, p99 {lt['end_to_end_p99_ms']:.2f} ms; commands {lt['manoeuvres']}")

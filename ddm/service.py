@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -66,6 +67,8 @@ from protocol.transport import Transport
 log = logging.getLogger("ddm")
 
 NEIGHBOUR_RADIUS_M = 150.0
+ALERT_RADIUS_MARGIN_M = 50.0
+"""An EV alert is decided at once for vehicles within the EV look-behind + this of it (it may be passing)."""
 """Tracks within this distance of an AV are considered for its gap checks."""
 MAX_VEHICLES = 64
 MAX_RSUS = 64
@@ -216,7 +219,8 @@ class DdmService:
                     return
                 self.world.ingest_ev_alert(msg, now)
                 self.counters["ev_alerts"] += 1
-                self._decide_all(now, t0=t0)
+                # decide at once for the vehicles this EV can concern; the others at the next loop step
+                self._decide_all(now, t0=t0, near=(msg.pos_x_m, msg.pos_y_m))
             elif isinstance(msg, Health):
                 self.world.ingest_rsu_health(node, now)
             elif isinstance(msg, HazardAlert):
@@ -324,15 +328,20 @@ class DdmService:
         return Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
                    s.active_command_id, rec.track_id)
 
-    def _decide_all(self, now: float, t0: float | None = None) -> None:
+    def _decide_all(self, now: float, t0: float | None = None, near: tuple[float, float] | None = None) -> None:
+        """Decide for every vehicle; ``near`` (an EV alert's position): only for the vehicles within
+        ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it (the alert path stays short with many vehicles)."""
         if now - self.started_s < self.config.startup_listen_s:
             return
         evs = None
+        radius = self.config.ev_lookbehind_m + ALERT_RADIUS_MARGIN_M
         for vid in list(self.world.vehicles):
             if now < self._replan_after.get(vid, -1.0):
                 continue
             ego = self._ego(vid)
             if ego is None:
+                continue
+            if near is not None and math.hypot(ego.x_m - near[0], ego.y_m - near[1]) > radius:
                 continue
             if evs is None:
                 evs = self.world.ev_tracks(now)
