@@ -223,7 +223,7 @@ def latency(cor: Corridor, frames, cars, t0: float, n_rounds: int) -> dict:
     kinds = []
     n = 0
     for _ in range(n_rounds):
-        for vid, ev, rsu in pairs:
+        for _vid, ev, rsu in pairs:
             for state in (AlertState.ACTIVE, AlertState.CLEARED):
                 payload = alert(n, ev, rsu, state)
                 n0 = len(received)
