@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 import tempfile
 import time
@@ -46,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from deploy.faults import FaultOutcome, YieldJudge, corridor_faults, dropout_faults, latency_faults  # noqa: E402
 from deploy.up import Up  # noqa: E402
 
+DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
 TARGET_MEDIAN_S = 0.6
 TARGET_P99_S = 1.0
 HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
@@ -66,6 +68,7 @@ def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[st
     finally:
         up.stop()
     m = up.metrics()
+    m["ddm_decisions"] = first_decisions(up.group.log_path("ddm"))
     ev = up.monitor.events
     m["latency_s"]["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
                                                        if "command_acked" in ev and "first_ev_alert" in ev else None)
@@ -104,13 +107,31 @@ def print_distribution(title: str, runs: list[dict[str, Any]]) -> dict[str, dict
     return dists
 
 
+def first_decisions(ddm_log: Path, n: int = 2) -> list[str]:
+    """The DDM's first ``n`` EV decisions of a process run, with their reasons (the run folder may be
+    temporary): the decision that delays a manoeuvre says why."""
+    if not ddm_log.is_file():
+        return []
+    out = []
+    for line in ddm_log.read_text(errors="replace").splitlines():
+        m = DECISION_LINE.search(line)
+        if m:
+            out.append(m.group(1)[:240])
+            if len(out) >= n:
+                break
+    return out
+
+
 def run_line(seed: int, m: dict[str, Any], wall_s: float) -> str:
     lat = m["latency_s"]
     y = m["yield"]
-    return (f"  seed {seed}: " + "  ".join(f"{k.removesuffix('_s')}={lat.get(k)}" for k, _ in HOPS)
+    line = (f"  seed {seed}: " + "  ".join(f"{k.removesuffix('_s')}={lat.get(k)}" for k, _ in HOPS)
             + f"  first alert {m.get('first_alert_rsu')}  commands {[c['manoeuvre'] for c in m['commands']]}"
             + f"  collision {m.get('collision')}  yield: {y['outcome']}"
             + (f" {y['margin_s']:+.2f} s" if y["margin_s"] is not None else "") + f"  ({wall_s:.0f} s)")
+    for d in m.get("ddm_decisions", []):
+        line += f"\n      DDM {d}"
+    return line
 
 
 def distribution(values: list[float]) -> dict[str, float | None]:
