@@ -220,6 +220,33 @@ class GapCheck(tuple):
         return self
 
 
+def _lane_neighbours(ego_s: float, ego_len: float, others: list[Track], frame: RoadFrame,
+                     lane: int) -> list[tuple[Track, float, float, float]]:
+    """(track, station offset from the AV m, bumper-to-bumper clearance m, speed along the road m/s) of every
+    track whose width overlaps ``lane``."""
+    if not others:
+        return []
+    s, d = frame.to_frenet(np.array([o.x_m for o in others]), np.array([o.y_m for o in others]))
+    vl = frame.longitudinal_speed(s, [o.vx_mps for o in others], [o.vy_mps for o in others])
+    lo = lane * frame.lane_width_m
+    hi = lo + frame.lane_width_m
+    out = []
+    for k, o in enumerate(others):
+        half_w = max(o.width_m, 1.5) / 2.0
+        if d[k] + half_w <= lo or d[k] - half_w >= hi:
+            continue  # not in that lane
+        ds = float(s[k]) - ego_s
+        out.append((o, ds, abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0, float(vl[k])))
+    return out
+
+
+def _room_behind_m(clearance_m: float, leader_speed_mps: float, cfg: DdmConfig) -> float:
+    """How far the AV may travel before standing gap_min behind a leader that brakes now at the comfort
+    deceleration: clearance + v_l^2 / (2 comfort) - gap_min (a leader moving backwards counts as stopped)."""
+    v_l = max(leader_speed_mps, 0.0)
+    return clearance_m + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
+
+
 def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, target_lane: int,
               others: list[Track], frame: RoadFrame, change_time_s: float, cfg: DdmConfig,
               exclude: set[int] = frozenset(), stopping: bool = False) -> GapCheck:
@@ -232,21 +259,12 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
     cand = [o for o in others if o.track_id not in exclude]
     if not cand:
         return GapCheck(True, f"lane {target_lane} empty")
-    s, d = frame.to_frenet(np.array([o.x_m for o in cand]), np.array([o.y_m for o in cand]))
-    vl = frame.longitudinal_speed(s, [o.vx_mps for o in cand], [o.vy_mps for o in cand])
-    lo = target_lane * frame.lane_width_m
-    hi = lo + frame.lane_width_m
     worst = ""
     room: float | None = None
-    for k, o in enumerate(cand):
-        half_w = max(o.width_m, 1.5) / 2.0
-        if d[k] + half_w <= lo or d[k] - half_w >= hi:
-            continue  # not in the target lane
-        ds = float(s[k]) - ego_s
-        clearance = abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0
+    for o, ds, clearance, v_long in _lane_neighbours(ego_s, ego_len, cand, frame, target_lane):
         if ds >= 0 and stopping:  # leader of a stop: room to stop behind it
-            v_l = max(float(vl[k]), 0.0)
-            r = clearance + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
+            v_l = max(v_long, 0.0)
+            r = _room_behind_m(clearance, v_l, cfg)
             need_m = min_stop_distance_m(frame.lane_width_m, ego_v, 0.0, cfg)
             if r < need_m or clearance < cfg.gap_min_m:
                 return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
@@ -255,10 +273,10 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             worst = worst or f"room to stop in lane {target_lane}"
             continue
         if ds >= 0:  # leader: the AV follows it
-            v_f, v_l = ego_v, float(vl[k])
+            v_f, v_l = ego_v, v_long
             role = "leader"
         else:  # lag: it follows the AV, which slows during the manoeuvre
-            v_f, v_l = float(vl[k]), ego_v_after
+            v_f, v_l = v_long, ego_v_after
             role = "follower"
         need = cfg.gap_min_m + cfg.gap_time_s * max(v_f, 0.0) + max(0.0, v_f - v_l) * change_time_s
         if stopping and role == "follower":
@@ -271,34 +289,20 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
                        cfg.gap_min_m + follower_stop_m - av_stop_m)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                            f"{clearance:.1f} m < {need:.1f} m needed", float(vl[k]))
+                            f"{clearance:.1f} m < {need:.1f} m needed", v_long)
         worst = worst or f"gaps in lane {target_lane} ok"
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
 
-def leader_room_m(ego_s: float, ego_v: float, ego_len: float, lane: int, others: list[Track], frame: RoadFrame,
+def leader_room_m(ego_s: float, ego_len: float, lane: int, others: list[Track], frame: RoadFrame,
                   cfg: DdmConfig) -> float | None:
     """How far the AV may still travel in ``lane`` before it must stand behind the nearest vehicle ahead
     there, should that vehicle brake now at the comfort deceleration: min over leaders of clearance +
     v_l^2 / (2 comfort) - gap_min (the room of ``gap_check(stopping=True)``, also when it is short or
     negative). None: nobody ahead in that lane."""
-    if not others:
-        return None
-    s, d = frame.to_frenet(np.array([o.x_m for o in others]), np.array([o.y_m for o in others]))
-    vl = frame.longitudinal_speed(s, [o.vx_mps for o in others], [o.vy_mps for o in others])
-    lo = lane * frame.lane_width_m
-    hi = lo + frame.lane_width_m
-    room: float | None = None
-    for k, o in enumerate(others):
-        half_w = max(o.width_m, 1.5) / 2.0
-        ds = float(s[k]) - ego_s
-        if ds < 0 or d[k] + half_w <= lo or d[k] - half_w >= hi:
-            continue
-        clearance = ds - (ego_len + max(o.length_m, 3.0)) / 2.0
-        v_l = max(float(vl[k]), 0.0)
-        r = clearance + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
-        room = r if room is None else min(room, r)
-    return room
+    rooms = [_room_behind_m(clearance, v_long, cfg)
+             for _, ds, clearance, v_long in _lane_neighbours(ego_s, ego_len, others, frame, lane) if ds >= 0]
+    return min(rooms) if rooms else None
 
 
 def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cfg: DdmConfig,
@@ -350,7 +354,7 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
                                     target_lane=0, stop_within_m=gap.room_ahead_m, **common)
             if (response.manoeuvre == Manoeuvre.PULL_OVER and response.stop_s_m is not None
                     and v_e > cfg.replan_min_speed_mps):
-                room = leader_room_m(s_e, v_e, ego.length_m, 0, traffic, frame, cfg)
+                room = leader_room_m(s_e, ego.length_m, 0, traffic, frame, cfg)
                 if room is not None and s_e + room < response.stop_s_m - cfg.replan_shorter_m:
                     return Decision(Manoeuvre.PULL_OVER, f"vehicle ahead in lane 0: stop within {max(room, 0.0):.0f} m "
                                     f"instead of {response.stop_s_m - s_e:.0f} m: {describe(t)}", target_lane=0,

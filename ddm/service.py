@@ -67,9 +67,9 @@ from protocol.transport import Transport
 log = logging.getLogger("ddm")
 
 NEIGHBOUR_RADIUS_M = 150.0
+"""Tracks within this distance of an AV are considered for its gap checks."""
 ALERT_RADIUS_MARGIN_M = 50.0
 """An EV alert is decided at once for vehicles within the EV look-behind + this of it (it may be passing)."""
-"""Tracks within this distance of an AV are considered for its gap checks."""
 MAX_VEHICLES = 64
 MAX_RSUS = 64
 MAX_ALERTS = 256
