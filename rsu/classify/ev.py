@@ -20,7 +20,7 @@ lose every one of them to such switches (Framework A's weakness, thesis 2.2, rea
 Framework B). So when a track id appears that the classifier has not seen, it takes over the evidence
 of a track lost within the last ``handover_after_s`` whose last box, moved on at that box's own
 velocity (:func:`extrapolate_box`), overlaps it by IoU >= ``handover_iou`` (SORT's own association
-threshold, 0.3): one new id per lost track, best overlap first (:func:`match_lost_tracks`).
+threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`match_lost_tracks`).
 
 :class:`EvAlertManager` turns the per-track EV states into ``EvAlert`` events (pure: the caller gives
 the frame time): ``active`` when a track becomes confirmed, a refresh every ``refresh_period_s``
@@ -37,7 +37,7 @@ import numpy as np
 
 from protocol.messages import AlertState, ClearReason, DetectedObject, EvState, LightState
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
-from rsu.track import iou_matrix
+from rsu.track import associate
 
 CropScore = Callable[[np.ndarray], float]
 
@@ -146,26 +146,12 @@ def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt
 
 
 def match_lost_tracks(new_boxes: np.ndarray, lost_boxes: np.ndarray, min_iou: float) -> list[tuple[int, int]]:
-    """Pairs (new index, lost index) with IoU >= ``min_iou``, best overlap first, each box used once
-    (greedy; deterministic: ties go to the lower indices)."""
+    """Pairs (new index, lost index) with IoU >= ``min_iou``, each box used once: SORT's own association
+    (:func:`rsu.track.associate`, the reference's shortcut or Hungarian on IoU), with lost boxes as tracks."""
     new_boxes = np.asarray(new_boxes, float).reshape(-1, 4)
     lost_boxes = np.asarray(lost_boxes, float).reshape(-1, 4)
-    if not len(new_boxes) or not len(lost_boxes):
-        return []
-    iou = np.nan_to_num(iou_matrix(new_boxes, lost_boxes), nan=0.0)
-    order = np.argsort(-iou, axis=None, kind="stable")
-    pairs: list[tuple[int, int]] = []
-    used_new: set[int] = set()
-    used_lost: set[int] = set()
-    for flat in order:
-        i, j = divmod(int(flat), iou.shape[1])
-        if iou[i, j] < min_iou:
-            break
-        if i not in used_new and j not in used_lost:
-            pairs.append((i, j))
-            used_new.add(i)
-            used_lost.add(j)
-    return pairs
+    rows, cols, _ = associate(new_boxes, lost_boxes, min_iou)
+    return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True)]
 
 
 class TrackEvClassifier:

@@ -203,4 +203,4 @@ def test_lost_track_boxes_are_moved_on_before_matching():
     assert match_lost_tracks(new, box[None], 0.3) == []  # IoU 0.14 where it was last seen
     assert match_lost_tracks(new, extrapolate_box(box, v, 0.3)[None], 0.3) == [(0, 0)]
     two = np.array([[0.0, 0.0, 40.0, 30.0], [5.0, 0.0, 45.0, 30.0]])
-    assert match_lost_tracks(two, two[::-1], 0.3) == [(0, 1), (1, 0)]  # one each, best overlap first
+    assert match_lost_tracks(two, two[::-1], 0.3) == [(0, 1), (1, 0)]  # one each, the best overall assignment
