@@ -40,8 +40,7 @@ class SimSource:
         f = self.camera.read(timeout)
         if f is None:
             raise SourceStalled(f"{self.source_id}: no world snapshot for {timeout:.1f} s")
-        stamp = f.stamp_s if f.stamp_s is not None else f.timestamp_s
-        return Frame(f.image, stamp, f.frame_number, self.source_id)
+        return Frame(f.image, f.stamp_s, f.frame_number, self.source_id)
 
     def close(self) -> None:
         self.camera.close()

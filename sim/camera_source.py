@@ -28,7 +28,7 @@ class Frame:
     timestamp_s: float
     frame_number: int
     camera_id: str
-    stamp_s: float | None = None
+    stamp_s: float
     """When the simulator published the snapshot, on its clock (UNIX seconds in a real-time run): the
     capture time a live camera would stamp the frame with. ``timestamp_s`` is the scenario time."""
 
