@@ -381,6 +381,7 @@ class DdmService:
                     self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
         self._issued_in_call = True
         self._issue(vid, decision, path, resp, self._rollback, now)
+        resp.note_stop(decision, path.stop_distance_m)  # where the pull-over counts on an empty lane
 
     def _issue(self, vid: str, decision: Decision | HazardDecision, path, memory: Response | HazardResponse,
                rollback: dict, now: float) -> None:
@@ -394,8 +395,6 @@ class DdmService:
         )
         rollback[cmd.command_id] = copy.deepcopy(memory)
         memory.commit(decision, now)
-        if isinstance(memory, Response):
-            memory.note_stop(decision, path.stop_distance_m)
         self._process_events(now)
 
     def _decide_hazard(self, vid: str, ego: Ego, now: float, others: list | None = None) -> None:
