@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from deploy.procs import SIM_WAIT_FOR_AV_S
 from protocol.corridor import Corridor
 
 ZENOH_IMAGE = "eclipse/zenoh:1.10.2"
@@ -81,7 +80,7 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
         },
     }
     # With a vehicle service the world waits for its first state: the two containers start in any order.
-    sim_cmd = ["sim", "run", scenario] + (["--wait-for-av", f"{SIM_WAIT_FOR_AV_S:g}"] if av_start else [])
+    sim_cmd = ["sim", "run", scenario] + (["--wait-for-av", "60"] if av_start else [])
     sim = iea_service("sim", sim_cmd, "sim", None)
     sim["build"] = {"context": ".", "dockerfile": "Dockerfile"}  # the one image all IEA services share
     services["sim"] = sim
