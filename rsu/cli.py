@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -24,6 +25,7 @@ from rsu.service import RsuPipeline, RsuService
 from rsu.sim_source import SimSource
 from rsu.track import FrameworkTracker
 
+LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
@@ -83,7 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
     ap.add_argument("--key-id", metavar="ID", default=None,
                     help="key id of --key (default: the corridor trust entry holding its public key)")
-    ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    ap.add_argument("--log-level", default=os.environ.get("IEA_LOG_LEVEL", "INFO").upper(),
+                    choices=LOG_LEVELS, help="log level (default: $IEA_LOG_LEVEL, else INFO)")
     ZenohSettings.add_arguments(ap)
     return ap
 
@@ -140,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "eval-classifier":
         return eval_main(argv[1:])
     args = build_parser().parse_args(argv)
+    if args.log_level not in LOG_LEVELS:
+        build_parser().error(f"IEA_LOG_LEVEL={args.log_level!r} is not one of {', '.join(LOG_LEVELS)}")
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     log = logging.getLogger("iea-rsu")
     if args.threads is not None:

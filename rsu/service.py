@@ -249,6 +249,11 @@ class RsuService:
                          measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
         self.transport.publish(self.objects_key, msg)
         self._seq["objects"] += 1
+        if log.isEnabledFor(logging.DEBUG):
+            for o in result.objects:
+                if o.ev_state != EvState.NONE or o.light_state == LightState.FLASHING:
+                    log.debug("frame %d t %.3f: track %d ev %s lights %s score %.2f", frame.frame_number,
+                              frame.timestamp_s, o.object_id, o.ev_state, o.light_state, o.ev_score)
         if self.alerts is not None:
             for event in self.alerts.update(frame.timestamp_s, result.objects, self._info_of):
                 self._publish_alert(event)
