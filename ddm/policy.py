@@ -211,13 +211,9 @@ class GapCheck(tuple):
     vehicle that makes the gap unsafe (None when the gap is safe)."""
 
     def __new__(cls, ok: bool, why: str, blocker_speed_mps: float | None = None,
-                room_ahead_m: float | None = None, blocker_offset_m: float | None = None,
-                blocker_length_m: float | None = None) -> GapCheck:
+                room_ahead_m: float | None = None) -> GapCheck:
         self = super().__new__(cls, (ok, why))
         self.blocker_speed_mps = blocker_speed_mps
-        self.blocker_offset_m = blocker_offset_m
-        """Station of the blocking vehicle's centre relative to the AV's (m, + ahead)."""
-        self.blocker_length_m = blocker_length_m
         self.room_ahead_m = room_ahead_m
         """``stopping`` checks: how far the AV may travel before it must be stopped behind the leader
         (None: no leader in the lane)."""
@@ -251,51 +247,6 @@ def _room_behind_m(clearance_m: float, leader_speed_mps: float, cfg: DdmConfig) 
     return clearance_m + v_l * v_l / (2.0 * cfg.comfort_decel_mps2) - cfg.gap_min_m
 
 
-def _follower_need_m(v_f: float, v_l: float, ego_v: float, change_time_s: float, cfg: DdmConfig) -> float:
-    """Clearance a follower needs behind an AV that pulls over and stops ahead of it: the AV ends stopped
-    at least v^2 / (2 max_decel) ahead, the follower needs room to stop behind that (reacting after
-    gap_time_s), and a gap that does not close during the change."""
-    v_f = max(v_f, 0.0)
-    av_stop_m = ego_v * ego_v / (2.0 * cfg.max_decel_mps2)
-    follower_stop_m = v_f * cfg.gap_time_s + v_f * v_f / (2.0 * cfg.comfort_decel_mps2)
-    return max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s, cfg.gap_min_m + follower_stop_m - av_stop_m)
-
-
-def time_to_gain_s(distance_m: float, v_rel0_mps: float, accel_mps2: float, v_rel_max_mps: float) -> float:
-    """Time until a relative position that starts at 0 reaches ``distance_m`` when the relative speed starts
-    at ``v_rel0_mps`` and grows at ``accel_mps2`` up to ``v_rel_max_mps`` (inf: never)."""
-    if distance_m <= 0.0:
-        return 0.0
-    if accel_mps2 <= 0.0 or v_rel_max_mps <= v_rel0_mps:
-        v = min(v_rel0_mps, v_rel_max_mps) if accel_mps2 > 0.0 else v_rel0_mps
-        return distance_m / v if v > 0.0 else math.inf
-    t1 = (v_rel_max_mps - v_rel0_mps) / accel_mps2
-    x1 = v_rel0_mps * t1 + 0.5 * accel_mps2 * t1 * t1
-    if distance_m <= x1:
-        return (-v_rel0_mps + math.sqrt(v_rel0_mps * v_rel0_mps + 2.0 * accel_mps2 * distance_m)) / accel_mps2
-    return t1 + (distance_m - x1) / v_rel_max_mps if v_rel_max_mps > 0.0 else math.inf
-
-
-def pass_or_let_by_s(ego_v: float, ego_len: float, blocker_v: float, blocker_offset_m: float,
-                     blocker_len: float, lane_width_m: float, change_time_s: float,
-                     cfg: DdmConfig) -> tuple[float, float]:
-    """(time to drive past a slower vehicle in the lane the AV pulls into, keeping speed, until it is a safe
-    follower of the AV's pull-over; time to let it by, slowing at the comfort deceleration to
-    ``slow_speed_mps``, until the AV has room to stop behind it) (s, inf: never). ``blocker_offset_m``:
-    its centre's station relative to the AV's (+ ahead). The clearances are those of ``gap_check``."""
-    half_m = (ego_len + max(blocker_len, 3.0)) / 2.0
-    v_after = max(0.0, ego_v - cfg.comfort_decel_mps2 * change_time_s)
-    pass_m = blocker_offset_m + half_m + _follower_need_m(blocker_v, v_after, ego_v, change_time_s, cfg)
-    t_pass = time_to_gain_s(pass_m, ego_v - blocker_v, 0.0, ego_v - blocker_v)
-    v_l = max(blocker_v, 0.0)
-    lead_m = max(cfg.gap_min_m, min_stop_distance_m(lane_width_m, cfg.slow_speed_mps, 0.0, cfg) + cfg.gap_min_m
-                 - v_l * v_l / (2.0 * cfg.comfort_decel_mps2))
-    let_m = lead_m + half_m - blocker_offset_m
-    t_let = time_to_gain_s(let_m, blocker_v - ego_v, cfg.comfort_decel_mps2,
-                           blocker_v - min(ego_v, cfg.slow_speed_mps))
-    return t_pass, t_let
-
-
 def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, target_lane: int,
               others: list[Track], frame: RoadFrame, change_time_s: float, cfg: DdmConfig,
               exclude: set[int] = frozenset(), stopping: bool = False) -> GapCheck:
@@ -317,8 +268,7 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             need_m = min_stop_distance_m(frame.lane_width_m, ego_v, 0.0, cfg)
             if r < need_m or clearance < cfg.gap_min_m:
                 return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
-                                f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l,
-                                blocker_offset_m=ds, blocker_length_m=o.length_m)
+                                f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l)
             room = r if room is None else min(room, r)
             worst = worst or f"room to stop in lane {target_lane}"
             continue
@@ -328,14 +278,18 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
         else:  # lag: it follows the AV, which slows during the manoeuvre
             v_f, v_l = v_long, ego_v_after
             role = "follower"
+        need = cfg.gap_min_m + cfg.gap_time_s * max(v_f, 0.0) + max(0.0, v_f - v_l) * change_time_s
         if stopping and role == "follower":
-            need = _follower_need_m(v_f, v_l, ego_v, change_time_s, cfg)
-        else:
-            need = cfg.gap_min_m + cfg.gap_time_s * max(v_f, 0.0) + max(0.0, v_f - v_l) * change_time_s
+            # the AV ends stopped at least v^2 / (2 max_decel) ahead: the follower needs room to stop
+            # behind that (reacting after gap_time_s), and a gap that does not close during the change
+            v_f = max(v_f, 0.0)
+            av_stop_m = ego_v * ego_v / (2.0 * cfg.max_decel_mps2)
+            follower_stop_m = v_f * cfg.gap_time_s + v_f * v_f / (2.0 * cfg.comfort_decel_mps2)
+            need = max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s,
+                       cfg.gap_min_m + follower_stop_m - av_stop_m)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                            f"{clearance:.1f} m < {need:.1f} m needed", v_long,
-                            blocker_offset_m=ds, blocker_length_m=o.length_m)
+                            f"{clearance:.1f} m < {need:.1f} m needed", v_long)
         worst = worst or f"gaps in lane {target_lane} ok"
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
@@ -431,18 +385,9 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             return Decision(Manoeuvre.PULL_OVER, f"pull over to lane 0 ({why}): {describe(t)}", target_lane=0,
                             stop_within_m=gap.room_ahead_m, **common)
         if gap.blocker_speed_mps is not None and gap.blocker_speed_mps < v_e - cfg.min_closing_mps:
-            # a slower car blocks lane 0: drive on past it, or slow and let it by, whichever opens the gap
-            # sooner (slowing when the AV is nearly past would keep it beside that car, in the EV's way)
-            lc = lane_change_length(frame.lane_centre_offset(0) - d_e, max(v_e, 2.0), 0.0, cfg)
-            t_pass, t_let = pass_or_let_by_s(v_e, ego.length_m, gap.blocker_speed_mps, gap.blocker_offset_m or 0.0,
-                                             gap.blocker_length_m or ego.length_m, frame.lane_width_m,
-                                             lc / max(v_e, 2.0), cfg)
-            if t_pass <= t_let:
-                return Decision("none", f"{why}; keep speed past the slower vehicle ({_fmt_t(t_pass)} s, letting it "
-                                f"by {_fmt_t(t_let)} s), then pull over: {describe(t)}", **common)
-            return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e} and let the slower vehicle by "
-                            f"({_fmt_t(t_let)} s, passing it {_fmt_t(t_pass)} s): {describe(t)}",
-                            target_lane=lane_e, slow_because="gap", **common)
+            # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
+            return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
+                            **common)
         return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e}: {describe(t)}",
                         target_lane=lane_e, slow_because="gap", **common)
 
