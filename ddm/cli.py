@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import signal
 import sys
 import threading
 
 from ddm.config import DdmConfig
+from protocol.logsetup import add_log_level_argument, configure_logging
 
-LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]
 
 def build_parser() -> argparse.ArgumentParser:
     from protocol.transport import ZenohSettings
@@ -40,18 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--verify-alerts", action=argparse.BooleanOptionalAction, default=None,
                    help="refuse EV/hazard alerts without a valid RSU signature (default: on when the corridor "
                         "file trusts RSU keys)")
-    r.add_argument("--log-level", default=os.environ.get("IEA_LOG_LEVEL", "INFO").upper(),
-                   choices=LOG_LEVELS, help="log level (default: $IEA_LOG_LEVEL, else INFO)")
+    add_log_level_argument(r)
     ZenohSettings.add_arguments(r)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.log_level not in LOG_LEVELS:
-        build_parser().error(f"IEA_LOG_LEVEL={args.log_level!r} is not one of {', '.join(LOG_LEVELS)}")
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s",
-                        stream=sys.stderr)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    configure_logging(parser, args, stream=sys.stderr)
     from ddm.service import DdmService
     from protocol.clock import WallClock
     from protocol.corridor import CorridorError, load_corridor

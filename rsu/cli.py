@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import signal
 import sys
 from pathlib import Path
@@ -12,6 +11,7 @@ from pathlib import Path
 import cv2
 
 from protocol.corridor import CorridorError, load_corridor
+from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.security import TrustList, load_signer
 from protocol.transport import ZenohSettings, ZenohTransport
 from rsu.classify.classifiers import load_classifier
@@ -25,7 +25,6 @@ from rsu.service import RsuPipeline, RsuService
 from rsu.sim_source import SimSource
 from rsu.track import FrameworkTracker
 
-LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
@@ -85,8 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
     ap.add_argument("--key-id", metavar="ID", default=None,
                     help="key id of --key (default: the corridor trust entry holding its public key)")
-    ap.add_argument("--log-level", default=os.environ.get("IEA_LOG_LEVEL", "INFO").upper(),
-                    choices=LOG_LEVELS, help="log level (default: $IEA_LOG_LEVEL, else INFO)")
+    add_log_level_argument(ap)
     ZenohSettings.add_arguments(ap)
     return ap
 
@@ -142,10 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "eval-classifier":
         return eval_main(argv[1:])
-    args = build_parser().parse_args(argv)
-    if args.log_level not in LOG_LEVELS:
-        build_parser().error(f"IEA_LOG_LEVEL={args.log_level!r} is not one of {', '.join(LOG_LEVELS)}")
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    configure_logging(parser, args)
     log = logging.getLogger("iea-rsu")
     if args.threads is not None:
         if args.threads < 1:
