@@ -8,7 +8,10 @@ every key of the corridor; stamps are the publishers' wall clocks on this one ho
 
 - lights on -> first EvAlert: the simulator's snapshot with the light bar on -> the RSU's alert stamp;
 - EvAlert -> command at the vehicle: the alert stamp -> the vehicle's ``accepted`` ack stamp;
-- lights on -> manoeuvre start: -> the first VehicleState in mode ``manoeuvre`` (20 Hz: +-50 ms).
+- lights on -> manoeuvre start: -> the first VehicleState in mode ``manoeuvre`` (20 Hz: +-50 ms);
+- lights on -> response decided: -> the DDM's first response to the EV for the AV, read from its log (a
+  command, or "keep speed past the slower vehicle" when a car beside the AV in lane 0 leaves no safe gap);
+  response decided -> manoeuvre start is then the wait for traffic, not the pipeline.
 
 Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault
 table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
@@ -37,6 +40,8 @@ import re
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -48,11 +53,16 @@ from deploy.faults import FaultOutcome, YieldJudge, corridor_faults, dropout_fau
 from deploy.up import Up  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
+RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed past)")
+"""A decision that responds to the EV: a command, or keeping speed past a slower car to pull over after it."""
+LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 TARGET_MEDIAN_S = 0.6
 TARGET_P99_S = 1.0
 HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
         ("alert_to_command_at_vehicle_s", "EvAlert -> command at the vehicle"),
-        ("lights_on_to_manoeuvre_s", "lights on -> manoeuvre start"))
+        ("lights_on_to_manoeuvre_s", "lights on -> manoeuvre start"),
+        ("lights_on_to_response_s", "lights on -> response decided (DDM)"),
+        ("response_to_manoeuvre_s", "response decided -> manoeuvre start"))
 
 
 def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[str, Any]:
@@ -68,12 +78,24 @@ def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[st
     finally:
         up.stop()
     m = up.metrics()
-    m["ddm_decisions"] = first_decisions(up.group.log_path("ddm"))
-    ev = up.monitor.events
-    m["latency_s"]["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
-                                                       if "command_acked" in ev and "first_ev_alert" in ev else None)
+    decisions = logged_decisions(up.group.log_path("ddm"))
+    m["ddm_decisions"] = [d for _, d in decisions[:2]]
+    add_hops(m, up.monitor.events, decisions)
     m["seed"] = seed
     return m
+
+
+def add_hops(m: dict[str, Any], ev: dict[str, float], decisions: list[tuple[float, str]]) -> None:
+    """The bench's own hops in ``m["latency_s"]``: EvAlert -> accepted ack, and the split of lights on ->
+    manoeuvre at the DDM's first response (``decisions``: (stamp, decision) on the clock of ``ev``)."""
+    lat = m["latency_s"]
+    lat["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
+                                            if "command_acked" in ev and "first_ev_alert" in ev else None)
+    t_on = ev.get("lights_on")
+    resp = next((t for t, d in decisions if RESPONSE.search(d) and t_on is not None and t >= t_on), None)
+    lat["lights_on_to_response_s"] = None if resp is None else round(resp - t_on, 3)
+    lat["response_to_manoeuvre_s"] = (round(ev["manoeuvre_start"] - resp, 3)
+                                      if resp is not None and "manoeuvre_start" in ev else None)
 
 
 def one_lockstep_run(seed: int, duration_s: float) -> dict[str, Any]:
@@ -85,10 +107,20 @@ def one_lockstep_run(seed: int, duration_s: float) -> dict[str, Any]:
     judge = YieldJudge()
     runner.bus.subscribe(keys.sim_world_key(runner.corridor_id),
                          lambda k, snap: judge.on_snapshot(snap, runner.corridor.road))
-    m = runner.run()
-    ev = runner.monitor.events
-    m["latency_s"]["alert_to_command_at_vehicle_s"] = (round(ev["command_acked"] - ev["first_ev_alert"], 3)
-                                                       if "command_acked" in ev and "first_ev_alert" in ev else None)
+    decisions = DecisionRecorder(runner.clock.now)
+    ddm_log = logging.getLogger("ddm")
+    ddm_log.addHandler(decisions)
+    level, propagate = ddm_log.level, ddm_log.propagate
+    ddm_log.setLevel(logging.INFO)
+    ddm_log.propagate = False
+    try:
+        m = runner.run()
+    finally:
+        ddm_log.removeHandler(decisions)
+        ddm_log.setLevel(level)
+        ddm_log.propagate = propagate
+    m["ddm_decisions"] = [d for _, d in decisions.records[:2]]
+    add_hops(m, runner.monitor.events, decisions.records)
     ok, outcome, margin = judge.outcome()
     m["yield"] = {"passed": ok, "outcome": outcome, "margin_s": None if margin is None else round(margin, 3)}
     return m
@@ -107,18 +139,34 @@ def print_distribution(title: str, runs: list[dict[str, Any]]) -> dict[str, dict
     return dists
 
 
-def first_decisions(ddm_log: Path, n: int = 2) -> list[str]:
-    """The DDM's first ``n`` EV decisions of a process run, with their reasons (the run folder may be
-    temporary): the decision that delays a manoeuvre says why."""
+class DecisionRecorder(logging.Handler):
+    """The DDM's EV decisions of a lockstep run, stamped with the simulated clock."""
+
+    def __init__(self, now: Callable[[], float]) -> None:
+        super().__init__(logging.INFO)
+        self.now = now
+        self.records: list[tuple[float, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        m = DECISION_LINE.search(" ddm INFO " + record.getMessage())
+        if m:
+            self.records.append((self.now(), m.group(1)[:240]))
+        root = logging.getLogger()
+        if record.levelno >= root.getEffectiveLevel():  # the logger does not propagate while recording
+            root.handle(record)
+
+
+def logged_decisions(ddm_log: Path) -> list[tuple[float, str]]:
+    """(wall-clock stamp, decision) of the DDM's EV decisions in a process run's log (the run folder may
+    be temporary): the decision that delays a manoeuvre says why. The log's stamps are local time, ms."""
     if not ddm_log.is_file():
         return []
     out = []
     for line in ddm_log.read_text(errors="replace").splitlines():
-        m = DECISION_LINE.search(line)
-        if m:
-            out.append(m.group(1)[:240])
-            if len(out) >= n:
-                break
+        m, stamp = DECISION_LINE.search(line), LOG_STAMP.match(line)
+        if m and stamp:
+            t = datetime.strptime(stamp.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            out.append((t, m.group(1)[:240]))
     return out
 
 
@@ -180,6 +228,11 @@ def main(argv: list[str] | None = None) -> int:
     p99_ok = tot["p99"] is not None and tot["p99"] <= TARGET_P99_S and missing == 0
     print(f" targets over Zenoh: median <= {TARGET_MEDIAN_S} s {'met' if med_ok else 'NOT met'}, p99 <= {TARGET_P99_S} s "
           f"{'met' if p99_ok else 'NOT met'}" + (f" ({missing} run(s) without a manoeuvre)" if missing else ""))
+    waits = [(r["seed"], r["latency_s"]["response_to_manoeuvre_s"]) for r in runs
+             if (r["latency_s"].get("response_to_manoeuvre_s") or 0.0) > 0.5]
+    if waits:
+        print(" waiting for traffic (response decided -> manoeuvre > 0.5 s): "
+              + ", ".join(f"seed {sd} {w:.2f} s" for sd, w in waits))
 
     ls_runs: list[dict[str, Any]] = []
     ls_dists = None
@@ -228,11 +281,15 @@ def main(argv: list[str] | None = None) -> int:
             "lights_on_to_alert_p99_s": q("lights_on_to_alert_s", "p99"),
             "alert_to_command_at_vehicle_median_s": q("alert_to_command_at_vehicle_s", "median"),
             "alert_to_command_at_vehicle_p99_s": q("alert_to_command_at_vehicle_s", "p99"),
+            "lights_on_to_response_median_s": q("lights_on_to_response_s", "median"),
+            "lights_on_to_response_p99_s": q("lights_on_to_response_s", "p99"),
+            "response_to_manoeuvre_max_s": q("response_to_manoeuvre_s", "max"),
             "target_median_met": med_ok, "target_p99_met": p99_ok, "runs_yield_ok": n_yield,
             "lockstep_runs": len(ls_runs),
             "lockstep_lights_on_to_manoeuvre_median_s": lq("lights_on_to_manoeuvre_s", "median"),
             "lockstep_lights_on_to_manoeuvre_p99_s": lq("lights_on_to_manoeuvre_s", "p99"),
             "lockstep_lights_on_to_alert_median_s": lq("lights_on_to_alert_s", "median"),
+            "lockstep_lights_on_to_response_p99_s": lq("lights_on_to_response_s", "p99"),
             "lockstep_alert_to_command_at_vehicle_median_s": lq("alert_to_command_at_vehicle_s", "median"),
             "lockstep_runs_yield_ok": sum(1 for r in ls_runs if r["yield"]["passed"]
                                           and r["yield"]["outcome"] != "EV never reached the AV"),
