@@ -468,16 +468,16 @@ class DdmService:
             rejected[f"decode_{reason}"] = int(n)
         stale = sorted(self._stale_reported)
         n_rsu = len(self.world.rsu_ids)
+        counts = {"tracks": self.world.track_count, "vehicles": len(self.world.vehicles),
+                  "outstanding": self.commands.outstanding(), "hazards": len(self.hazards.hazards)}
         return Health(
             src=self.ddm_id, seq=self._health_seq, stamp=now, role=Role.DDM,
             status=HealthStatus.DEGRADED if stale else HealthStatus.OK, uptime_s=max(0.0, now - self.started_s),
             rates_hz=rates, latency_ms=lat,
             drops={"old_measurements": self.world.stats.dropped_old, "cmd_expired": self.counters["cmd_expired"],
                    "cmd_rejected": self.counters["cmd_rejected"]},
-            rejected=rejected, stale=stale[:64],
-            detail=(f"tracks={self.world.track_count} rsus_alive={n_rsu - len(stale)}/{n_rsu} "
-                    f"vehicles={len(self.world.vehicles)} outstanding={self.commands.outstanding()} "
-                    f"hazards={len(self.hazards.hazards)}"),
+            rejected=rejected, stale=stale[:64], counts=counts,
+            detail=f"rsus_alive={n_rsu - len(stale)}/{n_rsu} " + " ".join(f"{k}={v}" for k, v in counts.items()),
         )
 
     def publish_health(self, now: float) -> Health:

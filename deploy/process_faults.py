@@ -24,7 +24,6 @@ breaks one thing, and returns a ``FaultOutcome`` measured from what a client of 
 
 from __future__ import annotations
 
-import re
 import threading
 import time
 import uuid
@@ -66,8 +65,8 @@ class Recorder:
             self.heard.setdefault(service, []).append(now)
             if kind == "Health" and pk.domain == "ddm":
                 self.ddm_health.append((now, msg.status.value, list(msg.stale)))
-                m = re.search(r"tracks=(\d+)", msg.detail)
-                self.ddm_fused.append((now, int(m.group(1)) if m else -1, int(msg.drops.get("old_measurements", 0))))
+                self.ddm_fused.append((now, int(msg.counts.get("tracks", -1)),
+                                       int(msg.drops.get("old_measurements", 0))))
             elif kind == "EvAlert" and msg.state.value == "active":
                 self.ev_reports.append((now, msg.rsu_id, "alert"))
             elif kind == "ObjectList":

@@ -389,6 +389,9 @@ class Health(Envelope):
     """Inputs refused at the boundary, by reason."""
     stale: list[Ident] = Field(default_factory=list, max_length=MAX_HEALTH_ENTRIES)
     """Peers this service no longer hears from (e.g. RSUs at the DDM)."""
+    counts: dict[Ident, Count] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    """What the service holds now, by name (the DDM: fused ``tracks``, ``vehicles``, ``outstanding``
+    commands, ``hazards``): for monitors, which should not parse ``detail``."""
     detail: Text = ""
 
 

@@ -38,6 +38,9 @@ def test_ev_from_behind_in_av_lane_gives_exactly_one_pull_over():
     assert "passed" in resume.reason
     h = r.svc.health(r.clock.now())
     assert h.latency_ms["decision_p99"] < 50.0  # measured from the alert's callback to publication
+    # what the DDM holds, for monitors, as numbers (not only in the detail text)
+    assert h.counts["vehicles"] == 1 and h.counts["outstanding"] == 0 and h.counts["tracks"] >= 2
+    assert f"tracks={h.counts['tracks']}" in h.detail
 
 
 @pytest.mark.parametrize("x, vx, what", [(150.0, -20.0, "opposite direction"), (60.0, 20.0, "already ahead"),
