@@ -379,8 +379,20 @@ class TransportTarget(_BusTarget):
             f"iea/{C}/rsu/rsu1/nope", f"iea/{C}/vehicle/av1", f"iea/{C}", f"iea/{C}/x/y/z/w", f"iea/{C}/rsu//objects",
             f"iea/{C}/rsu/{'r' * 300}/objects", f"iea/{C}/vehicle/av 1/cmd", f"iea/{C}/sim/world/extra"]
 
+    def _key_for_kind(self, payload: bytes) -> str | None:
+        """A key whose message type is the one the payload claims to be, so well-formed inputs reach the
+        subscriber (a random key would pair them with the wrong kind nearly always)."""
+        try:
+            kind = msgpack.unpackb(payload, raw=False).get("kind")
+        except Exception:  # noqa: BLE001 - undecodable input: any key will do
+            return None
+        matching = [k for k, _ in example_messages(C) if keys.message_type_for_key(k).__name__ == kind]
+        return self.rng.choice(matching) if matching else None
+
     def feed(self, payload: bytes) -> bool:
         key = self.rng.choice(self._keys())
+        if self.rng.random() < 0.5:
+            key = self._key_for_kind(payload) or key
         if self.rng.random() < 0.02:
             key = f"iea/{C}/rsu/*/objects"  # unpublishable: refused with KeyError_
         before = self.bus.stats.received
