@@ -105,6 +105,7 @@ def evaluate_fitted(root: str | Path, features: Sequence[str], classifiers: Sequ
         extract_ms = 1000 * (time.perf_counter() - t0) / max(len(val), 1)
         for name in classifiers:
             model = make_classifier(name, seed)
+            log(f"  {feat:12s} {name:18s} fitting on {x_train.shape[0]} x {x_train.shape[1]} features ...")
             t_fit = time.perf_counter()
             model.fit(x_train, y_train)
             t_fit = time.perf_counter() - t_fit
