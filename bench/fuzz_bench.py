@@ -360,6 +360,9 @@ class TransportTarget(_BusTarget):
         self.bus = LocalBus()
         self.delivered = 0
         self.bus.subscribe(keys.corridor_expr(C), self._on)
+        self._keys_by_kind: dict[str, list[str]] = {}
+        for k, _ in example_messages(C):
+            self._keys_by_kind.setdefault(keys.message_type_for_key(k).__name__, []).append(k)
 
     def _on(self, key: str, msg: Any) -> None:
         if type(msg) is not keys.message_type_for_key(key):
@@ -383,10 +386,11 @@ class TransportTarget(_BusTarget):
         """A key whose message type is the one the payload claims to be, so well-formed inputs reach the
         subscriber (a random key would pair them with the wrong kind nearly always)."""
         try:
-            kind = msgpack.unpackb(payload, raw=False).get("kind")
+            tree = msgpack.unpackb(payload, raw=False)
         except Exception:  # noqa: BLE001 - undecodable input: any key will do
             return None
-        matching = [k for k, _ in example_messages(C) if keys.message_type_for_key(k).__name__ == kind]
+        kind = tree.get("kind") if isinstance(tree, dict) else None
+        matching = self._keys_by_kind.get(kind) if isinstance(kind, str) else None
         return self.rng.choice(matching) if matching else None
 
     def feed(self, payload: bytes) -> bool:

@@ -99,8 +99,7 @@ def build_eval_parser() -> argparse.ArgumentParser:
                "--stride-s 1.05, then: iea-rsu eval-classifier DIR/cls. Fitting needs the 'train' extra. Most pairs "
                "fit in seconds; gradient_boosting, hist_gb and adaboost on the 49,152-element pixel array take "
                "about 35, 11 and 6 min on one core (2026-11-25, 1,761 train crops; the whole table 63 min): "
-               "leave them out with --features or "
-               "--classifiers for a quick look.")
+               "leave them out with --features or --classifiers for a quick look.")
     ap.add_argument("dataset", help="RAVEV-layout folder: DATASET/{train,val}/{ev,non_ev}/*.png")
     ap.add_argument("--features", nargs="+", default=["hog", "colour_hist", "pixels", "hsv8", "hsv8_top"],
                     help="feature descriptors (rsu.classify.features.FEATURES)")
