@@ -1,0 +1,153 @@
+"""Real labelled vehicle crops for the EV-body classifier (issue 17): ``../shared/data/real/ev_train``.
+
+Three sources (README beside the data), one list of :class:`CropSample`:
+
+- ``av_emergency_crops``: vehicle photos with ``labels.csv`` (1 = emergency). Byte-identical files are
+  one photo: the group is the file's SHA-1, so duplicates never straddle the split (first label wins).
+- ``openimages_vehicles``: Open Images photos with YOLO boxes; each box is a crop (class 0 Ambulance =
+  EV, Bus / Car / Motorcycle / Truck = not). Roboflow stores each train photo twice (an augmented copy);
+  the group is the source id, the name before ``.rf.``, over all three of its folders.
+- ``indian_ev_photos``: web photos named by class (ambulance, fire truck, police), all EV, whole image.
+
+:func:`split_by_group` cuts the groups, not the samples, into train / val / test with a seeded hash,
+so the same photo is never on both sides. :func:`crop_of` reads a sample as the RSU would see it: a
+box grown upwards by ``above_fraction`` of its height (a roof light bar sits above a COCO car box,
+:class:`rsu.classify.ev.TrackEvClassifier`).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp")
+OPENIMAGES_EV_CLASSES = frozenset({0})  # Ambulance; 1 Bus, 2 Car, 3 Motorcycle, 4 Truck
+MIN_BOX_PX = 24  # smaller Open Images boxes are too few pixels to show a body (the RSU's limit is 40)
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class CropSample:
+    path: Path
+    label: int
+    """1 = emergency vehicle."""
+    group: str
+    """Source-photo id: samples sharing it are on the same side of the split."""
+    source: str
+    box_px: tuple[int, int, int, int] | None = None
+    """xyxy within the image; None = the whole image."""
+
+
+def _read(path: Path) -> np.ndarray | None:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:  # some .jpg files are WEBP or have odd headers: decode from the bytes
+        data = np.frombuffer(path.read_bytes(), np.uint8)
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    return img
+
+
+def load_av_crops(root: Path) -> list[CropSample]:
+    labels_csv = root / "labels.csv"
+    if not labels_csv.is_file():
+        raise FileNotFoundError(f"{labels_csv} not found")
+    out, seen = [], set()
+    with labels_csv.open(newline="") as fh:
+        for row in csv.DictReader(fh):
+            path = root / "images" / row["image_names"]
+            if not path.is_file():
+                continue
+            digest = hashlib.sha1(path.read_bytes()).hexdigest()
+            if digest in seen:  # a byte-identical duplicate: one photo, counted once
+                continue
+            seen.add(digest)
+            out.append(CropSample(path, int(row["emergency_or_not"]), f"av:{digest}", "av_emergency_crops"))
+    return out
+
+
+def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX) -> list[CropSample]:
+    out = []
+    for images in sorted(root.glob("*/images")):
+        for path in sorted(images.iterdir()):
+            label_file = images.parent / "labels" / (path.stem + ".txt")
+            if path.suffix.lower() not in IMAGE_SUFFIXES or not label_file.is_file():
+                continue
+            img = _read(path)
+            if img is None:
+                continue
+            h, w = img.shape[:2]
+            group = "oi:" + path.name.split(".rf.")[0]
+            for line in label_file.read_text().splitlines():
+                parts = line.split()
+                if len(parts) != 5:
+                    continue
+                cls = int(parts[0])
+                cx, cy, bw, bh = (float(v) for v in parts[1:])
+                x1, y1 = int(round((cx - bw / 2) * w)), int(round((cy - bh / 2) * h))
+                x2, y2 = int(round((cx + bw / 2) * w)), int(round((cy + bh / 2) * h))
+                if min(x2 - x1, y2 - y1) < min_box_px:
+                    continue
+                out.append(CropSample(path, int(cls in OPENIMAGES_EV_CLASSES), group, "openimages_vehicles",
+                                      (x1, y1, x2, y2)))
+    return out
+
+
+def load_named_photos(root: Path) -> list[CropSample]:
+    return [CropSample(p, 1, f"in:{p.stem}", "indian_ev_photos") for p in sorted(root.iterdir())
+            if p.suffix.lower() in IMAGE_SUFFIXES]
+
+
+def load_ev_train(root: str | Path) -> list[CropSample]:
+    """Every labelled crop of ``ev_train`` (module docstring); raises when the folder is absent."""
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root} not found: the real training data is ../shared/data/real/ev_train")
+    out: list[CropSample] = []
+    if (root / "av_emergency_crops").is_dir():
+        out += load_av_crops(root / "av_emergency_crops")
+    if (root / "openimages_vehicles").is_dir():
+        out += load_openimages(root / "openimages_vehicles")
+    if (root / "indian_ev_photos").is_dir():
+        out += load_named_photos(root / "indian_ev_photos")
+    if not out:
+        raise FileNotFoundError(f"no labelled images under {root}")
+    return out
+
+
+def split_of(group: str, seed: int = 17, val: float = 0.15, test: float = 0.15) -> str:
+    """``train`` / ``val`` / ``test`` for a source-photo group: a seeded hash, stable across runs and machines."""
+    u = int.from_bytes(hashlib.sha1(f"{seed}:{group}".encode()).digest()[:8], "big") / 2.0 ** 64
+    return "test" if u < test else "val" if u < test + val else "train"
+
+
+def split_by_group(samples: Sequence[CropSample], seed: int = 17, val: float = 0.15,
+                   test: float = 0.15) -> dict[str, list[CropSample]]:
+    out: dict[str, list[CropSample]] = {k: [] for k in SPLITS}
+    for s in samples:
+        out[split_of(s.group, seed, val, test)].append(s)
+    return out
+
+
+def grow_box(box, width: int, height: int, above_fraction: float) -> tuple[int, int, int, int] | None:
+    """An xyxy box grown upwards by ``above_fraction`` of its height, clipped to the image."""
+    x1, y1, x2, y2 = (float(v) for v in box)
+    y1 -= above_fraction * (y2 - y1)
+    xa, ya = int(np.clip(np.floor(x1), 0, width)), int(np.clip(np.floor(y1), 0, height))
+    xb, yb = int(np.clip(np.ceil(x2), 0, width)), int(np.clip(np.ceil(y2), 0, height))
+    return (xa, ya, xb, yb) if xb - xa >= 2 and yb - ya >= 2 else None
+
+
+def crop_of(sample: CropSample, above_fraction: float = 0.25, image: np.ndarray | None = None) -> np.ndarray | None:
+    """The sample's BGR crop (its box grown upwards, as the RSU crops a track), or None if unreadable."""
+    img = image if image is not None else _read(sample.path)
+    if img is None:
+        return None
+    if sample.box_px is None:
+        return img
+    b = grow_box(sample.box_px, img.shape[1], img.shape[0], above_fraction)
+    return None if b is None else img[b[1]:b[3], b[0]:b[2]]
