@@ -105,6 +105,18 @@ class LightState(StrEnum):
     UNKNOWN = "unknown"
     OFF = "off"
     FLASHING = "flashing"
+    STEADY = "steady"
+    """Lit without a flash pattern the camera can resolve (many LED bars at video frame rates)."""
+
+
+class EvCue(StrEnum):
+    """Which evidence confirmed an EV (issue 17): a lamp flashing, alternating (left/right or colour) or
+    lit steady on the roof, and a classifier's confident EV body."""
+
+    FLASH = "flash"
+    ALTERNATION = "alternation"
+    STEADY_BAR = "steady_bar"
+    EV_BODY = "ev_body"
 
 
 class EvState(StrEnum):
@@ -252,6 +264,10 @@ class EvEvidence:
     frames: Count = 0
     flash_hz: NonNegFloat | None = None
     mean_score: Probability = 0.0
+    cues: list[EvCue] = Field(default_factory=list, max_length=4)
+    """The cues that confirmed the alert (issue 17)."""
+    body_score: Probability | None = None
+    """Mean EV-body classifier score of the track, when a body classifier ran on it."""
 
 
 class EvAlert(Envelope):

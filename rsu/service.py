@@ -276,12 +276,15 @@ class RsuService:
                       heading_rad=o.heading_rad, lane=o.lane, confidence=float(np.clip(e.confidence, 0.0, 1.0)),
                       first_seen=max(e.first_seen_s, 0.0),
                       evidence=EvEvidence(frames=e.frames, flash_hz=e.flash_hz,
-                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0))),
+                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0)), cues=list(e.cues),
+                                          body_score=(None if e.body_score is None
+                                                      else float(np.clip(e.body_score, 0.0, 1.0)))),
                       clear_reason=e.clear_reason)
         self.transport.publish(self.ev_key, msg)
         self._seq["ev"] += 1
         self.alerts_published[str(e.state)] += 1
-        log.info("EvAlert %s %s (track %d, lane %s, x %.1f m)", msg.alert_id, e.state, e.track_id, o.lane, o.pos_x_m)
+        log.info("EvAlert %s %s (track %d, lane %s, x %.1f m, cues %s)", msg.alert_id, e.state, e.track_id, o.lane,
+                 o.pos_x_m, "+".join(e.cues) or "-")
 
     def _publish_hazard(self, h: HazardEvent) -> None:
         lat, lon = self.corridor.to_latlon(h.x_m, h.y_m)

@@ -4,7 +4,10 @@
 (ev_score, light_state, ev_state)}``. It keeps one :class:`~rsu.classify.temporal.TrackEvidence` per
 track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
 (clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
-detector's box can cut the light bar off the roof), optionally adds a per-crop EV probability from any ``crop_score(crop) -> float``
+detector's box can cut the light bar off the roof; 0.25 by default, as the EV-body classifier was trained),
+optionally scores the same crop with the EV-body classifier (``body``, issue 17: only while the track shows
+lamp activity and at most once per ``body_period_s``, never on every box of every frame), optionally adds a
+per-crop EV probability from any ``crop_score(crop) -> float``
 callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
 bar: far vehicles and merged blobs of distant traffic flicker like lamps) and, with a ``box_gate`` (e.g.
 :class:`SingleVehicleGate`, from the camera's calibration), boxes too wide for one vehicle at their
@@ -30,12 +33,14 @@ for ``leave_after_s`` (it left the view).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from protocol.messages import AlertState, ClearReason, DetectedObject, EvState, LightState
+from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState, LightState
+from rsu.classify.lamps import REAL_VIDEO_LAMPS, LampColours
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
 from rsu.track import associate
 
@@ -131,6 +136,8 @@ class TrackInfo:
     """Velocity (u', v') of the box centre in pixels per second, smoothed over the track's frames."""
     handed_over_from: tuple[int, ...] = ()
     """Ids whose evidence this track took over (oldest first, the last 8)."""
+    last_body_s: float | None = None
+    """When the EV-body classifier last scored this track."""
 
 
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
@@ -158,9 +165,10 @@ class TrackEvClassifier:
     """Per-track temporal EV classifier (the RSU's classifier hook); see the module docstring."""
 
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
-                 top_fraction: float = 0.4, min_value: int = 240, min_saturation: int = 120,
-                 above_fraction: float = 0.0, min_box_px: float = 40.0, forget_after_s: float = 2.0,
-                 max_tracks: int = 512, box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
+                 body: CropScore | None = None, body_period_s: float = 0.25, top_fraction: float = 0.4,
+                 colours: LampColours = REAL_VIDEO_LAMPS, above_fraction: float = 0.25, min_box_px: float = 40.0,
+                 forget_after_s: float = 2.0, max_tracks: int = 512,
+                 box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
                  handover_after_s: float = 0.5, handover_iou: float = 0.3) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
@@ -171,13 +179,21 @@ class TrackEvClassifier:
         SORT's 1 missed frame plus 3 hits before a new id is reported is 4-5 frames at 15 fps)."""
         self.handover_iou = float(handover_iou)
         self.config = config or EvidenceConfig()
+        if body is not None and getattr(body, "threshold", None) is not None and config is None:
+            self.config = dataclasses.replace(self.config, body_threshold=float(body.threshold))
         self.crop_score = crop_score
+        self.body = body
+        if body_period_s < 0:
+            raise ValueError("body_period_s must be >= 0")
+        self.body_period_s = float(body_period_s)
         if not 0.0 <= above_fraction <= 1.0 or not 0.0 < top_fraction <= 1.0:
             raise ValueError("above_fraction must be in [0, 1] and top_fraction in (0, 1]")
         self.above_fraction = above_fraction
         # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
-        band = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
-        self.lamp_kwargs = dict(top_fraction=band, min_value=min_value, min_saturation=min_saturation)
+        self.band_fraction = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
+        self.lamp_kwargs = dict(top_fraction=self.band_fraction, min_value=colours.min_value,
+                                min_saturation=colours.min_saturation, white_min_value=colours.white_min_value,
+                                white_max_saturation=colours.white_max_saturation)
         self.min_box_px = float(min_box_px)
         self.box_gate = box_gate
         self.forget_after_s = forget_after_s
@@ -187,20 +203,43 @@ class TrackEvClassifier:
     def evidence(self, track_id: int) -> TrackInfo | None:
         return self.tracks.get(int(track_id))
 
-    def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
-        h, w = image.shape[:2]
+    def crop_bounds(self, box, width: int, height: int) -> tuple[int, int, int, int] | None:
+        """The track's crop: its box grown upwards by ``above_fraction`` (light bars sit on the roof, often
+        outside a COCO "car" box), clipped to the image."""
         x1, y1, x2, y2 = (float(v) for v in box)
-        if self.above_fraction > 0:  # light bars sit on the roof, often outside a COCO "car" box
-            y1 -= self.above_fraction * (y2 - y1)
-        bounds = clip_box((x1, y1, x2, y2), w, h)
+        return clip_box((x1, y1 - self.above_fraction * (y2 - y1), x2, y2), width, height)
+
+    def lamp_band(self, box, width: int, height: int) -> tuple[int, int, int, int] | None:
+        """The xyxy pixels of the band in which the lamps are measured (for drawing)."""
+        b = self.crop_bounds(box, width, height)
+        if b is None:
+            return None
+        return b[0], b[1], b[2], b[1] + max(1, int(round((b[3] - b[1]) * self.band_fraction)))
+
+    def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
+        lamps, score, _ = self._measure(image, box)
+        return lamps, score
+
+    def _measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None, np.ndarray | None]:
+        bounds = self.crop_bounds(box, image.shape[1], image.shape[0])
         if bounds is None:
-            return LampMeasurement(0.0, 0.0), None
+            return LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
-        return measure_lamps(crop, **self.lamp_kwargs), score
+        return measure_lamps(crop, **self.lamp_kwargs), score, crop
+
+    def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, crop: np.ndarray | None) -> float | None:
+        """The EV-body score of this frame's crop, when the track shows lamp activity and the last score is
+        at least ``body_period_s`` old; else None."""
+        if self.body is None or crop is None or lamps.coloured < self.config.lamp_on_fraction:
+            return None
+        if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
+            return None
+        info.last_body_s = now_s
+        return float(np.clip(self.body(crop), 0.0, 1.0))
 
     def __call__(self, frame, tracks) -> dict[int, tuple[float, LightState, EvState]]:
         now = float(frame.timestamp_s)
@@ -227,8 +266,8 @@ class TrackEvClassifier:
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                lamps, score = self.measure(image, box)
-                state = ev.update(now, lamps, score)
+                lamps, score, crop = self._measure(image, box)
+                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, crop))
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out
@@ -272,6 +311,10 @@ class AlertEvent:
     clear_reason: ClearReason | None = None
     """With ``CLEARED``: lights off (the track is still seen) or out of view (it was not seen for
     ``leave_after_s``)."""
+    cues: tuple[EvCue, ...] = ()
+    """The cues that confirmed the track (flash, alternation, steady bar, EV body)."""
+    body_score: float | None = None
+    """The track's mean EV-body score, when the body classifier scored it."""
 
 
 @dataclass
@@ -284,6 +327,8 @@ class _Active:
     frames: int
     flash_hz: float | None
     mean_score: float
+    cues: tuple[EvCue, ...] = ()
+    body_score: float | None = None
 
 
 @dataclass
@@ -309,13 +354,16 @@ class EvAlertManager:
                 frames = ev.frames if ev is not None else 0
                 hz = ev.flash_hz if ev is not None else None
                 mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else conf
+                cues = ev.cues if ev is not None else ()
+                body = ev.body_score if ev is not None else None
                 if a is None:
                     first = info.first_seen_s if info is not None else now_s
-                    a = self.active[tid] = _Active(obj, first, now_s, now_s, conf, frames, hz, mean)
+                    a = self.active[tid] = _Active(obj, first, now_s, now_s, conf, frames, hz, mean, cues, body)
                     events.append(self._event(AlertState.ACTIVE, tid, a))
                 else:
                     a.obj, a.last_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score = (
                         obj, now_s, conf, frames, hz, mean)
+                    a.cues, a.body_score = cues, body
             elif a is not None:  # evidence cleared (lights off) or fell back
                 a.obj = obj
                 events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.LIGHTS_OFF))
@@ -335,4 +383,4 @@ class EvAlertManager:
     @staticmethod
     def _event(state: AlertState, tid: int, a: _Active, reason: ClearReason | None = None) -> AlertEvent:
         return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score,
-                          reason)
+                          reason, a.cues, a.body_score)

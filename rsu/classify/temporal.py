@@ -1,7 +1,7 @@
 """Per-track temporal EV evidence: flashing light bars and accumulated crop scores, with hysteresis.
 
 None of the source documents decide per *track over time*; this module does (Framework B, thesis 2.3,
-classifies tracks, not frames). Two cues are combined:
+classifies tracks, not frames). Three cues are combined:
 
 1. **Lamp signal.** In the top band of the box (where a light bar sits when seen from an elevated
    camera) we measure the fraction of pixels that are *bright, saturated* red and blue (lamps, not
@@ -29,6 +29,16 @@ classifies tracks, not frames). Two cues are combined:
    ``[flash_min_hz, flash_max_hz]``.
 2. **Crop score.** Any per-crop classifier's EV probability (the CNN of thesis 2.4.2.3 or a feature
    classifier), accumulated as log-odds.
+3. **EV body** (issue 17). A classifier trained on real vehicles (``models/ev_body.onnx``,
+   :class:`rsu.classify.body.EvBodyClassifier`) scores the track's crop while the track shows lamp
+   activity, a few times a second; the body score is the mean of the last ``body_window`` scores.
+   Real LED bars often read as *steady* at video frame rates (lit on every frame, or dipping for single
+   frames at ~80 % duty), so a third lamp cue, the **steady bar**, is accepted *only* with a confident
+   body: a red or blue lamp in the middle of the band, covering at most ``steady_max_fraction`` of it
+   (a bar, not paint), lit on at least ``steady_min_share`` of the samples of the last ``steady_window_s``.
+
+Lamps at the corners of the band (centre share < ``centre_min_share``: tail, brake and turn lamps,
+hazard flashers) give no cue of any kind.
 
 The rule (per track, each frame):
 
@@ -36,7 +46,9 @@ The rule (per track, each frame):
 
 - ``none`` -> ``candidate`` when L > ``candidate_level``;
 - ``candidate`` -> ``confirmed`` when L >= ``confirm_level`` **and** flash evidence is present now
-  (a light bar that is not flashing never confirms, whatever a crop classifier says);
+  (a flash pattern alone: a light bar that is not flashing never confirms this way, whatever a crop
+  classifier says), **or** when the body score is at least ``body_threshold`` over at least
+  ``body_min_scores`` scores **and** a lamp cue (flash, alternation or steady bar) is present now;
 - ``confirmed`` -> ``cleared`` when no lamp has been lit for ``clear_after_s`` (lights off; a
   flashing bar is never dark that long) — the RSU also clears a track that leaves the view;
 - ``candidate`` -> ``none`` when L falls back below ``candidate_level``.
@@ -51,33 +63,17 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
-from protocol.messages import EvState, LightState
-
-
-@dataclass(frozen=True)
-class LampMeasurement:
-    """Bright saturated red and blue pixel fractions in the top band of one crop."""
-
-    red: float
-    blue: float
-
-
-def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
-                  min_saturation: int = 120) -> LampMeasurement:
-    """Fractions of the top band's pixels that are lamp-bright saturated red / blue."""
-    if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
-        return LampMeasurement(0.0, 0.0)
-    rows = max(1, int(round(crop_bgr.shape[0] * top_fraction)))
-    hsv = cv2.cvtColor(np.ascontiguousarray(crop_bgr[:rows]), cv2.COLOR_BGR2HSV)
-    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    bright = (s >= min_saturation) & (v >= min_value)
-    red = bright & ((h <= 10) | (h >= 170))
-    blue = bright & (h >= 100) & (h <= 130)
-    n = float(h.size)
-    return LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n)
+from protocol.messages import EvCue, EvState, LightState
+from rsu.classify.lamps import (  # noqa: F401  (re-exported: the lamp signal API lived here before)
+    LampMeasurement,
+    LampRun,
+    blink_transitions,
+    flash_pattern,
+    lamp_runs,
+    measure_lamps,
+)
 
 
 @dataclass(frozen=True)
@@ -115,102 +111,24 @@ class EvidenceConfig:
     confirm_level: float = 2.0
     clear_after_s: float = 2.0
     max_history: int = 256
+    centre_min_share: float = 0.5
+    """A lamp colour counts only when at least this share of its lit pixels lies in the central half of the
+    band's width (median over its lit samples): a roof bar does, corner lamps (tail, turn, hazard) do not."""
+    steady_window_s: float = 0.6
+    steady_min_share: float = 0.6
+    """A steady bar: lit on at least this share of the samples of the last ``steady_window_s`` (>= 3 samples)."""
+    steady_max_fraction: float = 0.12
+    """... and covering at most this share of the band (median over its lit samples): a roof bar is a thin
+    strip, while red or blue *paint* bright enough to pass the real-video colour test covers the body."""
+    body_threshold: float = 0.5
+    """EV-body score that counts as confident (the classifier's own threshold, from its model metadata)."""
+    body_min_scores: int = 2
+    body_window: int = 6
 
 
 def _logit(p: float) -> float:
     p = min(max(p, 1e-4), 1 - 1e-4)
     return math.log(p / (1 - p))
-
-
-def blink_transitions(values: np.ndarray, on_level: float, off_level: float) -> int:
-    """Number of on<->off switches of a signal with hysteresis (on above ``on_level``, off below ``off_level``)."""
-    state = None
-    n = 0
-    for v in values:
-        new = True if v >= on_level else False if v <= off_level else state
-        if state is not None and new is not None and new != state:
-            n += 1
-        if new is not None:
-            state = new
-    return n
-
-
-@dataclass(frozen=True)
-class LampRun:
-    """One lit stretch of a lamp colour: first and last lit sample times, lit samples, and whether it
-    was seen dark just before it and just after it (a *complete* flash)."""
-
-    start_s: float
-    end_s: float
-    samples: int
-    dark_before: bool
-    dark_after: bool
-    frame_s: float
-    dark_before_s: float = 0.0
-    """How long it was dark before this run (since the previous run, or the start of the window)."""
-
-    @property
-    def duration_s(self) -> float:
-        return self.end_s - self.start_s + self.frame_s
-
-    @property
-    def complete(self) -> bool:
-        return self.dark_before and self.dark_after
-
-    def is_flash(self, min_dark_ratio: float) -> bool:
-        """A complete run that was dark before it for at least ``min_dark_ratio`` of its own length:
-        flashers have duty cycles near or below 50 %, a steady lamp dropping out for a frame has not."""
-        return self.complete and self.dark_before_s >= min_dark_ratio * self.duration_s
-
-
-def lamp_runs(t: np.ndarray, x: np.ndarray, on_level: float, off_level: float, frame_s: float) -> list[LampRun]:
-    """Lit runs of a lamp signal with hysteresis (lit at or above ``on_level``, dark at or below
-    ``off_level``, in between: unchanged)."""
-    runs: list[LampRun] = []
-    state: bool | None = None
-    start = last = 0
-    n = 0
-    before = False
-    prev_end = float(t[0]) - frame_s if len(t) else 0.0
-    for i, v in enumerate(x):
-        new = True if v >= on_level else False if v <= off_level else state
-        if new and not state:
-            start, n, before = i, 0, state is False
-        if new:
-            n += 1 if v >= on_level else 0
-            last = i
-        if state and new is False:
-            runs.append(LampRun(float(t[start]), float(t[last]), n, before, True, frame_s,
-                                float(t[start]) - prev_end - frame_s))
-            prev_end = float(t[last])
-        if new is not None:
-            state = new
-    if state:
-        runs.append(LampRun(float(t[start]), float(t[last]), n, before, False, frame_s,
-                            float(t[start]) - prev_end - frame_s))
-    return runs
-
-
-def flash_pattern(red: list[LampRun], blue: list[LampRun], cfg: EvidenceConfig) -> bool:
-    """Flash evidence from the short lit runs of the two lamp colours in the window (module docstring):
-    two complete flashes of one colour at most ``max_dark_s`` apart, or a complete flash of one colour
-    handing over to (or lit together with) the other colour, with at least ``min_on_samples`` lit
-    samples in all (one glitch frame is not a flash)."""
-    for runs in (red, blue):
-        flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
-        for a, b in zip(flashes, flashes[1:], strict=False):
-            if b.start_s - a.end_s <= cfg.max_dark_s and a.samples + b.samples > cfg.min_on_samples:
-                return True
-    for first, other in ((red, blue), (blue, red)):
-        for a in first:
-            if not a.is_flash(cfg.min_dark_ratio):
-                continue
-            for b in other:
-                lit = a.samples + b.samples
-                if a.start_s <= b.start_s <= a.end_s + cfg.handover_s and lit >= cfg.min_on_samples and (
-                        b.start_s > a.start_s or lit > cfg.min_on_samples):
-                    return True
-    return False
 
 
 @dataclass
@@ -224,28 +142,44 @@ class TrackEvidence:
     score_sum: float = 0.0
     last_flash_s: float | None = None
     last_lamp_on_s: float | None = None
+    last_lamp_cue_s: float | None = None
     confirmed_at_s: float | None = None
     flash_hz: float | None = None
+    cues: tuple[EvCue, ...] = ()
+    """The cues that confirmed the track (refreshed while it stays confirmed); empty before."""
+    body_scores: deque = field(default_factory=lambda: deque(maxlen=32))
     _t: deque = field(default_factory=deque)
     _red: deque = field(default_factory=deque)
     _blue: deque = field(default_factory=deque)
+    _red_centre: deque = field(default_factory=deque)
+    _blue_centre: deque = field(default_factory=deque)
 
-    def _flashing(self, now_s: float) -> bool:
-        cfg = self.config
+    def _series(self, now_s: float, window_s: float):
         t = np.fromiter(self._t, float)
-        keep = t >= now_s - cfg.flash_window_s
-        t = t[keep]
+        keep = t >= now_s - window_s
+        out = {c: (np.fromiter(x, float)[keep], np.fromiter(cx, float)[keep]) for c, x, cx in
+               (("red", self._red, self._red_centre), ("blue", self._blue, self._blue_centre))}
+        return t[keep], out
+
+    def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
+        lit = x >= on_level
+        return bool(lit.any()) and float(np.median(centre[lit])) >= self.config.centre_min_share
+
+    def _flash_cue(self, now_s: float) -> EvCue | None:
+        cfg = self.config
+        t, series = self._series(now_s, cfg.flash_window_s)
         if len(t) < 3:
-            return False
-        frame_s = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+            return None
+        frame_s = float(np.median(np.diff(t)))
         runs: dict[str, list[LampRun]] = {}
         best_hz = None
-        for colour, series in (("red", self._red), ("blue", self._blue)):
-            x = np.fromiter(series, float)[keep]
+        for colour, (x, centre) in series.items():
             peak = float(x.max())
             if peak < cfg.lamp_on_fraction:
                 continue
             on_level = max(cfg.lamp_on_fraction, 0.5 * peak)
+            if not self._central(x, centre, on_level):
+                continue  # lit at the corners of the body: tail, brake, turn or hazard lamps
             rs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
             if any(r.duration_s > cfg.max_on_s for r in rs):
                 continue  # lit longer than a 1 Hz flash: a steady lamp (tail/brake light, paint, glow)
@@ -261,34 +195,69 @@ class TrackEvidence:
                 best_hz = hz if best_hz is None else max(best_hz, hz)
         if best_hz is not None:
             self.flash_hz = best_hz
-        return flash_pattern(runs.get("red", []), runs.get("blue", []), cfg)
+        cue = flash_pattern(runs.get("red", []), runs.get("blue", []), cfg)
+        return EvCue(cue) if cue else None
 
-    def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None) -> EvState:
+    def _steady_bar(self, now_s: float) -> bool:
+        cfg = self.config
+        t, series = self._series(now_s, cfg.steady_window_s)
+        if len(t) < 3:
+            return False
+        for x, centre in series.values():
+            lit = x >= cfg.lamp_on_fraction
+            if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
+                    and self._central(x, centre, cfg.lamp_on_fraction)):
+                return True
+        return False
+
+    @property
+    def body_score(self) -> float | None:
+        """Mean of the last ``body_window`` EV-body scores; None before any."""
+        if not self.body_scores:
+            return None
+        recent = list(self.body_scores)[-self.config.body_window:]
+        return float(sum(recent) / len(recent))
+
+    @property
+    def body_confident(self) -> bool:
+        b = self.body_score
+        return b is not None and len(self.body_scores) >= self.config.body_min_scores and b >= self.config.body_threshold
+
+    def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None,
+               body_score: float | None = None) -> EvState:
         cfg = self.config
         self._t.append(now_s)
         self._red.append(lamps.red)
         self._blue.append(lamps.blue)
+        self._red_centre.append(lamps.red_centre)
+        self._blue_centre.append(lamps.blue_centre)
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
-            self._t.popleft()
-            self._red.popleft()
-            self._blue.popleft()
+            for d in (self._t, self._red, self._blue, self._red_centre, self._blue_centre):
+                d.popleft()
         self.frames += 1
-        flashing = self._flashing(now_s)
-        if flashing:
+        if body_score is not None:
+            self.body_scores.append(float(np.clip(body_score, 0.0, 1.0)))
+        flash = self._flash_cue(now_s)
+        if flash is not None:
             self.last_flash_s = now_s
-        if max(lamps.red, lamps.blue) >= cfg.lamp_on_fraction:
+        lamp_cue = flash if flash is not None else EvCue.STEADY_BAR if self._steady_bar(now_s) else None
+        if lamp_cue is not None:
+            self.last_lamp_cue_s = now_s
+        if lamps.coloured >= cfg.lamp_on_fraction:
             self.last_lamp_on_s = now_s
-        step = cfg.flash_gain if flashing else -cfg.decay
+        step = cfg.flash_gain if flash is not None else -cfg.decay
         if crop_score is not None:
             self.score_sum += crop_score
             step += _logit(crop_score) - _logit(cfg.prior) if crop_score > cfg.prior else 0.0
         self.level = min(max(self.level + step, cfg.level_min), cfg.level_max)
+        body = (EvCue.EV_BODY,) if self.body_confident else ()
 
         if self.state in (EvState.NONE, EvState.CLEARED, EvState.CANDIDATE):
-            if self.level >= cfg.confirm_level and flashing:
-                self.state = EvState.CONFIRMED
-                self.confirmed_at_s = now_s
-            elif self.level > cfg.candidate_level:
+            if self.level >= cfg.confirm_level and flash is not None:
+                self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
+            elif body and lamp_cue is not None:
+                self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (lamp_cue, *body)
+            elif self.level > cfg.candidate_level or lamp_cue is not None:
                 self.state = EvState.CANDIDATE
             elif self.state == EvState.CANDIDATE:
                 self.state = EvState.NONE
@@ -296,19 +265,29 @@ class TrackEvidence:
             if self.last_lamp_on_s is None or now_s - self.last_lamp_on_s >= cfg.clear_after_s:
                 self.state = EvState.CLEARED
                 self.level = min(self.level, 0.0)
+            elif lamp_cue is not None:
+                self.cues = (lamp_cue, *body)
         return self.state
 
     @property
     def light_state(self) -> LightState:
         if self.frames == 0:
             return LightState.UNKNOWN
-        recent = self.last_flash_s is not None and self._t and self._t[-1] - self.last_flash_s < self.config.clear_after_s
-        return LightState.FLASHING if recent else LightState.OFF
+        last = self._t[-1] if self._t else None
+        if self.last_flash_s is not None and last is not None and last - self.last_flash_s < self.config.clear_after_s:
+            return LightState.FLASHING
+        if self.last_lamp_cue_s is not None and last is not None and last - self.last_lamp_cue_s < self.config.clear_after_s:
+            return LightState.STEADY
+        return LightState.OFF
 
     @property
     def ev_score(self) -> float:
-        """A probability-like summary of the evidence level for ``DetectedObject.ev_score``."""
-        return 1.0 / (1.0 + math.exp(-(self.level - self.config.candidate_level)))
+        """A probability-like summary of the evidence level for ``DetectedObject.ev_score``; with a confident
+        EV body and a lamp cue, at least the body score."""
+        s = 1.0 / (1.0 + math.exp(-(self.level - self.config.candidate_level)))
+        if self.state == EvState.CONFIRMED and EvCue.EV_BODY in self.cues and self.body_score is not None:
+            s = max(s, self.body_score)
+        return s
 
     @property
     def mean_crop_score(self) -> float:

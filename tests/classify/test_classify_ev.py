@@ -80,7 +80,7 @@ def test_crop_score_is_called_on_the_clipped_crop_and_alone_cannot_confirm():
     clf = TrackEvClassifier(crop_score=scorer)
     _, states = run(int(3 * FPS), entries_of=lambda k: [(7, (-20.0, 100.0, 60.0, 160.0))], clf=clf,
                     lights_on_at=1e9)
-    assert seen and seen[0] == (60, 60, 3)
+    assert seen and seen[0] == (75, 60, 3)  # the box grown 25 % upwards, clipped at x = 0
     assert all(out[7][2] != EvState.CONFIRMED for _, out in states)
 
 
@@ -132,8 +132,9 @@ def test_alert_cleared_when_the_evidence_clears():
 def test_above_fraction_sees_a_light_bar_just_above_the_box():
     img = np.full((240, 480, 3), 90, np.uint8)
     img[95:100, 110:170] = (0, 0, 255)  # lamp on the roof, above a detector box that starts at y = 100
-    assert TrackEvClassifier().measure(img, BOX_A)[0].red == 0.0
+    assert TrackEvClassifier(above_fraction=0.0).measure(img, BOX_A)[0].red == 0.0
     assert TrackEvClassifier(above_fraction=0.2).measure(img, BOX_A)[0].red > 0.05
+    assert TrackEvClassifier().measure(img, BOX_A)[0].red > 0.05  # the default grows the box 25 % upwards
 
 
 def test_boxes_too_small_to_resolve_a_light_bar_are_not_measured():

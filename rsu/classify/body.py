@@ -1,0 +1,49 @@
+"""The EV-body classifier trained on real vehicles (issue 17): is this vehicle crop an emergency vehicle?
+
+``models/ev_body.onnx`` is EfficientNet-Lite0 (ImageNet) fine-tuned on the real photos of
+``../shared/data/real/ev_train`` (ambulances, fire engines, police vs other vehicles) by
+``models/train_ev_body.py``, int8-quantised; card: ``models/ev_body.md``. It takes the crop the RSU
+takes of a track (the box grown upwards by ``above_fraction`` of its height, where a roof light bar
+sits) and returns p(EV). It knows the vehicle's *type*, not its lamps: the per-track fusion
+(:class:`rsu.classify.temporal.TrackEvidence`) alerts only on a confident body *and* lamp activity.
+
+The decision threshold (chosen on the validation split) and ``above_fraction`` are read from the ONNX
+metadata, so the model file carries its own operating point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from rsu.classify.classifiers import MODELS_DIR, CnnClassifier
+
+DEFAULT_BODY_MODEL = MODELS_DIR / "ev_body.onnx"
+
+
+class EvBodyClassifier(CnnClassifier):
+    """p(EV body) per crop from ``models/ev_body.onnx``; ``threshold`` and ``above_fraction`` from its metadata."""
+
+    def __init__(self, path: str | Path = DEFAULT_BODY_MODEL, *, threads: int | None = 1,
+                 threshold: float | None = None) -> None:
+        super().__init__(path, threads=threads, name="ev-body")
+        meta = self.session.get_modelmeta().custom_metadata_map
+        try:
+            self.threshold = float(threshold if threshold is not None else meta.get("ev_threshold", 0.5))
+            self.above_fraction = float(meta.get("above_fraction", 0.25))
+        except ValueError as exc:
+            raise ValueError(f"{path}: bad ev_threshold / above_fraction metadata: {exc}") from exc
+        if not 0.0 < self.threshold < 1.0 or not 0.0 <= self.above_fraction <= 1.0:
+            raise ValueError(f"{path}: threshold {self.threshold} must be in (0, 1) and above_fraction in [0, 1]")
+
+    def is_ev(self, crops: Sequence[np.ndarray]) -> np.ndarray:
+        return self.predict(crops) >= self.threshold
+
+
+def load_body_classifier(name: str | None = "default", *, threads: int | None = 1) -> EvBodyClassifier | None:
+    """``default`` (models/ev_body.onnx), ``none`` / None, or a path to another model of the same layout."""
+    if name in (None, "none"):
+        return None
+    return EvBodyClassifier(DEFAULT_BODY_MODEL if name == "default" else name, threads=threads)

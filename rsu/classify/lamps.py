@@ -1,0 +1,178 @@
+"""Lamp signals of one vehicle crop and their flash patterns (issue 5, issue 17).
+
+:func:`measure_lamps` reads the *lamp band* of a crop (the top rows, where a light bar sits when the
+camera looks down at a vehicle; the caller grows the box upwards first, since a roof bar sits above a
+COCO car box): the fractions of its pixels that are lamp-bright red, blue and white, and for red and
+blue the share of those pixels in the central half of the band's width. A light bar sits on the roof,
+in the middle; tail, brake and turn lamps and hazard flashers sit at the corners of the body, so a
+lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and gives no EV evidence
+(:class:`rsu.classify.temporal.TrackEvidence`).
+
+Two colour definitions are used: the simulator's clean renders saturate a lit lamp (V >= 240,
+S >= 120), while compressed real video washes a lit bar out to S ~ 90-120 and V ~ 180-240 (issue 5's
+frame-by-frame measurements); :data:`REAL_VIDEO_LAMPS` is the looser definition used on real cameras,
+which is safe only together with the corner-lamp rejection and the EV-body classifier.
+
+:func:`lamp_runs` cuts a lamp signal into lit runs with hysteresis and :func:`flash_pattern` names the
+cue a window of runs shows: ``flash`` or ``alternation``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LampMeasurement:
+    """Lamp-bright red, blue and white pixel fractions in the lamp band of one crop, and the share of the
+    red and blue ones in the central half of the band's width (1.0 when none is lit)."""
+
+    red: float
+    blue: float
+    white: float = 0.0
+    red_centre: float = 1.0
+    blue_centre: float = 1.0
+
+    @property
+    def coloured(self) -> float:
+        """The larger of the red and blue fractions."""
+        return max(self.red, self.blue)
+
+
+@dataclass(frozen=True)
+class LampColours:
+    """What counts as a lit lamp pixel (OpenCV HSV: H 0-180, S and V 0-255)."""
+
+    min_value: int = 240
+    min_saturation: int = 120
+    white_min_value: int = 250
+    white_max_saturation: int = 40
+
+
+SIM_LAMPS = LampColours()
+"""Clean renders: a lit lamp saturates (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
+REAL_VIDEO_LAMPS = LampColours(min_value=190, min_saturation=90)
+"""Compressed real video (module docstring)."""
+
+
+def _centre_share(mask: np.ndarray) -> float:
+    cols = np.count_nonzero(mask, axis=0)
+    total = int(cols.sum())
+    if total == 0:
+        return 1.0
+    w = mask.shape[1]
+    return float(cols[w // 4: w - w // 4].sum()) / total
+
+
+def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
+                  min_saturation: int = 120, *, white_min_value: int = 250,
+                  white_max_saturation: int = 40) -> LampMeasurement:
+    """Fractions of the top ``top_fraction`` band's pixels that are lamp-bright red / blue / white, and the
+    central share of the red and blue ones (module docstring)."""
+    if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
+        return LampMeasurement(0.0, 0.0)
+    rows = max(1, int(round(crop_bgr.shape[0] * top_fraction)))
+    hsv = cv2.cvtColor(np.ascontiguousarray(crop_bgr[:rows]), cv2.COLOR_BGR2HSV)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    bright = (s >= min_saturation) & (v >= min_value)
+    red = bright & ((h <= 10) | (h >= 170))
+    blue = bright & (h >= 100) & (h <= 130)
+    white = (v >= white_min_value) & (s <= white_max_saturation)
+    n = float(h.size)
+    return LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
+                           float(np.count_nonzero(white)) / n, _centre_share(red), _centre_share(blue))
+
+
+def blink_transitions(values: np.ndarray, on_level: float, off_level: float) -> int:
+    """Number of on<->off switches of a signal with hysteresis (on above ``on_level``, off below ``off_level``)."""
+    state = None
+    n = 0
+    for v in values:
+        new = True if v >= on_level else False if v <= off_level else state
+        if state is not None and new is not None and new != state:
+            n += 1
+        if new is not None:
+            state = new
+    return n
+
+
+@dataclass(frozen=True)
+class LampRun:
+    """One lit stretch of a lamp colour: first and last lit sample times, lit samples, and whether it
+    was seen dark just before it and just after it (a *complete* flash)."""
+
+    start_s: float
+    end_s: float
+    samples: int
+    dark_before: bool
+    dark_after: bool
+    frame_s: float
+    dark_before_s: float = 0.0
+    """How long it was dark before this run (since the previous run, or the start of the window)."""
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s + self.frame_s
+
+    @property
+    def complete(self) -> bool:
+        return self.dark_before and self.dark_after
+
+    def is_flash(self, min_dark_ratio: float) -> bool:
+        """A complete run that was dark before it for at least ``min_dark_ratio`` of its own length:
+        flashers have duty cycles near or below 50 %, a steady lamp dropping out for a frame has not."""
+        return self.complete and self.dark_before_s >= min_dark_ratio * self.duration_s
+
+
+def lamp_runs(t: np.ndarray, x: np.ndarray, on_level: float, off_level: float, frame_s: float) -> list[LampRun]:
+    """Lit runs of a lamp signal with hysteresis (lit at or above ``on_level``, dark at or below
+    ``off_level``, in between: unchanged)."""
+    runs: list[LampRun] = []
+    state: bool | None = None
+    start = last = 0
+    n = 0
+    before = False
+    prev_end = float(t[0]) - frame_s if len(t) else 0.0
+    for i, v in enumerate(x):
+        new = True if v >= on_level else False if v <= off_level else state
+        if new and not state:
+            start, n, before = i, 0, state is False
+        if new:
+            n += 1 if v >= on_level else 0
+            last = i
+        if state and new is False:
+            runs.append(LampRun(float(t[start]), float(t[last]), n, before, True, frame_s,
+                                float(t[start]) - prev_end - frame_s))
+            prev_end = float(t[last])
+        if new is not None:
+            state = new
+    if state:
+        runs.append(LampRun(float(t[start]), float(t[last]), n, before, False, frame_s,
+                            float(t[start]) - prev_end - frame_s))
+    return runs
+
+
+def flash_pattern(red: list[LampRun], blue: list[LampRun], cfg) -> str | None:
+    """The flash cue in the short lit runs of the two lamp colours in the window (``temporal`` module
+    docstring): ``"flash"`` for two complete flashes of one colour at most ``max_dark_s`` apart,
+    ``"alternation"`` for a complete flash of one colour handing over to (or lit together with) the other
+    colour, each with at least ``min_on_samples`` lit samples in all (one glitch frame is not a flash);
+    None when neither. ``cfg`` is a :class:`rsu.classify.temporal.EvidenceConfig`."""
+    for runs in (red, blue):
+        flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
+        for a, b in zip(flashes, flashes[1:], strict=False):
+            if b.start_s - a.end_s <= cfg.max_dark_s and a.samples + b.samples > cfg.min_on_samples:
+                return "flash"
+    for first, other in ((red, blue), (blue, red)):
+        for a in first:
+            if not a.is_flash(cfg.min_dark_ratio):
+                continue
+            for b in other:
+                lit = a.samples + b.samples
+                if a.start_s <= b.start_s <= a.end_s + cfg.handover_s and lit >= cfg.min_on_samples and (
+                        b.start_s > a.start_s or lit > cfg.min_on_samples):
+                    return "alternation"
+    return None

@@ -1,0 +1,100 @@
+"""Per-track fusion of EV body and lamp evidence (issue 17): a steady bar counts only with a confident body,
+corner lamps never count, and a strong flash pattern still confirms alone."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from protocol.messages import EvCue, EvState, LightState
+from rsu.classify.lamps import measure_lamps
+from rsu.classify.temporal import LampMeasurement, TrackEvidence
+
+FPS = 25.0
+BAR = 0.04  # a lit bar covers ~4 % of the band
+
+
+def run(signal, body=None, duration_s=3.0, every_s=0.25):
+    """signal(t) -> LampMeasurement; body: the EV-body score fed every ``every_s`` (None: no classifier)."""
+    ev = TrackEvidence()
+    states, last = [], None
+    for i in range(int(duration_s * FPS)):
+        t = i / FPS
+        b = None
+        if body is not None and (last is None or t - last >= every_s - 1e-9):
+            b, last = body, t
+        states.append((t, ev.update(t, signal(t), body_score=b)))
+    return ev, states
+
+
+def first(states, state=EvState.CONFIRMED):
+    return next((t for t, s in states if s == state), None)
+
+
+def steady(t):
+    return LampMeasurement(BAR, 0.0)
+
+
+def dipping(t):  # an LED bar at ~80 % duty under motion blur: dark for one frame in five
+    return LampMeasurement(0.0 if int(round(t * FPS)) % 5 == 4 else BAR, 0.0)
+
+
+def test_steady_bar_with_a_confident_body_confirms_within_a_second():
+    for signal in (steady, dipping):
+        ev, states = run(signal, body=0.95)
+        t = first(states)
+        assert t is not None and t <= 1.0
+        assert ev.cues == (EvCue.STEADY_BAR, EvCue.EV_BODY)
+        assert ev.light_state == LightState.STEADY
+
+
+def test_steady_bar_alone_or_with_an_unsure_body_never_confirms():
+    for body in (None, 0.2):
+        _, states = run(steady, body=body)
+        assert first(states) is None
+
+
+def test_body_alone_without_lamps_never_confirms():
+    _, states = run(lambda t: LampMeasurement(0.0, 0.0), body=0.99)
+    assert first(states) is None
+
+
+def test_paint_sized_red_is_no_steady_bar():
+    _, states = run(lambda t: LampMeasurement(0.6, 0.0), body=0.99)  # a red fire engine with its lights off
+    assert first(states) is None
+
+
+def test_corner_lamps_never_confirm_even_flashing_with_an_ev_body():
+    def turn_signal(t):  # 1.5 Hz, lit at one corner of the band
+        lit = (t * 1.5) % 1.0 < 0.5
+        return LampMeasurement(BAR if lit else 0.0, 0.0, red_centre=0.0)
+
+    def hazards(t):  # both corners together
+        lit = (t * 1.5) % 1.0 < 0.5
+        return LampMeasurement(2 * BAR if lit else 0.0, 0.0, red_centre=0.1)
+
+    for signal in (turn_signal, hazards):
+        for body in (None, 0.99):
+            _, states = run(signal, body=body, duration_s=5.0)
+            assert first(states) is None
+
+
+def test_strong_flash_pattern_confirms_alone_and_names_its_cue():
+    def alternating(t):
+        red = (t * 2.0) % 1.0 < 0.5
+        return LampMeasurement(BAR if red else 0.0, 0.0 if red else BAR)
+
+    ev, states = run(alternating)
+    assert first(states) is not None and first(states) <= 0.6  # one period of a 2 Hz bar, plus a frame
+    assert ev.cues in ((EvCue.ALTERNATION,), (EvCue.FLASH,))  # no body classifier: no ev_body cue
+
+
+def test_measure_lamps_centre_share_tells_a_roof_bar_from_corner_lamps():
+    crop = np.full((60, 80, 3), 90, np.uint8)
+    crop[2:8, 30:50] = (0, 0, 255)  # roof bar in the middle
+    m = measure_lamps(crop, top_fraction=0.4)
+    assert m.red > 0 and m.red_centre == 1.0
+    crop = np.full((60, 80, 3), 90, np.uint8)
+    crop[15:20, 0:8] = (0, 0, 255)  # two corner lamps
+    crop[15:20, 72:80] = (0, 0, 255)
+    m = measure_lamps(crop, top_fraction=0.4)
+    assert m.red > 0 and m.red_centre == 0.0
