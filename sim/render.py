@@ -4,7 +4,8 @@ The static scene (sky, tree line, grass, asphalt with a world-anchored texture, 
 markings, haze, street-light pools at night, vignetting) is rendered once per camera and lighting
 into a cached image. Per frame: vehicles as shaded 3-D part boxes (lower body, glass cabin, cargo box,
 light bar) drawn back to front (painter's order by depth) with decals (windows, tail and brake lights,
-liveries, EV lamps), a cheap ROI glow for lamps that are on, motion blur on vehicle ROIs when the image
+liveries, EV lamps,
+hazard flashers and turn signals of ordinary vehicles: ``sim.lamps``), a cheap ROI glow for lamps that are on, motion blur on vehicle ROIs when the image
 motion during the exposure exceeds ~1.5 px, then exposure (a LUT) and sensor noise (a pre-generated
 noise texture shifted per frame). Everything is deterministic for a given (snapshot, frame index).
 
@@ -27,6 +28,7 @@ import numpy as np
 from protocol.corridor import CameraConfig, Road
 from protocol.messages import Actor, WorldSnapshot
 from sim.camera import NEAR_M, PinholeCamera
+from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_decals, signal_on
 from sim.vehicles import LIVERY_AMBULANCE, LIVERY_POLICE, LIVERY_TWO_TONE, style_detail, style_livery
 
 MIN_VISIBLE_FRACTION = 0.3
@@ -108,7 +110,7 @@ class Decal:
     v0: float
     v1: float
     colour: np.ndarray | tuple
-    lamp: str = ""  # "", "tail", "ev_red", "ev_blue"
+    lamp: str = ""  # "", "tail", "ev_red", "ev_blue", "hazard", "turn" (sim.lamps)
 
 
 @dataclass
@@ -274,6 +276,8 @@ def _body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
         if kind == "ev" and livery == LIVERY_AMBULANCE:  # rear flashers at the top corners
             decals.append(Decal(1, "rear", 0.02, 0.12, 0.88, 0.97, LAMP_OFF_BLUE, "ev_blue"))
             decals.append(Decal(1, "rear", 0.88, 0.98, 0.88, 0.97, LAMP_OFF_RED, "ev_red"))
+    tails = [(dc.part, dc.u0, dc.u1, dc.v0, dc.v1) for dc in decals if dc.lamp == "tail"]
+    decals.extend(Decal(*fields) for fields in signal_decals(kind, actor.style, tails))
     return parts, decals
 
 
@@ -572,6 +576,7 @@ class Renderer:
                     face_uv[(p_i, name)] = poly
                     cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour.tolist(), cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
+            sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             shown = [dc for dc in decals if (dc.part, dc.face) in face_uv]
             if shown:
@@ -580,6 +585,8 @@ class Renderer:
             for k_dc, dc in enumerate(shown):
                 puv = all_uv[4 * k_dc:4 * k_dc + 4]
                 lit = False
+                if dc.lamp == "turn" and not sig_on:
+                    continue  # the tail light under it shows
                 if dc.lamp == "tail":
                     if tail_bright:
                         lit = True
@@ -590,12 +597,15 @@ class Renderer:
                     lit, colour = True, RED_LAMP_BGR
                 elif dc.lamp == "ev_blue" and blue_on:
                     lit, colour = True, BLUE_LAMP_BGR
+                elif dc.lamp in SIGNAL_LAMPS and sig_on:
+                    lit, colour = True, AMBER_ON_BGR if dc.lamp == "hazard" else TURN_ON_BGR
                 else:
                     colour = np.clip(np.asarray(dc.colour, dtype=float) * (0.85 if dc.lamp else 1.0)
                                      * (L["ambient"] + 0.5 * L["sun"]) * gain * 1.3, 0, 255).tolist()
                 cv2.fillConvexPoly(img, np.round(puv * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
                 if lit:
-                    strength = 1.0 if dc.lamp.startswith("ev") else (0.55 if a.brake_on else 0.3)
+                    strength = 1.0 if dc.lamp.startswith("ev") else SIGNAL_GLOW if dc.lamp in SIGNAL_LAMPS \
+                        else (0.55 if a.brake_on else 0.3)
                     if dc.lamp.startswith("ev") and dc.part == len(parts) - 1:
                         # one halo per light-bar colour (its faces share it)
                         key = (a.actor_id, dc.lamp)

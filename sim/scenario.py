@@ -1,7 +1,8 @@
 """Scenario files (``sim/scenarios/*.toml``): load and validate into a ``Scenario``.
 
 A scenario names the corridor, the duration, the seed and the lighting, the background traffic
-(density, speeds, vehicle mix, the fraction of drivers that yield to an EV with lights on), the EV
+(density, speeds, vehicle mix, the fraction of drivers that yield to an EV with lights on, the
+fractions with hazard flashers or a turn signal blinking), the EV
 (start offset behind the AV, lane, speed, light bar switch-on time, pattern and frequency), static
 hazards, the AV script, and distractor vehicles (red cars, blue cars, red/white vans without lights,
 cars that brake). A bad file fails with ``ScenarioError`` naming the file, the field and what was
@@ -46,6 +47,10 @@ class TrafficSpec:
     bus_fraction: float = 0.04
     red_fraction: float = 0.1
     blue_fraction: float = 0.08
+    hazard_flasher_fraction: float = 0.08
+    """Background vehicles with amber hazard flashers blinking at their four corners (sim.lamps)."""
+    turn_signal_fraction: float = 0.08
+    """Background vehicles with one red rear turn signal blinking (US style)."""
 
 
 @dataclass(frozen=True)
@@ -191,12 +196,16 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
             bus_fraction=tr.num("bus_fraction", d.bus_fraction, 0.0, 1.0),
             red_fraction=tr.num("red_fraction", d.red_fraction, 0.0, 1.0),
             blue_fraction=tr.num("blue_fraction", d.blue_fraction, 0.0, 1.0),
+            hazard_flasher_fraction=tr.num("hazard_flasher_fraction", d.hazard_flasher_fraction, 0.0, 1.0),
+            turn_signal_fraction=tr.num("turn_signal_fraction", d.turn_signal_fraction, 0.0, 1.0),
         )
         if traffic.spawn_s_max_m < traffic.spawn_s_min_m:
             raise tr.fail("spawn_s_max_m", f"a value >= spawn_s_min_m ({traffic.spawn_s_min_m})",
                           traffic.spawn_s_max_m)
         if traffic.van_fraction + traffic.truck_fraction + traffic.bus_fraction > 1.0:
             raise tr.fail("van_fraction", "van + truck + bus fractions <= 1")
+        if traffic.hazard_flasher_fraction + traffic.turn_signal_fraction > 1.0:
+            raise tr.fail("turn_signal_fraction", "hazard_flasher_fraction + turn_signal_fraction <= 1")
 
     av = None
     avr = top.optional_table("av")

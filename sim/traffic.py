@@ -18,6 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.corridor import Road
+from sim.lamps import assign_signal_lamps
 from sim.scenario import DEBRIS_KINDS, Scenario
 from sim.vehicles import (
     BLUE_BGR,
@@ -303,7 +304,8 @@ def _kind_for(rng: np.random.Generator, spec) -> str:
 
 def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVehicle]:
     """The initial vehicles of a scenario: AV, EV, distractors, hazards, then seeded background traffic
-    placed where it does not overlap them."""
+    placed where it does not overlap them, a seeded fraction of it with hazard flashers or a turn signal
+    blinking (``sim.lamps``)."""
     road = scenario.corridor.road
     out: list[SimVehicle] = []
 
@@ -354,6 +356,7 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
     if av is not None and ev is not None and ev.lane == av.lane and ev.start_offset_m < 0:
         ev_gap = (ev.lane, av.start_s_m + ev.start_offset_m, av.start_s_m)
     tr = scenario.traffic
+    n_fixed = len(out)  # AV, EV, distractors, debris; background traffic follows
     span = tr.spawn_s_max_m - tr.spawn_s_min_m
     n_per_lane = int(round(tr.density_veh_per_km_lane * span / 1000.0))
     k = 0
@@ -398,4 +401,6 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                                   yields_to_ev=bool(rng.random() < tr.yield_fraction),
                                   next_lane_check_s=float(rng.uniform(0, LANE_CHECK_PERIOD_S))))
             k += 1
+    # decoy lamps last, so that the draws above (and the traffic they place) are those of older versions
+    assign_signal_lamps(out[n_fixed:], tr.hazard_flasher_fraction, tr.turn_signal_fraction, rng)
     return out

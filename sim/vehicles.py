@@ -2,8 +2,9 @@
 
 Appearance travels in ``Actor.style`` (protocol has no livery field): ``style = livery << 8 | detail``
 where ``detail`` (0..255) seeds the body details (car shape: sedan / hatchback / SUV) and ``livery`` is
-one of ``LIVERY_*``. The renderer derives everything else deterministically from kind, size, colour
-and style.
+one of ``LIVERY_*``; bits 12 and up hold the blinking hazard flashers or turn signal of an ordinary
+vehicle, if any (``sim.lamps``). The renderer derives everything else deterministically from kind,
+size, colour and style.
 """
 
 from __future__ import annotations

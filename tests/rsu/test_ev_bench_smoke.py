@@ -18,6 +18,7 @@ def test_ev_bench_quick_json():
                        text=True, timeout=80)
     assert r.returncode == 0, r.stderr[-2000:]
     figures = json.loads(r.stdout.strip().splitlines()[-1])
-    assert {"track_recall", "false_alerts", "lights_on_to_alert_median_s"} <= set(figures)
+    assert {"track_recall", "false_alerts", "lights_on_to_alert_median_s", "decoy_lamp_vehicles",
+            "false_alerts_on_decoy_lamps"} <= set(figures)
     assert figures["track_recall"] is not None and figures["track_recall"] > 0
     assert figures["lights_on_to_alert_median_s"] is not None and figures["lights_on_to_alert_median_s"] < 2.0
