@@ -32,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Roadside unit: detect and track every vehicle (SORT), localise it on the corridor and "
                     "publish ObjectList every frame and Health at 1 Hz over Zenoh.",
         epilog="EV classifier comparison (thesis Table 2.2): iea-rsu eval-classifier DATASET (see its --help). "
+               "Check a camera's EV recognition on a recorded clip: iea-rsu scan VIDEO (see its --help). "
                "example: iea-rsu --rsu rsu1 --source ../shared/data/real/traffic_videos/ambdet_video_3.mp4 "
                "--detector onnx --model ../shared/data/real/yolox_nano/yolox_nano.onnx --annotate out.mp4")
     ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
@@ -139,10 +140,79 @@ def eval_main(argv: list[str]) -> int:
     return 0
 
 
+def build_scan_parser() -> argparse.ArgumentParser:
+    from rsu.scan import DEFAULT_DETECTOR
+
+    ap = argparse.ArgumentParser(
+        prog="iea-rsu scan",
+        description="Check a camera: run a recorded clip through the RSU's EV recognition (detector, SORT, "
+                    "per-track lamp evidence and the EV-body classifier, EV alerts; nothing is published) and "
+                    "report which vehicles were recognised as EVs, when, and on which cues (flash, alternation, "
+                    "steady_bar, ev_body).",
+        epilog="Prints a progress line every 2 s of video to stderr, then one line per EV track and a summary; "
+               "--json: one JSON object per line (type track, alert, summary). Exit code 2 on a missing or "
+               "unreadable video or model. example: iea-rsu scan "
+               "../shared/data/real/ev_videos/street_ambulance_japan_red.mp4 --annotate out.mp4")
+    ap.add_argument("video", help="recorded clip (any format OpenCV reads)")
+    ap.add_argument("--json", action="store_true",
+                    help="one JSON line per track that was ever candidate or confirmed, per alert (active / "
+                         "cleared), then a summary line")
+    ap.add_argument("--annotate", metavar="OUT.mp4", default=None,
+                    help="write the clip with every track box (green vehicle, red EV), the lamp band where "
+                         "lamps are measured (yellow) and labels: id, state, cues, body score")
+    ap.add_argument("--model", default=str(DEFAULT_DETECTOR),
+                    help="YOLOX-layout ONNX vehicle detector (default: the COCO YOLOX-Nano in "
+                         "../shared/data/real/yolox_nano), or 'motion': background subtraction, for a fixed "
+                         "camera without a model")
+    ap.add_argument("--ev-body", default="default",
+                    help="EV-body classifier: default (models/ev_body.onnx), none (lamps only), or PATH.onnx")
+    ap.add_argument("--max-s", type=float, default=None, help="scan only the first S seconds of the clip")
+    ap.add_argument("--threads", type=int, default=1, help="CPU threads for the detector and classifiers")
+    return ap
+
+
+def scan_main(argv: list[str]) -> int:
+    from rsu.scan import scan_video
+
+    args = build_scan_parser().parse_args(argv)
+    if args.threads < 1:
+        print(f"iea-rsu scan: --threads must be >= 1, got {args.threads}", file=sys.stderr)
+        return 2
+    cv2.setNumThreads(args.threads)
+
+    def progress(t_s: float, frames: int, ev_tracks: int) -> None:
+        print(f"iea-rsu scan: {t_s:6.1f} s of video, {frames} frames, {ev_tracks} EV tracks", file=sys.stderr,
+              flush=True)
+
+    try:
+        result = scan_video(args.video, detector_model=args.model, body=args.ev_body, max_s=args.max_s,
+                            annotate_path=args.annotate, threads=args.threads, progress=progress)
+    except (FileNotFoundError, ValueError, SourceError, SourceStalled) as exc:
+        hint = " (--ev-body none scans on the lamps alone)" if "ev_body" in str(exc) else ""
+        print(f"iea-rsu scan: {exc}{hint}", file=sys.stderr)
+        return 2
+    if args.json:
+        print("\n".join(result.json_lines()))
+        return 0
+    for t in result.ev_tracks:
+        body = "-" if t.body_score is None else f"{t.body_score:.2f}"
+        box = ",".join(f"{v:.0f}" for v in t.last_box)
+        print(f"EV track {t.track_id}: seen {t.first_seen_s:.2f} s, alert {t.confirmed_s:.2f} s, cues "
+              f"{'+'.join(t.cues) or '-'}, body {body}, last seen {t.last_seen_s:.2f} s at [{box}]")
+    s = result.summary()
+    first = "-" if s["first_alert_s"] is None else f"{s['first_alert_s']:.2f} s"
+    print(f"{result.video}: {s['duration_s']:.1f} s, {s['frames']} frames in {s['wall_s']:.1f} s; "
+          f"{s['ev_tracks']} EV tracks (first alert {first}), {s['candidate_tracks']} candidates never confirmed; "
+          f"detector {s['detector']}, EV body {s['body'] or 'none'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "eval-classifier":
         return eval_main(argv[1:])
+    if argv and argv[0] == "scan":
+        return scan_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(parser, args)

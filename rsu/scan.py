@@ -1,0 +1,296 @@
+"""``iea-rsu scan``: run a recorded clip through the RSU's EV recognition and say what it decided (issue 17).
+
+An operator checks a camera with it: which vehicles were recognised as emergency vehicles, when, and on
+which cues. :func:`scan_video` wires the pipeline as :class:`rsu.service.RsuService` does (detector ->
+SORT, Framework B -> :class:`~rsu.classify.ev.TrackEvClassifier` with the EV-body classifier ->
+:class:`~rsu.classify.ev.EvAlertManager`), with no transport and no clock: frame times are the video's own.
+A recorded clip has no calibration in the corridor file, so the corridor localiser is replaced by
+:class:`ImageOnlyLocalizer`, which reports every track: the corridor's would drop the tracks it cannot put
+inside an RSU's zone of responsibility (with another camera's geometry, most of them), and a dropped
+track reaches neither the alert manager nor this report.
+
+The result (:class:`ScanResult`) holds one :class:`TrackDecision` per track id that was ever
+``candidate`` or ``confirmed`` and the alert *transitions* (``active`` when a track is confirmed,
+``cleared``; the manager's 2 Hz refreshes are left out). A track that takes over a lost track's
+evidence (SORT re-identifies the same vehicle under a new id) is alerted again under its new id;
+``handed_over_from`` names the old ids.
+
+``annotate_path`` writes an mp4 of the clip drawn by :func:`draw_scan`: every track box (green vehicle,
+red EV-confirmed), the lamp band in which the lamps are measured (thin yellow) for tracks with lamp
+activity or an EV state, and a label with id, state, cues and body score.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from protocol.messages import AlertState, EvState, LightState
+from rsu.classify.body import load_body_classifier
+from rsu.classify.ev import EvAlertManager, TrackEvClassifier
+from rsu.detect import MotionDetector, OnnxDetector
+from rsu.frames import VideoSource
+from rsu.localize import LocalizedObject
+from rsu.service import FrameResult, RsuPipeline
+from rsu.track import FrameworkTracker, TrackSet
+
+REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+DEFAULT_DETECTOR = REAL_DATA / "yolox_nano" / "yolox_nano.onnx"
+"""The COCO YOLOX-Nano of ``../shared/data/real`` (real cameras; the project detector knows only the simulator)."""
+PROGRESS_EVERY_S = 2.0
+"""``progress`` is called every this many seconds of video."""
+LAMP_RECENT_S = 0.5
+"""A track whose lamps were lit this recently shows lamp activity (its band is drawn)."""
+
+GREEN, RED, YELLOW, ORANGE = (0, 200, 0), (0, 0, 255), (0, 230, 255), (0, 140, 255)
+
+
+@dataclass
+class TrackDecision:
+    """What the RSU decided about one track id (times in seconds of video)."""
+
+    track_id: int
+    state: str
+    """The highest state reached: ``candidate`` or ``confirmed``."""
+    first_seen_s: float
+    """When this id first appeared."""
+    confirmed_s: float | None = None
+    """When it was first confirmed: the time of its ``active`` alert; None for a candidate only."""
+    cues: tuple[str, ...] = ()
+    """The cues (flash, alternation, steady_bar, ev_body) that confirmed it, then any other cue that later kept
+    it confirmed, in the order first seen; empty for a candidate."""
+    body_score: float | None = None
+    """The latest mean EV-body score; None when the body classifier never scored it."""
+    light_state: str = LightState.UNKNOWN.value
+    flash_hz: float | None = None
+    last_seen_s: float = 0.0
+    last_box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    """xyxy pixels."""
+    handed_over_from: tuple[int, ...] = ()
+
+    @property
+    def is_ev(self) -> bool:
+        return self.confirmed_s is not None
+
+
+@dataclass(frozen=True)
+class AlertRecord:
+    t_s: float
+    track_id: int
+    state: str
+    """``active`` (onset) or ``cleared``."""
+    cues: tuple[str, ...]
+    body_score: float | None
+    clear_reason: str | None = None
+
+
+@dataclass
+class ScanResult:
+    video: str
+    frames: int
+    duration_s: float
+    wall_s: float
+    detector: str
+    body: str | None
+    tracks: list[TrackDecision] = field(default_factory=list)
+    alerts: list[AlertRecord] = field(default_factory=list)
+
+    @property
+    def ev_tracks(self) -> list[TrackDecision]:
+        return [t for t in self.tracks if t.is_ev]
+
+    @property
+    def first_alert_s(self) -> float | None:
+        return min((t.confirmed_s for t in self.ev_tracks), default=None)
+
+    def summary(self) -> dict:
+        return dict(type="summary", video=self.video, frames=self.frames, duration_s=_r(self.duration_s),
+                    ev_tracks=len(self.ev_tracks), candidate_tracks=len(self.tracks) - len(self.ev_tracks),
+                    alerts=sum(a.state == AlertState.ACTIVE for a in self.alerts),
+                    first_alert_s=_r(self.first_alert_s), wall_s=_r(self.wall_s),
+                    fps_processed=_r(self.frames / self.wall_s if self.wall_s > 0 else None),
+                    detector=self.detector, body=self.body)
+
+    def json_lines(self) -> list[str]:
+        """One JSON object per track decision, per alert transition, then the summary."""
+        rows = [dict(type="track", video=self.video, **_rounded(asdict(t))) for t in self.tracks]
+        rows += [dict(type="alert", video=self.video, **_rounded(asdict(a))) for a in self.alerts]
+        return [json.dumps(r) for r in (*rows, self.summary())]
+
+
+def _r(v: float | None, nd: int = 3) -> float | None:
+    return None if v is None else round(float(v), nd)
+
+
+def _rounded(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, float):
+            v = _r(v)
+        elif isinstance(v, tuple | list):
+            v = [_r(x, 1) if isinstance(x, float) else x for x in v]
+        out[k] = v
+    return out
+
+
+class ImageOnlyLocalizer:
+    """The pipeline's localiser for an uncalibrated clip: every track, in image space only (no position,
+    lane or speed: zeros)."""
+
+    def __init__(self) -> None:
+        self.first_s: dict[int, float] = {}
+
+    def update(self, tracks: TrackSet, timestamp_s: float, det_boxes=None) -> list[LocalizedObject]:
+        out = []
+        for k, tid in enumerate(int(t) for t in tracks.track_ids):
+            first = self.first_s.setdefault(tid, timestamp_s)
+            out.append(LocalizedObject(tid, 0.0, 0.0, 0.0, 0.0, None, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0),
+                                       tuple(float(v) for v in tracks.boxes[k]), int(tracks.class_ids[k]),
+                                       float(tracks.scores[k]), int(tracks.hits[k]), timestamp_s - first))
+        return out
+
+
+def make_detector(model: str | Path, threads: int | None = 1):
+    """``motion`` (MOG2 background subtraction: a fixed camera, no model) or a YOLOX-layout ONNX file."""
+    if str(model) == "motion":
+        return MotionDetector()
+    return OnnxDetector(model, intra_op_threads=threads)
+
+
+def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
+               max_s: float | None = None, annotate_path: str | Path | None = None, threads: int | None = 1,
+               progress: Callable[[float, int, int], None] | None = None) -> ScanResult:
+    """Run ``path`` (a video file) through the RSU's EV recognition; see the module docstring.
+
+    ``detector_model``: an ONNX detector or ``motion``; ``body``: ``default`` (models/ev_body.onnx),
+    ``none`` or a path; ``max_s``: stop after this much video; ``threads``: onnxruntime threads of the
+    detector and the body classifier; ``progress(t_s, frames, ev_tracks)``: called every
+    :data:`PROGRESS_EVERY_S` of video. Raises FileNotFoundError (video or model missing), ValueError
+    (no frame could be decoded, or the annotated video cannot be written) and rsu.frames.SourceError.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"video {str(path)!r} not found")
+    detector = make_detector(detector_model, threads)
+    body_clf = load_body_classifier(body, threads=threads)
+    kwargs = {} if body_clf is None else dict(above_fraction=body_clf.above_fraction)
+    clf = TrackEvClassifier(body=body_clf, **kwargs)
+    pipeline = RsuPipeline(detector, FrameworkTracker("B", 3, 3, 0.3), ImageOnlyLocalizer(), clf)
+    manager = EvAlertManager()
+    decisions: dict[int, TrackDecision] = {}
+    first_seen: dict[int, float] = {}
+    alerts: list[AlertRecord] = []
+    active: set[int] = set()
+    writer = None
+    frames, last_t, next_progress = 0, 0.0, PROGRESS_EVERY_S
+    t0 = time.perf_counter()
+    with VideoSource(path, read_timeout_s=30.0) as source:
+        try:
+            for frame in source:
+                now = float(frame.timestamp_s)
+                if max_s is not None and now > max_s:
+                    break
+                result = pipeline.process(frame)
+                _record(now, result, clf, first_seen, decisions)
+                for e in manager.update(now, result.objects, clf.evidence):
+                    if e.state == AlertState.ACTIVE and e.track_id in active:
+                        continue  # a 2 Hz refresh of an alert already raised
+                    (active.add if e.state == AlertState.ACTIVE else active.discard)(e.track_id)
+                    alerts.append(AlertRecord(now, e.track_id, e.state.value, tuple(c.value for c in e.cues),
+                                              e.body_score, e.clear_reason.value if e.clear_reason else None))
+                if annotate_path is not None:
+                    writer = writer or _open_writer(annotate_path, source.fps, frame.image.shape)
+                    writer.write(draw_scan(frame.image, result, clf, now))
+                frames, last_t = frames + 1, now
+                if progress is not None and now >= next_progress:
+                    progress(now, frames, sum(d.is_ev for d in decisions.values()))
+                    while next_progress <= now:
+                        next_progress += PROGRESS_EVERY_S
+        finally:
+            if writer is not None:
+                writer.release()
+    if frames == 0:
+        raise ValueError(f"{path}: no frame could be decoded (not a video, or an unsupported codec)")
+    tracks = sorted(decisions.values(), key=lambda d: (d.confirmed_s is None, d.confirmed_s or d.first_seen_s))
+    return ScanResult(str(path), frames, last_t, time.perf_counter() - t0, getattr(detector, "name", "detector"),
+                      None if body_clf is None else str(body), tracks, alerts)
+
+
+def _record(now: float, result: FrameResult, clf: TrackEvClassifier, first_seen: dict[int, float],
+            decisions: dict[int, TrackDecision]) -> None:
+    """Update the decision of every track of this frame that is (or was) candidate or confirmed."""
+    for obj in result.objects:
+        tid = int(obj.object_id)
+        first_seen.setdefault(tid, now)
+        d = decisions.get(tid)
+        if d is None and obj.ev_state not in (EvState.CANDIDATE, EvState.CONFIRMED):
+            continue
+        if d is None:
+            d = decisions[tid] = TrackDecision(tid, EvState.CANDIDATE.value, first_seen[tid])
+        info = clf.evidence(tid)
+        ev = info.evidence if info is not None else None
+        if obj.ev_state == EvState.CONFIRMED:
+            d.state = EvState.CONFIRMED.value
+            if d.confirmed_s is None:
+                d.confirmed_s = now
+            if ev is not None:
+                d.cues = (*d.cues, *(c.value for c in ev.cues if c.value not in d.cues))
+        if ev is not None:
+            d.body_score = ev.body_score if ev.body_score is not None else d.body_score
+            d.flash_hz = ev.flash_hz if ev.flash_hz is not None else d.flash_hz
+            d.light_state = ev.light_state.value
+            d.handed_over_from = tuple(info.handed_over_from)
+        d.last_seen_s = now
+        d.last_box = tuple(float(v) for v in obj.bbox_px)
+
+
+def _open_writer(path: str | Path, fps: float | None, shape: tuple[int, ...]) -> cv2.VideoWriter:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps or 15.0, (shape[1], shape[0]))
+    if not writer.isOpened():
+        raise ValueError(f"cannot write the annotated video {str(path)!r}")
+    return writer
+
+
+def draw_scan(image: np.ndarray, result: FrameResult, clf: TrackEvClassifier, now_s: float) -> np.ndarray:
+    """A copy of the frame with every track: box (green vehicle, red EV-confirmed), lamp band (thin yellow,
+    for tracks with lamp activity or an EV state) and a label ``id state cues body``; the time top left."""
+    out = image.copy()
+    h, w = out.shape[:2]
+    states = {int(o.object_id): o.ev_state for o in result.objects}
+    for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
+        tid = int(tid)
+        info = clf.evidence(tid)
+        ev = info.evidence if info is not None else None
+        state = states.get(tid) or (ev.state if ev is not None else EvState.NONE)
+        colour = RED if state == EvState.CONFIRMED else GREEN
+        x1, y1, x2, y2 = (int(round(float(v))) for v in box)
+        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 2)
+        lamps_active = ev is not None and (
+            ev.light_state in (LightState.FLASHING, LightState.STEADY)
+            or (ev.last_lamp_on_s is not None and now_s - ev.last_lamp_on_s <= LAMP_RECENT_S))
+        if lamps_active or state in (EvState.CANDIDATE, EvState.CONFIRMED):
+            band = clf.lamp_band(box, w, h)
+            if band is not None:
+                cv2.rectangle(out, band[:2], band[2:], YELLOW, 1)
+        label = f"{tid} {state.value}"
+        if ev is not None and ev.cues and state == EvState.CONFIRMED:
+            label += " " + "+".join(c.value for c in ev.cues)
+        if ev is not None and ev.body_score is not None:
+            label += f" b{ev.body_score:.2f}"
+        _text(out, label, (x1, max(12, y1 - 4)), RED if state == EvState.CONFIRMED else
+              ORANGE if state == EvState.CANDIDATE else GREEN)
+    _text(out, f"{now_s:6.2f} s", (4, 14), (255, 255, 255))
+    return out
+
+
+def _text(image: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, int, int]) -> None:
+    """Text with a dark outline, readable on any background."""
+    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
