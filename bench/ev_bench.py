@@ -93,8 +93,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from protocol.messages import AlertState  # noqa: E402
+from rsu.classify.body import load_body_classifier  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.ev import EvAlertManager, SingleVehicleGate, TrackEvClassifier  # noqa: E402
+from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig  # noqa: E402
 from rsu.detect import MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
@@ -129,7 +131,7 @@ def make_detector(kind: str):
 
 def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | None, min_visible_s: float,
             label_stride: int = 1, classifier_kwargs: dict | None = None, box_gate: bool = False,
-            crop_classifier: str = "none", keep_fraction: float = 1.0) -> dict:
+            crop_classifier: str = "none", keep_fraction: float = 1.0, ev_body: str = "default") -> dict:
     sc = load_scenario(scenario_name).with_overrides(seed=seed)
     world = World(sc, seed=seed)
     corridor = sc.corridor
@@ -149,7 +151,7 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
             kw["box_gate"] = SingleVehicleGate(r.camera, corridor.road)
         if crop_classifier != "none":
             kw["crop_score"] = load_classifier(crop_classifier)
-        clf = TrackEvClassifier(**kw)
+        clf = TrackEvClassifier(body=load_body_classifier(ev_body), **kw)
         pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), Localizer(corridor, r), clf)
         rsus.append((r.rsu_id, cam, pipe, clf, EvAlertManager()))
     zone = {r.rsu_id: (r.position, r.max_range_m) for r in corridor.rsus}
@@ -262,6 +264,9 @@ def main(argv=None) -> int:
                     help="override EvidenceConfig fields (tuning only), e.g. --set lamp_on_fraction=0.02")
     ap.add_argument("--box-gate", action="store_true",
                     help="skip lamp measurements on boxes wider than one vehicle (rsu.classify.ev.SingleVehicleGate)")
+    ap.add_argument("--ev-body", default="default",
+                    help="EV-body classifier fused with the lamps, as the RSU runs it: default (models/ev_body.onnx), "
+                         "none or PATH.onnx")
     ap.add_argument("--crop-classifier", default="none", help="none, cnn or hsv8-gb: per-crop score fused per track")
     ap.add_argument("--keep-fraction", type=float, default=1.0,
                     help="each RSU processes a frame with this probability (0.6: an RSU that keeps up with ~9 of "
@@ -275,14 +280,15 @@ def main(argv=None) -> int:
         args.scenarios, args.seeds, args.duration_s = ["rellis_ev_yield"], args.seeds[:1], 8.0
     t0 = time.perf_counter()
     runs = []
-    kwargs: dict = {} if args.lamp_min_value is None else {"min_value": args.lamp_min_value}
+    kwargs: dict = {} if args.lamp_min_value is None else {
+        "colours": dataclasses.replace(LAMP_BRIGHT, min_value=args.lamp_min_value)}
     if args.set:
         over = {k: float(v) if "." in v else int(v) for k, v in (item.split("=", 1) for item in args.set)}
         kwargs["config"] = dataclasses.replace(EvidenceConfig(), **over)
     for name in args.scenarios:
         for seed in args.seeds:
             r = run_one(name, seed, args.detector, args.duration_s, args.min_visible_s, args.label_stride,
-                        kwargs, args.box_gate, args.crop_classifier, args.keep_fraction)
+                        kwargs, args.box_gate, args.crop_classifier, args.keep_fraction, args.ev_body)
             runs.append(r)
             lat = r["lights_on_to_alert_s"]
             print(f"{name:22s} seed {seed:4d}: EV tracks found {r['found']}/{r['ev_tracks']}  false alerts "
@@ -301,7 +307,7 @@ def main(argv=None) -> int:
         decoy_lamp_vehicles=sum(r["decoy_lamp_vehicles"] for r in runs),
         decoy_lamp_modes=dict(sum((Counter(r["decoy_lamp_modes"]) for r in runs), Counter())),
         false_alerts_on_decoy_lamps=sum(r["false_alerts_on_decoy_lamps"] for r in runs),
-        detector=args.detector, box_gate=args.box_gate, crop_classifier=args.crop_classifier, seeds=args.seeds, scenarios=args.scenarios, duration_s=args.duration_s,
+        detector=args.detector, box_gate=args.box_gate, crop_classifier=args.crop_classifier, ev_body=args.ev_body, seeds=args.seeds, scenarios=args.scenarios, duration_s=args.duration_s,
         fps=15.0, keep_fraction=args.keep_fraction, runtime_s=time.perf_counter() - t0)
     print(f"track recall {figures['track_recall']}  false alerts {figures['false_alerts']}  "
           f"median lights-on->alert {figures['lights_on_to_alert_median_s']}  decoy lamp vehicles seen "

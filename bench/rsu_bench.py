@@ -56,8 +56,11 @@ from dataclasses import dataclass, replace  # noqa: E402
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort  # noqa: E402
 from models.evaluate_detector import ZONE_M  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
+from rsu.classify.body import DEFAULT_BODY_MODEL, EvBodyClassifier  # noqa: E402
+from rsu.classify.ev import TrackEvClassifier  # noqa: E402
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
+from rsu.frames import Frame as RsuFrame  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.localize import GroundProjector, Localizer  # noqa: E402
 from rsu.track import FrameworkTracker, SortTracker, iou_matrix  # noqa: E402
@@ -138,10 +141,11 @@ def detector_fps(detector: Detector, images: list[np.ndarray]) -> float:
 
 
 def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector, tracker: SortTracker,
-                 localizer: Localizer) -> dict[str, float]:
+                 localizer: Localizer, classifier: Callable | None = None) -> dict[str, float]:
     """Per-stage and end-to-end fps over (image, timestamp_s) frames; the source's own time counts
-    towards end-to-end (it is the ``source`` stage)."""
-    stage_s = {"source": 0.0, "detect": 0.0, "track": 0.0, "localize": 0.0}
+    towards end-to-end (it is the ``source`` stage). With a ``classifier`` (the RSU's EV hook,
+    ``(frame, tracks) -> ...``), it runs after SORT and its time is the ``classify`` stage."""
+    stage_s = {"source": 0.0, "detect": 0.0, "track": 0.0, "classify": 0.0, "localize": 0.0}
     n = 0
     it = iter(frames)
     t_start = time.perf_counter()
@@ -157,12 +161,16 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
         t2 = time.perf_counter()
         tracks = tracker.update(det.boxes, det.scores, det.classes)
         t3 = time.perf_counter()
+        if classifier is not None:
+            classifier(RsuFrame(image, stamp, n, "bench"), tracks)
+        t3c = time.perf_counter()
         localizer.update(tracks, stamp, det.boxes)
         t4 = time.perf_counter()
         stage_s["source"] += t1 - t0
         stage_s["detect"] += t2 - t1
         stage_s["track"] += t3 - t2
-        stage_s["localize"] += t4 - t3
+        stage_s["classify"] += t3c - t3
+        stage_s["localize"] += t4 - t3c
         n += 1
     total = time.perf_counter() - t_start
     cpu = time.process_time() - cpu_start
@@ -170,6 +178,34 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
     out["end_to_end_fps"] = n / total if total > 0 else float("nan")
     out["end_to_end_fps_cpu"] = n / cpu if cpu > 0 else float("nan")
     out["frames"] = n
+    return out
+
+
+def body_crop_ms(body: EvBodyClassifier, n: int, seed: int = 0) -> float:
+    """Median ms of one EV-body classification of one crop (sizes of vehicle boxes at 20-100 m), one core."""
+    rng = np.random.default_rng(seed)
+    crops = [rng.integers(0, 256, (int(rng.integers(40, 200)), int(rng.integers(40, 260)), 3), dtype=np.uint8)
+             for _ in range(16)]
+    body(crops[0])
+    times = []
+    for k in range(n):
+        t0 = time.perf_counter()
+        body(crops[k % len(crops)])
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * float(np.median(times))
+
+
+def ev_classifier_cost(frames: list, make_detector: Callable[[], Detector], corridor, rsu_id: str,
+                       body: EvBodyClassifier) -> dict[str, float]:
+    """Processed fps (CPU time, one core) of detect -> SORT -> EV classifier -> localise on the dense clip,
+    with the lamp evidence alone and with the EV-body classifier fused in (issue 17), and the drop."""
+    out: dict[str, float] = {}
+    for name, clf in (("lamps", TrackEvClassifier()), ("lamps_and_body", TrackEvClassifier(body=body))):
+        r = pipeline_fps(((f.image, f.timestamp_s) for f in frames), make_detector(), SortTracker(),
+                         Localizer(corridor, rsu_id), clf)
+        out[f"fps_{name}"] = r["end_to_end_fps_cpu"]
+        out[f"classify_fps_{name}"] = r["classify_fps"]
+    out["ev_body_fps_drop"] = 1.0 - out["fps_lamps_and_body"] / out["fps_lamps"]
     return out
 
 
@@ -391,6 +427,21 @@ def main(argv: list[str] | None = None) -> int:
     figures["pipeline_stages"] = stages
     figures["pipeline_frames"] = f"{clip.name}: {len(clip.frames)} sim renders 1280x720, " \
                                  f"{n_vehicles:.1f} labelled vehicles per frame"
+
+    # ---------------------------------------------------------------- EV-body classifier cost (issue 17)
+    if DEFAULT_BODY_MODEL.is_file():
+        body = EvBodyClassifier(DEFAULT_BODY_MODEL, threads=1)
+        figures["crop_ms"] = body_crop_ms(body, 30 if quick else 300)
+        main_make = sim_detectors().get("project") or next(iter(sim_detectors().values()))
+        cost = ev_classifier_cost(clip.frames, main_make, corridor, rsu_id, body)
+        figures["ev_classifier_cost"] = cost
+        figures["ev_body_fps_drop"] = cost["ev_body_fps_drop"]
+        print(f"EV-body classifier ({DEFAULT_BODY_MODEL.name}): {figures['crop_ms']:.2f} ms per crop (median, one "
+              f"core); dense clip processed at {cost['fps_lamps']:.1f} fps with lamp evidence alone, "
+              f"{cost['fps_lamps_and_body']:.1f} fps with the body classifier fused in: a drop of "
+              f"{100 * cost['ev_body_fps_drop']:.1f} %")
+    else:
+        print(f"EV-body classifier: {DEFAULT_BODY_MODEL} absent, skipped")
 
     # ---------------------------------------------------------------- MOTA / IDF1 and localisation on sim renders
     cams = ["rsu1"] if quick else [r.rsu_id for r in corridor.rsus]

@@ -43,6 +43,7 @@ from protocol.clock import SimClock
 from protocol.corridor import Corridor
 from protocol.messages import VehicleState
 from protocol.transport import DsrcLink, LocalBus, Transport
+from rsu.classify.body import load_body_classifier
 from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import PROJECT_MODEL, MotionDetector, vehicle_detector
 from rsu.frames import Frame
@@ -161,7 +162,8 @@ class CorridorLockstep:
         if self.config.hazards:  # an RSU that has been running: its background is the empty road
             hazards = HazardDetector(self.corridor.road, loc.mapper.to_ground, camera=r.camera)
             hazards.prime(empty)
-        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, TrackEvClassifier(), hazards=hazards)
+        clf = TrackEvClassifier(body=load_body_classifier("default"))  # as iea-rsu runs it (--ev-body default)
+        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, clf, hazards=hazards)
         annotate = None
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)

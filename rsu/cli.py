@@ -14,6 +14,7 @@ from protocol.corridor import CorridorError, load_corridor
 from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.security import TrustList, load_signer
 from protocol.transport import ZenohSettings, ZenohTransport
+from rsu.classify.body import load_body_classifier
 from rsu.classify.classifiers import load_classifier
 from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
 from rsu.classify.evaluation import CLASSIFIERS
@@ -77,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-crop-classifier", default="none",
                     help="per-crop EV probability fused into each track's evidence: none, cnn "
                          "(models/ev_cnn.onnx), hsv8-gb (models/ev_hsv8_gb.onnx) or PATH.onnx[:FEATURE]")
+    ap.add_argument("--ev-body", default="default",
+                    help="EV-body classifier trained on real vehicles (issue 17): default (models/ev_body.onnx), "
+                         "none, or PATH.onnx. It scores a track only while its lamps are lit, a few times a second; "
+                         "a steady lit roof bar raises an alert only with a confident EV body")
     ap.add_argument("--ev-box-gate", action="store_true",
                     help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
                          "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
@@ -245,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.ev_classifier == "lamps":
             crop_score = None if args.ev_crop_classifier == "none" else load_classifier(args.ev_crop_classifier)
             gate = SingleVehicleGate(rsu.camera, corridor.road) if args.ev_box_gate else None
-            classifier = TrackEvClassifier(crop_score=crop_score, box_gate=gate)
+            body = load_body_classifier(args.ev_body)
+            classifier = TrackEvClassifier(crop_score=crop_score, body=body, box_gate=gate)
         hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
                    if args.hazards == "static" else None)
         if hazards is not None and args.hazard_background:

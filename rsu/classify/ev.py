@@ -40,11 +40,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState, LightState
-from rsu.classify.lamps import REAL_VIDEO_LAMPS, LampColours
+from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
 from rsu.track import associate
 
 CropScore = Callable[[np.ndarray], float]
+DEFAULT_ABOVE_FRACTION = 0.25
+"""How far a track's crop grows above its box, as a share of the box height, when no body classifier says."""
 
 
 def clip_box(box: Iterable[float], width: int, height: int) -> tuple[int, int, int, int] | None:
@@ -166,7 +168,7 @@ class TrackEvClassifier:
 
     def __init__(self, config: EvidenceConfig | None = None, crop_score: CropScore | None = None, *,
                  body: CropScore | None = None, body_period_s: float = 0.25, top_fraction: float = 0.4,
-                 colours: LampColours = REAL_VIDEO_LAMPS, above_fraction: float = 0.25, min_box_px: float = 40.0,
+                 colours: LampColours = LAMP_BRIGHT, bar_colours: LampColours = BAR_COLOURED, above_fraction: float | None = None, min_box_px: float = 40.0,
                  forget_after_s: float = 2.0, max_tracks: int = 512,
                  box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
                  handover_after_s: float = 0.5, handover_iou: float = 0.3) -> None:
@@ -183,6 +185,8 @@ class TrackEvClassifier:
             self.config = dataclasses.replace(self.config, body_threshold=float(body.threshold))
         self.crop_score = crop_score
         self.body = body
+        if above_fraction is None:  # as the body classifier was trained (its metadata), else 0.25
+            above_fraction = float(getattr(body, "above_fraction", DEFAULT_ABOVE_FRACTION))
         if body_period_s < 0:
             raise ValueError("body_period_s must be >= 0")
         self.body_period_s = float(body_period_s)
@@ -191,9 +195,7 @@ class TrackEvClassifier:
         self.above_fraction = above_fraction
         # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
         self.band_fraction = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
-        self.lamp_kwargs = dict(top_fraction=self.band_fraction, min_value=colours.min_value,
-                                min_saturation=colours.min_saturation, white_min_value=colours.white_min_value,
-                                white_max_saturation=colours.white_max_saturation)
+        self.colours, self.bar_colours = colours, bar_colours
         self.min_box_px = float(min_box_px)
         self.box_gate = box_gate
         self.forget_after_s = forget_after_s
@@ -217,24 +219,28 @@ class TrackEvClassifier:
         return b[0], b[1], b[2], b[1] + max(1, int(round((b[3] - b[1]) * self.band_fraction)))
 
     def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
-        lamps, score, _ = self._measure(image, box)
+        """Lamp-bright measurement of a box's band and the crop score (when a crop classifier is set)."""
+        lamps, _, score, _ = self._measure(image, box)
         return lamps, score
 
-    def _measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None, np.ndarray | None]:
+    def _measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, LampMeasurement, float | None,
+                                                        np.ndarray | None]:
+        """(lamp-bright, light-bar colour) measurements of the band, the crop score and the crop."""
         bounds = self.crop_bounds(box, image.shape[1], image.shape[0])
         if bounds is None:
-            return LampMeasurement(0.0, 0.0), None, None
+            return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
-        return measure_lamps(crop, **self.lamp_kwargs), score, crop
+        return (measure_lamps(crop, self.band_fraction, colours=self.colours),
+                measure_lamps(crop, self.band_fraction, colours=self.bar_colours), score, crop)
 
-    def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, crop: np.ndarray | None) -> float | None:
-        """The EV-body score of this frame's crop, when the track shows lamp activity and the last score is
-        at least ``body_period_s`` old; else None."""
-        if self.body is None or crop is None or lamps.coloured < self.config.lamp_on_fraction:
+    def _body_score(self, info: TrackInfo, now_s: float, bar: LampMeasurement, crop: np.ndarray | None) -> float | None:
+        """The EV-body score of this frame's crop, when the track shows light-bar colour and the last score
+        is at least ``body_period_s`` old; else None."""
+        if self.body is None or crop is None or bar.coloured < self.config.bar_on_fraction:
             return None
         if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
             return None
@@ -266,8 +272,8 @@ class TrackEvClassifier:
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                lamps, score, crop = self._measure(image, box)
-                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, crop))
+                lamps, bar, score, crop = self._measure(image, box)
+                state = ev.update(now, lamps, score, self._body_score(info, now, bar, crop), bar)
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out

@@ -8,10 +8,17 @@ in the middle; tail, brake and turn lamps and hazard flashers sit at the corners
 lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and gives no EV evidence
 (:class:`rsu.classify.temporal.TrackEvidence`).
 
-Two colour definitions are used: the simulator's clean renders saturate a lit lamp (V >= 240,
-S >= 120), while compressed real video washes a lit bar out to S ~ 90-120 and V ~ 180-240 (issue 5's
-frame-by-frame measurements); :data:`REAL_VIDEO_LAMPS` is the looser definition used on real cameras,
-which is safe only together with the corner-lamp rejection and the EV-body classifier.
+Two colour definitions are used. :data:`LAMP_BRIGHT` (HSV: V >= 240, S >= 120) is a lamp that
+saturates the sensor, as every lit lamp does in the simulator's renders; a flash pattern in it is strong
+enough to confirm an EV alone. :data:`BAR_COLOURED` is what a real light bar looks like in compressed
+video: a red or blue *chroma* (R - max(G, B) or B - max(R, G) >= 50, the channel >= 100), lit or only
+dimly lit. Measured frame by frame (issue 5 and issue 17; the escort, Japanese-ambulance and NYC-police
+clips are the tuning clips of this definition): the escort's bars have S ~ 100-115; the Japanese
+ambulance's lit lamps are pink-red points (RGB ~ (233, 101, 120), (255, 164, 195): hue 160-170, S ~
+90-140) on a dark-red dome (R ~ 120-150); the NYC police bars read as dark red domes (R ~ 100-180, never
+lamp-bright) at 24 fps. Neither HSV test sees those; the chroma test does. It also sees red and blue
+paint, so it counts only together with a confident EV body, a compact central blob (not paint over the
+body) and the corner-lamp rejection (:class:`rsu.classify.temporal.TrackEvidence`).
 
 :func:`lamp_runs` cuts a lamp signal into lit runs with hysteresis and :func:`flash_pattern` names the
 cue a window of runs shows: ``flash`` or ``alternation``.
@@ -44,18 +51,23 @@ class LampMeasurement:
 
 @dataclass(frozen=True)
 class LampColours:
-    """What counts as a lit lamp pixel (OpenCV HSV: H 0-180, S and V 0-255)."""
+    """What counts as a lamp pixel. ``hsv``: OpenCV HSV (H 0-180, S and V 0-255) with ``min_value`` and
+    ``min_saturation``; ``chroma``: the red (blue) channel at least ``min_value`` and at least ``min_chroma``
+    above the larger of the other two."""
 
+    kind: str = "hsv"
     min_value: int = 240
     min_saturation: int = 120
+    min_chroma: int = 50
     white_min_value: int = 250
     white_max_saturation: int = 40
 
 
-SIM_LAMPS = LampColours()
-"""Clean renders: a lit lamp saturates (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
-REAL_VIDEO_LAMPS = LampColours(min_value=190, min_saturation=90)
-"""Compressed real video (module docstring)."""
+LAMP_BRIGHT = LampColours()
+"""A lamp that saturates the sensor (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
+BAR_COLOURED = LampColours(kind="chroma", min_value=100, min_chroma=50)
+"""A red or blue light bar in compressed real video, lit or dim (module docstring)."""
+SIM_LAMPS, REAL_VIDEO_LAMPS = LAMP_BRIGHT, BAR_COLOURED
 
 
 def _centre_share(mask: np.ndarray) -> float:
@@ -68,19 +80,27 @@ def _centre_share(mask: np.ndarray) -> float:
 
 
 def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
-                  min_saturation: int = 120, *, white_min_value: int = 250,
-                  white_max_saturation: int = 40) -> LampMeasurement:
-    """Fractions of the top ``top_fraction`` band's pixels that are lamp-bright red / blue / white, and the
-    central share of the red and blue ones (module docstring)."""
+                  min_saturation: int = 120, *, white_min_value: int = 250, white_max_saturation: int = 40,
+                  colours: LampColours | None = None) -> LampMeasurement:
+    """Fractions of the top ``top_fraction`` band's pixels that are red / blue / white lamp pixels, and the
+    central share of the red and blue ones (module docstring). ``colours`` overrides the keyword thresholds."""
     if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
         return LampMeasurement(0.0, 0.0)
+    c = colours or LampColours(min_value=min_value, min_saturation=min_saturation, white_min_value=white_min_value,
+                               white_max_saturation=white_max_saturation)
     rows = max(1, int(round(crop_bgr.shape[0] * top_fraction)))
-    hsv = cv2.cvtColor(np.ascontiguousarray(crop_bgr[:rows]), cv2.COLOR_BGR2HSV)
+    band = np.ascontiguousarray(crop_bgr[:rows])
+    hsv = cv2.cvtColor(band, cv2.COLOR_BGR2HSV)
     h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    bright = (s >= min_saturation) & (v >= min_value)
-    red = bright & ((h <= 10) | (h >= 170))
-    blue = bright & (h >= 100) & (h <= 130)
-    white = (v >= white_min_value) & (s <= white_max_saturation)
+    if c.kind == "chroma":
+        b, g, r = (band[..., i].astype(np.int16) for i in range(3))
+        red = (r >= c.min_value) & (r - np.maximum(g, b) >= c.min_chroma)
+        blue = (b >= c.min_value) & (b - np.maximum(r, g) >= c.min_chroma)
+    else:
+        bright = (s >= c.min_saturation) & (v >= c.min_value)
+        red = bright & ((h <= 10) | (h >= 170))
+        blue = bright & (h >= 100) & (h <= 130)
+    white = (v >= c.white_min_value) & (s <= c.white_max_saturation)
     n = float(h.size)
     return LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
                            float(np.count_nonzero(white)) / n, _centre_share(red), _centre_share(blue))

@@ -4,9 +4,13 @@ Three sources (README beside the data), one list of :class:`CropSample`:
 
 - ``av_emergency_crops``: vehicle photos with ``labels.csv`` (1 = emergency). Byte-identical files are
   one photo: the group is the file's SHA-1, so duplicates never straddle the split (first label wins).
-- ``openimages_vehicles``: Open Images photos with YOLO boxes; each box is a crop (class 0 Ambulance =
-  EV, Bus / Car / Motorcycle / Truck = not). Roboflow stores each train photo twice (an augmented copy);
-  the group is the source id, the name before ``.rf.``, over all three of its folders.
+- ``openimages_vehicles``: Open Images photos with YOLO boxes; each box is a crop: class 0 Ambulance = EV,
+  Bus and Motorcycle = not. Car and Truck boxes are left out: Open Images' five classes have no police
+  car or fire engine, so those are labelled Car or Truck there (seen among the first model's confident
+  "false positives": a red fire engine, police SUVs), while ``av_emergency_crops`` labels them emergency;
+  as negatives they would teach the model the opposite of the other source. Boxes under ``MIN_BOX_PX``
+  on a side are left out too. Roboflow stores each train photo twice (an augmented copy); the group is
+  the source id, the name before ``.rf.``, over all three of its folders.
 - ``indian_ev_photos``: web photos named by class (ambulance, fire truck, police), all EV, whole image.
 
 :func:`split_by_group` cuts the groups, not the samples, into train / val / test with a seeded hash,
@@ -28,7 +32,8 @@ import numpy as np
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp")
 OPENIMAGES_EV_CLASSES = frozenset({0})  # Ambulance; 1 Bus, 2 Car, 3 Motorcycle, 4 Truck
-MIN_BOX_PX = 24  # smaller Open Images boxes are too few pixels to show a body (the RSU's limit is 40)
+OPENIMAGES_NOT_EV_CLASSES = frozenset({1, 3})  # Car and Truck include police cars and fire engines: not used
+MIN_BOX_PX = 40  # the RSU measures no box smaller than this (TrackEvClassifier.min_box_px)
 SPLITS = ("train", "val", "test")
 
 
@@ -87,6 +92,8 @@ def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX) -> list[CropSample
                 if len(parts) != 5:
                     continue
                 cls = int(parts[0])
+                if cls not in OPENIMAGES_EV_CLASSES | OPENIMAGES_NOT_EV_CLASSES:
+                    continue
                 cx, cy, bw, bh = (float(v) for v in parts[1:])
                 x1, y1 = int(round((cx - bw / 2) * w)), int(round((cy - bh / 2) * h))
                 x2, y2 = int(round((cx + bw / 2) * w)), int(round((cy + bh / 2) * h))

@@ -67,6 +67,8 @@ import numpy as np
 
 from protocol.messages import EvCue, EvState, LightState
 from rsu.classify.lamps import (  # noqa: F401  (re-exported: the lamp signal API lived here before)
+    BAR_COLOURED,
+    LAMP_BRIGHT,
     LampMeasurement,
     LampRun,
     blink_transitions,
@@ -111,6 +113,10 @@ class EvidenceConfig:
     confirm_level: float = 2.0
     clear_after_s: float = 2.0
     max_history: int = 256
+    bar_on_fraction: float = 0.005
+    """A light-bar colour (the chroma test of :data:`rsu.classify.lamps.BAR_COLOURED`) counts as on above this
+    share of the band: a roof bar seen by an elevated camera fills 0.7-3 % of it (measured on the tuning
+    clips named in :mod:`rsu.classify.lamps`); the cues it gives count only with a confident EV body."""
     centre_min_share: float = 0.5
     """A lamp colour counts only when at least this share of its lit pixels lies in the central half of the
     band's width (median over its lit samples): a roof bar does, corner lamps (tail, turn, hazard) do not."""
@@ -124,6 +130,10 @@ class EvidenceConfig:
     """EV-body score that counts as confident (the classifier's own threshold, from its model metadata)."""
     body_min_scores: int = 2
     body_window: int = 6
+
+
+SIGNALS = tuple(f"{k}_{c}{x}" for k in ("bright", "bar") for c in ("red", "blue") for x in ("", "_centre"))
+"""Per-frame signals a track keeps: lamp-bright and light-bar fractions of red and blue, and their centre shares."""
 
 
 def _logit(p: float) -> float:
@@ -149,25 +159,25 @@ class TrackEvidence:
     """The cues that confirmed the track (refreshed while it stays confirmed); empty before."""
     body_scores: deque = field(default_factory=lambda: deque(maxlen=32))
     _t: deque = field(default_factory=deque)
-    _red: deque = field(default_factory=deque)
-    _blue: deque = field(default_factory=deque)
-    _red_centre: deque = field(default_factory=deque)
-    _blue_centre: deque = field(default_factory=deque)
+    _signals: dict = field(default_factory=lambda: {k: deque() for k in SIGNALS})
 
-    def _series(self, now_s: float, window_s: float):
+    def _series(self, now_s: float, window_s: float, kind: str = "bright"):
+        """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind."""
         t = np.fromiter(self._t, float)
         keep = t >= now_s - window_s
-        out = {c: (np.fromiter(x, float)[keep], np.fromiter(cx, float)[keep]) for c, x, cx in
-               (("red", self._red, self._red_centre), ("blue", self._blue, self._blue_centre))}
+        sig = self._signals
+        out = {c: (np.fromiter(sig[f"{kind}_{c}"], float)[keep], np.fromiter(sig[f"{kind}_{c}_centre"], float)[keep])
+               for c in ("red", "blue")}
         return t[keep], out
 
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
         lit = x >= on_level
         return bool(lit.any()) and float(np.median(centre[lit])) >= self.config.centre_min_share
 
-    def _flash_cue(self, now_s: float) -> EvCue | None:
+    def _flash_cue(self, now_s: float, kind: str = "bright") -> EvCue | None:
         cfg = self.config
-        t, series = self._series(now_s, cfg.flash_window_s)
+        on_fraction = cfg.lamp_on_fraction if kind == "bright" else cfg.bar_on_fraction
+        t, series = self._series(now_s, cfg.flash_window_s, kind)
         if len(t) < 3:
             return None
         frame_s = float(np.median(np.diff(t)))
@@ -175,9 +185,9 @@ class TrackEvidence:
         best_hz = None
         for colour, (x, centre) in series.items():
             peak = float(x.max())
-            if peak < cfg.lamp_on_fraction:
+            if peak < on_fraction:
                 continue
-            on_level = max(cfg.lamp_on_fraction, 0.5 * peak)
+            on_level = max(on_fraction, 0.5 * peak)
             if not self._central(x, centre, on_level):
                 continue  # lit at the corners of the body: tail, brake, turn or hazard lamps
             rs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
@@ -193,20 +203,20 @@ class TrackEvidence:
                     del runs[colour]
                     continue
                 best_hz = hz if best_hz is None else max(best_hz, hz)
-        if best_hz is not None:
+        if best_hz is not None and kind == "bright":
             self.flash_hz = best_hz
         cue = flash_pattern(runs.get("red", []), runs.get("blue", []), cfg)
         return EvCue(cue) if cue else None
 
     def _steady_bar(self, now_s: float) -> bool:
         cfg = self.config
-        t, series = self._series(now_s, cfg.steady_window_s)
+        t, series = self._series(now_s, cfg.steady_window_s, "bar")
         if len(t) < 3:
             return False
         for x, centre in series.values():
-            lit = x >= cfg.lamp_on_fraction
+            lit = x >= cfg.bar_on_fraction
             if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
-                    and self._central(x, centre, cfg.lamp_on_fraction)):
+                    and self._central(x, centre, cfg.bar_on_fraction)):
                 return True
         return False
 
@@ -224,26 +234,30 @@ class TrackEvidence:
         return b is not None and len(self.body_scores) >= self.config.body_min_scores and b >= self.config.body_threshold
 
     def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None,
-               body_score: float | None = None) -> EvState:
+               body_score: float | None = None, bar: LampMeasurement | None = None) -> EvState:
+        """One frame: ``lamps`` measured with the lamp-bright colours, ``bar`` with the light-bar colours
+        (:mod:`rsu.classify.lamps`; default: ``lamps``), the optional crop score and EV-body score."""
         cfg = self.config
+        bar = lamps if bar is None else bar
         self._t.append(now_s)
-        self._red.append(lamps.red)
-        self._blue.append(lamps.blue)
-        self._red_centre.append(lamps.red_centre)
-        self._blue_centre.append(lamps.blue_centre)
+        for kind, m in (("bright", lamps), ("bar", bar)):
+            for c in ("red", "blue"):
+                self._signals[f"{kind}_{c}"].append(getattr(m, c))
+                self._signals[f"{kind}_{c}_centre"].append(getattr(m, f"{c}_centre"))
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
-            for d in (self._t, self._red, self._blue, self._red_centre, self._blue_centre):
+            self._t.popleft()
+            for d in self._signals.values():
                 d.popleft()
         self.frames += 1
         if body_score is not None:
             self.body_scores.append(float(np.clip(body_score, 0.0, 1.0)))
-        flash = self._flash_cue(now_s)
+        flash = self._flash_cue(now_s, "bright")
         if flash is not None:
             self.last_flash_s = now_s
-        lamp_cue = flash if flash is not None else EvCue.STEADY_BAR if self._steady_bar(now_s) else None
+        lamp_cue = flash or self._flash_cue(now_s, "bar") or (EvCue.STEADY_BAR if self._steady_bar(now_s) else None)
         if lamp_cue is not None:
             self.last_lamp_cue_s = now_s
-        if lamps.coloured >= cfg.lamp_on_fraction:
+        if lamps.coloured >= cfg.lamp_on_fraction or bar.coloured >= cfg.bar_on_fraction:
             self.last_lamp_on_s = now_s
         step = cfg.flash_gain if flash is not None else -cfg.decay
         if crop_score is not None:
