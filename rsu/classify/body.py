@@ -7,8 +7,10 @@ takes of a track (the box grown upwards by ``above_fraction`` of its height, whe
 sits) and returns p(EV). It knows the vehicle's *type*, not its lamps: the per-track fusion
 (:class:`rsu.classify.temporal.TrackEvidence`) alerts only on a confident body *and* lamp activity.
 
-The decision threshold (chosen on the validation split) and ``above_fraction`` are read from the ONNX
-metadata, so the model file carries its own operating point.
+Two operating points are read from the ONNX metadata, both chosen on the validation split:
+``threshold`` (EV vs not for a single crop: min(precision, recall) highest) and ``confident_threshold``
+(the lowest with precision >= 0.95), which the per-track fusion requires before a steady light bar
+counts; and ``above_fraction``. The model file carries its own operating points.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ DEFAULT_BODY_MODEL = MODELS_DIR / "ev_body.onnx"
 
 
 class EvBodyClassifier(CnnClassifier):
-    """p(EV body) per crop from ``models/ev_body.onnx``; ``threshold`` and ``above_fraction`` from its metadata."""
+    """p(EV body) per crop from ``models/ev_body.onnx``; ``threshold``, ``confident_threshold`` and
+    ``above_fraction`` from its metadata."""
 
     def __init__(self, path: str | Path = DEFAULT_BODY_MODEL, *, threads: int | None = 1,
                  threshold: float | None = None) -> None:
@@ -32,6 +35,7 @@ class EvBodyClassifier(CnnClassifier):
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.threshold = float(threshold if threshold is not None else meta.get("ev_threshold", 0.5))
+            self.confident_threshold = float(meta.get("confident_threshold", max(self.threshold, 0.5)))
             self.above_fraction = float(meta.get("above_fraction", 0.25))
         except ValueError as exc:
             raise ValueError(f"{path}: bad ev_threshold / above_fraction metadata: {exc}") from exc

@@ -181,8 +181,9 @@ class TrackEvClassifier:
         SORT's 1 missed frame plus 3 hits before a new id is reported is 4-5 frames at 15 fps)."""
         self.handover_iou = float(handover_iou)
         self.config = config or EvidenceConfig()
-        if body is not None and getattr(body, "threshold", None) is not None and config is None:
-            self.config = dataclasses.replace(self.config, body_threshold=float(body.threshold))
+        confident = getattr(body, "confident_threshold", None)
+        if confident is not None and config is None:  # the body model's own confident operating point
+            self.config = dataclasses.replace(self.config, body_threshold=float(confident))
         self.crop_score = crop_score
         self.body = body
         if above_fraction is None:  # as the body classifier was trained (its metadata), else 0.25
@@ -197,6 +198,9 @@ class TrackEvClassifier:
         self.band_fraction = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
         self.colours, self.bar_colours = colours, bar_colours
         self.min_box_px = float(min_box_px)
+        self.border_px = 2.0
+        """A box whose side is within this of the image's left or right edge (or whose lamp band leaves the
+        top) is cut by the border and not measured."""
         self.box_gate = box_gate
         self.forget_after_s = forget_after_s
         self.max_tracks = max_tracks
@@ -223,19 +227,31 @@ class TrackEvClassifier:
         lamps, _, score, _ = self._measure(image, box)
         return lamps, score
 
-    def _measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, LampMeasurement, float | None,
-                                                        np.ndarray | None]:
-        """(lamp-bright, light-bar colour) measurements of the band, the crop score and the crop."""
+    def _measure(self, image: np.ndarray, box, others: np.ndarray | None = None
+                 ) -> tuple[LampMeasurement, LampMeasurement, float | None, np.ndarray | None]:
+        """(lamp-bright, light-bar colour) measurements of the band, the crop score and the crop. ``others``:
+        the other tracks' boxes; the crops of those nearer the camera (their bottom edge lower in the image)
+        are left out of this band, since a nearer vehicle occludes this one, and its roof bar, seen in front
+        of the far vehicle, is not the far vehicle's (dense traffic, thesis 2.3's merged boxes)."""
         bounds = self.crop_bounds(box, image.shape[1], image.shape[0])
         if bounds is None:
             return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
+        ignore = None
+        if others is not None and len(others):
+            for o in others[others[:, 3] > float(box[3])]:
+                ob = self.crop_bounds(o, image.shape[1], image.shape[0])
+                if ob is None or ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
+                    continue
+                if ignore is None:
+                    ignore = np.zeros(crop.shape[:2], bool)
+                ignore[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
-        return (measure_lamps(crop, self.band_fraction, colours=self.colours),
-                measure_lamps(crop, self.band_fraction, colours=self.bar_colours), score, crop)
+        return (measure_lamps(crop, self.band_fraction, colours=self.colours, ignore=ignore),
+                measure_lamps(crop, self.band_fraction, colours=self.bar_colours, ignore=ignore), score, crop)
 
     def _body_score(self, info: TrackInfo, now_s: float, bar: LampMeasurement, crop: np.ndarray | None) -> float | None:
         """The EV-body score of this frame's crop, when the track shows light-bar colour and the last score
@@ -266,17 +282,26 @@ class TrackEvClassifier:
             info.box = box.copy()
             info.last_seen_s = now
             ev = info.evidence
-            if min(box[2] - box[0], box[3] - box[1]) < self.min_box_px or (
+            if min(box[2] - box[0], box[3] - box[1]) < self.min_box_px or self._cut_by_border(box, image) or (
                     self.box_gate is not None and not self.box_gate(box, image.shape[1], image.shape[0])):
                 # too few pixels to see a light bar (a far vehicle), or a box too big for one vehicle
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                lamps, bar, score, crop = self._measure(image, box)
+                others = np.delete(boxes, ids.index(tid), axis=0)
+                lamps, bar, score, crop = self._measure(image, box, others)
                 state = ev.update(now, lamps, score, self._body_score(info, now, bar, crop), bar)
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out
+
+    def _cut_by_border(self, box, image: np.ndarray) -> bool:
+        """Does the image border cut the box's sides or its lamp band (grown above the box)? Then only part of
+        the vehicle and of its roof is in view: neither the lamp band nor the body crop means what it should."""
+        x1, y1, x2, y2 = (float(v) for v in box)
+        h, w = image.shape[:2]
+        top = y1 - self.above_fraction * (y2 - y1)
+        return x1 < self.border_px or x2 > w - self.border_px or top < 0.0
 
     def _hand_over(self, now_s: float, ids: list[int], boxes: np.ndarray) -> None:
         """New ids take over the evidence of recently lost tracks they overlap (module docstring)."""

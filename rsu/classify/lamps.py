@@ -81,9 +81,10 @@ def _centre_share(mask: np.ndarray) -> float:
 
 def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
                   min_saturation: int = 120, *, white_min_value: int = 250, white_max_saturation: int = 40,
-                  colours: LampColours | None = None) -> LampMeasurement:
+                  colours: LampColours | None = None, ignore: np.ndarray | None = None) -> LampMeasurement:
     """Fractions of the top ``top_fraction`` band's pixels that are red / blue / white lamp pixels, and the
-    central share of the red and blue ones (module docstring). ``colours`` overrides the keyword thresholds."""
+    central share of the red and blue ones (module docstring). ``colours`` overrides the keyword thresholds;
+    ``ignore`` (a boolean mask of the crop) leaves pixels out: those of nearer vehicles that occlude it."""
     if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
         return LampMeasurement(0.0, 0.0)
     c = colours or LampColours(min_value=min_value, min_saturation=min_saturation, white_min_value=white_min_value,
@@ -102,6 +103,10 @@ def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: in
         blue = bright & (h >= 100) & (h <= 130)
     white = (v >= c.white_min_value) & (s <= c.white_max_saturation)
     n = float(h.size)
+    if ignore is not None:
+        keep = ~ignore[:rows]
+        red, blue, white = red & keep, blue & keep, white & keep
+        n = float(max(np.count_nonzero(keep), 1))
     return LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
                            float(np.count_nonzero(white)) / n, _centre_share(red), _centre_share(blue))
 

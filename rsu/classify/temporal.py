@@ -127,8 +127,9 @@ class EvidenceConfig:
     """... and covering at most this share of the band (median over its lit samples): a roof bar is a thin
     strip, while red or blue *paint* bright enough to pass the real-video colour test covers the body."""
     body_threshold: float = 0.5
-    """EV-body score that counts as confident (the classifier's own threshold, from its model metadata)."""
-    body_min_scores: int = 2
+    """EV-body score that counts as confident (the body model's ``confident_threshold``, from its metadata)."""
+    body_min_scores: int = 3
+    """... over at least this many scores (about 0.75 s at the classifier's 4 Hz): one lucky crop is not a body."""
     body_window: int = 6
 
 

@@ -78,9 +78,9 @@ def test_crop_score_is_called_on_the_clipped_crop_and_alone_cannot_confirm():
         return 0.99
 
     clf = TrackEvClassifier(crop_score=scorer)
-    _, states = run(int(3 * FPS), entries_of=lambda k: [(7, (-20.0, 100.0, 60.0, 160.0))], clf=clf,
+    _, states = run(int(3 * FPS), entries_of=lambda k: [(7, (100.0, 100.0, 180.0, 280.0))], clf=clf,
                     lights_on_at=1e9)
-    assert seen and seen[0] == (75, 60, 3)  # the box grown 25 % upwards, clipped at x = 0
+    assert seen and seen[0] == (185, 80, 3)  # the box grown 25 % (45 px) upwards, clipped at the bottom (y 240)
     assert all(out[7][2] != EvState.CONFIRMED for _, out in states)
 
 
@@ -205,3 +205,11 @@ def test_lost_track_boxes_are_moved_on_before_matching():
     assert match_lost_tracks(new, extrapolate_box(box, v, 0.3)[None], 0.3) == [(0, 0)]
     two = np.array([[0.0, 0.0, 40.0, 30.0], [5.0, 0.0, 45.0, 30.0]])
     assert match_lost_tracks(two, two[::-1], 0.3) == [(0, 1), (1, 0)]  # one each, the best overall assignment
+
+
+def test_boxes_cut_by_the_left_right_or_top_border_are_not_measured():
+    seen = []
+    clf = TrackEvClassifier(crop_score=lambda crop: seen.append(crop.shape) or 0.5)
+    run(10, entries_of=lambda k: [(7, (-20.0, 100.0, 60.0, 160.0)), (8, (440.0, 100.0, 481.0, 160.0)),
+                                  (9, (200.0, 5.0, 260.0, 60.0))], clf=clf)
+    assert not seen and all(clf.tracks[t].evidence.frames == 0 for t in (7, 8, 9))
