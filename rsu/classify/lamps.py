@@ -11,12 +11,14 @@ lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and giv
 Two colour definitions are used. :data:`LAMP_BRIGHT` (HSV: V >= 240, S >= 120) is a lamp that
 saturates the sensor, as every lit lamp does in the simulator's renders; a flash pattern in it is strong
 enough to confirm an EV alone. :data:`BAR_COLOURED` is what a real light bar looks like in compressed
-video: a red or blue *chroma* (R - max(G, B) or B - max(R, G) >= 50, the channel >= 100), lit or only
-dimly lit. Measured frame by frame (issue 5 and issue 17; the escort, Japanese-ambulance and NYC-police
-clips are the tuning clips of this definition): the escort's bars have S ~ 100-115; the Japanese
-ambulance's lit lamps are pink-red points (RGB ~ (233, 101, 120), (255, 164, 195): hue 160-170, S ~
-90-140) on a dark-red dome (R ~ 120-150); the NYC police bars read as dark red domes (R ~ 100-180, never
-lamp-bright) at 24 fps. Neither HSV test sees those; the chroma test does. It also sees red and blue
+video: a bright red or blue *chroma* (the channel >= 180 and R - max(G, B) or B - max(R, G) >= 50).
+Measured frame by frame (issue 5 and issue 17; the escort, Japanese-ambulance and NYC-police clips are
+the tuning clips of this definition): the escort's bars have S ~ 100-115; the Japanese ambulance's lit
+lamps are pink-red points (RGB ~ (233, 101, 120), (255, 164, 195): hue 160-170, S ~ 90-140) on a
+dark-red dome (R ~ 120-150). The HSV test misses those; the chroma test sees them. A channel floor of
+100 also saw the NYC police bars, dark red domes (R ~ 100-180) that never look lit, but it saw the
+simulator's *unlit* bars too: with a confident body the sim EV alerted before its lights went on
+(ev_bench seeds 301/302: 3 false alerts); at 180 it does not. The chroma test also sees red and blue
 paint, so it counts only together with a confident EV body, a compact central blob (not paint over the
 body) and the corner-lamp rejection (:class:`rsu.classify.temporal.TrackEvidence`).
 
@@ -65,7 +67,7 @@ class LampColours:
 
 LAMP_BRIGHT = LampColours()
 """A lamp that saturates the sensor (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
-BAR_COLOURED = LampColours(kind="chroma", min_value=100, min_chroma=50)
+BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50)
 """A red or blue light bar in compressed real video, lit or dim (module docstring)."""
 SIM_LAMPS, REAL_VIDEO_LAMPS = LAMP_BRIGHT, BAR_COLOURED
 
