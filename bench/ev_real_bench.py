@@ -43,7 +43,6 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -51,8 +50,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from rsu.classify.body import load_body_classifier  # noqa: E402
-from rsu.classify.evaluation import SCENE_CLASSES, largest_vehicle_crop, metrics  # noqa: E402
-from rsu.classify.ravev import IMAGE_SUFFIXES  # noqa: E402
+from rsu.classify.evaluation import load_scene_crops, metrics  # noqa: E402
 from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import OnnxDetector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
@@ -62,14 +60,6 @@ if not REAL.is_dir():
     REAL = Path("/work/shared/data/real")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
-
-
-def _read(path: Path) -> np.ndarray | None:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:  # some .jpg files are WEBP: decode from the bytes
-        data = np.frombuffer(path.read_bytes(), np.uint8)
-        img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
-    return img
 
 
 def clip_figures(path: Path, kind: str, body: str, max_s: float | None) -> dict:
@@ -92,18 +82,11 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None) -> dict:
 
 def photo_figures(folder: Path, detector: OnnxDetector, body) -> dict:
     """Largest vehicle of each whole-scene photo, grown upwards as the RSU crops, through the body model."""
-    labels, probs, found = [], [], 0
-    for d in sorted(p for p in folder.iterdir() if p.is_dir() and p.name in SCENE_CLASSES):
-        for f in sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
-            img = _read(f)
-            if img is None:
-                continue
-            crop = largest_vehicle_crop(img, detector, above_fraction=body.above_fraction)
-            found += crop is not None
-            probs.append(0.0 if crop is None else float(body.predict([crop])[0]))
-            labels.append(SCENE_CLASSES[d.name])
-    acc, p, r, f = metrics(np.array(labels), np.array(probs), body.threshold)
-    return dict(photo_images=len(labels), photo_ev_images=int(sum(labels)), photo_with_vehicle=found,
+    crops, labels = load_scene_crops(folder, detector, above_fraction=body.above_fraction)
+    probs = np.array([0.0 if c is None else float(body.predict([c])[0]) for c in crops])
+    acc, p, r, f = metrics(labels, probs, body.threshold)
+    return dict(photo_images=len(labels), photo_ev_images=int(labels.sum()),
+                photo_with_vehicle=sum(c is not None for c in crops),
                 photo_accuracy=acc, photo_precision=p, photo_recall=r, photo_f_measure=f)
 
 

@@ -61,6 +61,13 @@ def clip_box(box: Iterable[float], width: int, height: int) -> tuple[int, int, i
     return xa, ya, xb, yb
 
 
+def crop_above(box: Iterable[float], width: int, height: int, above_fraction: float) -> tuple[int, int, int, int] | None:
+    """:func:`clip_box` of an xyxy box grown upwards by ``above_fraction`` of its height: the crop the RSU takes
+    of a vehicle (a light bar sits on the roof, often outside a COCO "car" box)."""
+    x1, y1, x2, y2 = (float(v) for v in box)
+    return clip_box((x1, y1 - above_fraction * (y2 - y1), x2, y2), width, height)
+
+
 class SingleVehicleGate:
     """Is a box small enough to hold *one* vehicle where it stands on the road? (camera geometry)
 
@@ -212,8 +219,7 @@ class TrackEvClassifier:
     def crop_bounds(self, box, width: int, height: int) -> tuple[int, int, int, int] | None:
         """The track's crop: its box grown upwards by ``above_fraction`` (light bars sit on the roof, often
         outside a COCO "car" box), clipped to the image."""
-        x1, y1, x2, y2 = (float(v) for v in box)
-        return clip_box((x1, y1 - self.above_fraction * (y2 - y1), x2, y2), width, height)
+        return crop_above(box, width, height, self.above_fraction)
 
     def lamp_band(self, box, width: int, height: int) -> tuple[int, int, int, int] | None:
         """The xyxy pixels of the band in which the lamps are measured (for drawing)."""

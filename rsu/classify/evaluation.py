@@ -169,22 +169,19 @@ def largest_vehicle_crop(image: np.ndarray, detector, above_fraction: float = 0.
     if len(boxes) == 0:
         return None
     area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-    x1, y1, x2, y2 = boxes[int(np.argmax(area))]
-    y1 -= above_fraction * (y2 - y1)
-    h, w = image.shape[:2]
-    xa, ya = int(max(0, np.floor(x1))), int(max(0, np.floor(y1)))
-    xb, yb = int(min(w, np.ceil(x2))), int(min(h, np.ceil(y2)))
-    if xb - xa < 2 or yb - ya < 2:
-        return None
-    return image[ya:yb, xa:xb]
+    from rsu.classify.ev import crop_above
+
+    b = crop_above(boxes[int(np.argmax(area))], image.shape[1], image.shape[0], above_fraction)
+    return None if b is None else image[b[1]:b[3], b[0]:b[2]]
 
 
-def load_scene_crops(root: str | Path, detector) -> tuple[list[np.ndarray | None], np.ndarray]:
+def load_scene_crops(root: str | Path, detector, above_fraction: float = 0.1
+                     ) -> tuple[list[np.ndarray | None], np.ndarray]:
     """Whole-scene photos in ``root/{emergency_vehicle,non_emergency}`` (or ``ev``/``non_ev``) -> the
-    largest detected vehicle of each (None when the detector finds none) and the labels (1 = EV)."""
-    import cv2
-
+    largest detected vehicle of each, grown upwards by ``above_fraction`` (None when the detector finds
+    none), and the labels (1 = EV)."""
     from rsu.classify.ravev import IMAGE_SUFFIXES
+    from rsu.classify.real_data import read_image
 
     root = Path(root)
     crops: list[np.ndarray | None] = []
@@ -192,10 +189,10 @@ def load_scene_crops(root: str | Path, detector) -> tuple[list[np.ndarray | None
     if root.is_dir():
         for d in sorted(p for p in root.iterdir() if p.is_dir() and p.name in SCENE_CLASSES):
             for f in sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
-                img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+                img = read_image(f)
                 if img is None:
                     continue
-                crops.append(largest_vehicle_crop(img, detector))
+                crops.append(largest_vehicle_crop(img, detector, above_fraction))
                 labels.append(SCENE_CLASSES[d.name])
     if not labels:
         raise FileNotFoundError(f"no photos under {root}/{{emergency_vehicle,non_emergency}}")

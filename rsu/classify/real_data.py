@@ -30,6 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from rsu.classify.ev import crop_above
+
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp")
 OPENIMAGES_EV_CLASSES = frozenset({0})  # Ambulance; 1 Bus, 2 Car, 3 Motorcycle, 4 Truck
 OPENIMAGES_NOT_EV_CLASSES = frozenset({1, 3})  # Car and Truck include police cars and fire engines: not used
@@ -49,10 +51,12 @@ class CropSample:
     """xyxy within the image; None = the whole image."""
 
 
-def _read(path: Path) -> np.ndarray | None:
+def read_image(path: str | Path) -> np.ndarray | None:
+    """A BGR image, or None when it cannot be decoded (some ``.jpg`` files are WEBP or have odd headers:
+    decoded from the bytes then)."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:  # some .jpg files are WEBP or have odd headers: decode from the bytes
-        data = np.frombuffer(path.read_bytes(), np.uint8)
+    if img is None and Path(path).is_file():
+        data = np.frombuffer(Path(path).read_bytes(), np.uint8)
         img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     return img
 
@@ -82,7 +86,7 @@ def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX) -> list[CropSample
             label_file = images.parent / "labels" / (path.stem + ".txt")
             if path.suffix.lower() not in IMAGE_SUFFIXES or not label_file.is_file():
                 continue
-            img = _read(path)
+            img = read_image(path)
             if img is None:
                 continue
             h, w = img.shape[:2]
@@ -140,21 +144,12 @@ def split_by_group(samples: Sequence[CropSample], seed: int = 17, val: float = 0
     return out
 
 
-def grow_box(box, width: int, height: int, above_fraction: float) -> tuple[int, int, int, int] | None:
-    """An xyxy box grown upwards by ``above_fraction`` of its height, clipped to the image."""
-    x1, y1, x2, y2 = (float(v) for v in box)
-    y1 -= above_fraction * (y2 - y1)
-    xa, ya = int(np.clip(np.floor(x1), 0, width)), int(np.clip(np.floor(y1), 0, height))
-    xb, yb = int(np.clip(np.ceil(x2), 0, width)), int(np.clip(np.ceil(y2), 0, height))
-    return (xa, ya, xb, yb) if xb - xa >= 2 and yb - ya >= 2 else None
-
-
 def crop_of(sample: CropSample, above_fraction: float = 0.25, image: np.ndarray | None = None) -> np.ndarray | None:
     """The sample's BGR crop (its box grown upwards, as the RSU crops a track), or None if unreadable."""
-    img = image if image is not None else _read(sample.path)
+    img = image if image is not None else read_image(sample.path)
     if img is None:
         return None
     if sample.box_px is None:
         return img
-    b = grow_box(sample.box_px, img.shape[1], img.shape[0], above_fraction)
+    b = crop_above(sample.box_px, img.shape[1], img.shape[0], above_fraction)
     return None if b is None else img[b[1]:b[3], b[0]:b[2]]
