@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState, LightState
-from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours
-from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, measure_lamps
+from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
+from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence
 from rsu.track import associate
 
 CropScore = Callable[[np.ndarray], float]
@@ -230,34 +230,32 @@ class TrackEvClassifier:
 
     def measure(self, image: np.ndarray, box) -> tuple[LampMeasurement, float | None]:
         """Lamp-bright measurement of a box's band and the crop score (when a crop classifier is set)."""
-        lamps, _, score, _ = self._measure(image, box)
+        lamps, _, score, _ = self._measure(image, self.crop_bounds(box, image.shape[1], image.shape[0]))
         return lamps, score
 
-    def _measure(self, image: np.ndarray, box, others: np.ndarray | None = None
+    def _measure(self, image: np.ndarray, bounds: tuple[int, int, int, int] | None,
+                 occluders: Iterable[tuple[int, int, int, int]] = ()
                  ) -> tuple[LampMeasurement, LampMeasurement, float | None, np.ndarray | None]:
-        """(lamp-bright, light-bar colour) measurements of the band, the crop score and the crop. ``others``:
-        the other tracks' boxes; the crops of those nearer the camera (their bottom edge lower in the image)
-        are left out of this band, since a nearer vehicle occludes this one, and its roof bar, seen in front
+        """(lamp-bright, light-bar colour) measurements of the band of the crop ``bounds``, the crop score and
+        the crop. ``occluders``: the crop bounds of the tracks nearer the camera (their bottom edge lower in
+        the image), left out of this band: a nearer vehicle occludes this one, and its roof bar, seen in front
         of the far vehicle, is not the far vehicle's (dense traffic, thesis 2.3's merged boxes)."""
-        bounds = self.crop_bounds(box, image.shape[1], image.shape[0])
         if bounds is None:
             return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
         ignore = None
-        if others is not None and len(others):
-            for o in others[others[:, 3] > float(box[3])]:
-                ob = self.crop_bounds(o, image.shape[1], image.shape[0])
-                if ob is None or ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
-                    continue
-                if ignore is None:
-                    ignore = np.zeros(crop.shape[:2], bool)
-                ignore[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
+        for ob in occluders:
+            if ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
+                continue
+            if ignore is None:
+                ignore = np.zeros(crop.shape[:2], bool)
+            ignore[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
-        return (measure_lamps(crop, self.band_fraction, colours=self.colours, ignore=ignore),
-                measure_lamps(crop, self.band_fraction, colours=self.bar_colours, ignore=ignore), score, crop)
+        lamps, bar = measure_band(crop, self.band_fraction, (self.colours, self.bar_colours), ignore)
+        return lamps, bar, score, crop
 
     def _body_score(self, info: TrackInfo, now_s: float, bar: LampMeasurement, crop: np.ndarray | None) -> float | None:
         """The EV-body score of this frame's crop, when the track shows light-bar colour and the last score
@@ -277,7 +275,9 @@ class TrackEvClassifier:
         boxes = np.asarray(tracks.boxes, float).reshape(-1, 4)
         if self.handover_after_s > 0 and any(tid not in self.tracks for tid in ids):
             self._hand_over(now, ids, boxes)
-        for tid, box in zip(ids, boxes, strict=True):
+        h, w = image.shape[:2]
+        bounds = [self.crop_bounds(b, w, h) for b in boxes]  # each track's crop, once per frame
+        for k, (tid, box) in enumerate(zip(ids, boxes, strict=True)):
             info = self.tracks.get(tid)
             if info is None:
                 info = self.tracks[tid] = TrackInfo(TrackEvidence(self.config), now, now)
@@ -294,8 +294,8 @@ class TrackEvClassifier:
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                others = np.delete(boxes, ids.index(tid), axis=0)
-                lamps, bar, score, crop = self._measure(image, box, others)
+                occluders = [bounds[j] for j in np.flatnonzero(boxes[:, 3] > box[3]) if bounds[j] is not None]
+                lamps, bar, score, crop = self._measure(image, bounds[k], occluders)
                 state = ev.update(now, lamps, score, self._body_score(info, now, bar, crop), bar)
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)

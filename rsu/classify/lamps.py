@@ -2,8 +2,8 @@
 
 :func:`measure_lamps` reads the *lamp band* of a crop (the top rows, where a light bar sits when the
 camera looks down at a vehicle; the caller grows the box upwards first, since a roof bar sits above a
-COCO car box): the fractions of its pixels that are lamp-bright red, blue and white, and for red and
-blue the share of those pixels in the central half of the band's width. A light bar sits on the roof,
+COCO car box): the fractions of its pixels that are lamp-bright red and blue, and the share of those
+pixels in the central half of the band's width. White lamps are not measured. A light bar sits on the roof,
 in the middle; tail, brake and turn lamps and hazard flashers sit at the corners of the body, so a
 lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and gives no EV evidence
 (:class:`rsu.classify.temporal.TrackEvidence`).
@@ -36,12 +36,11 @@ import numpy as np
 
 @dataclass(frozen=True)
 class LampMeasurement:
-    """Lamp-bright red, blue and white pixel fractions in the lamp band of one crop, and the share of the
-    red and blue ones in the central half of the band's width (1.0 when none is lit)."""
+    """Red and blue lamp pixel fractions in the lamp band of one crop, and the share of each colour's lamp
+    pixels in the central half of the band's width (1.0 when none is lit)."""
 
     red: float
     blue: float
-    white: float = 0.0
     red_centre: float = 1.0
     blue_centre: float = 1.0
 
@@ -61,15 +60,12 @@ class LampColours:
     min_value: int = 240
     min_saturation: int = 120
     min_chroma: int = 50
-    white_min_value: int = 250
-    white_max_saturation: int = 40
 
 
 LAMP_BRIGHT = LampColours()
 """A lamp that saturates the sensor (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
 BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50)
 """A red or blue light bar in compressed real video, lit or dim (module docstring)."""
-SIM_LAMPS, REAL_VIDEO_LAMPS = LAMP_BRIGHT, BAR_COLOURED
 
 
 def _centre_share(mask: np.ndarray) -> float:
@@ -81,36 +77,44 @@ def _centre_share(mask: np.ndarray) -> float:
     return float(cols[w // 4: w - w // 4].sum()) / total
 
 
-def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
-                  min_saturation: int = 120, *, white_min_value: int = 250, white_max_saturation: int = 40,
-                  colours: LampColours | None = None, ignore: np.ndarray | None = None) -> LampMeasurement:
-    """Fractions of the top ``top_fraction`` band's pixels that are red / blue / white lamp pixels, and the
-    central share of the red and blue ones (module docstring). ``colours`` overrides the keyword thresholds;
-    ``ignore`` (a boolean mask of the crop) leaves pixels out: those of nearer vehicles that occlude it."""
+def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[LampColours, ...],
+                 ignore: np.ndarray | None = None) -> tuple[LampMeasurement, ...]:
+    """One :class:`LampMeasurement` per colour definition of the top ``top_fraction`` band of a crop, the band
+    cut out (and converted to HSV, when a definition needs it) once. ``ignore`` (a boolean mask of the crop)
+    leaves pixels out: those of nearer vehicles that occlude it."""
     if crop_bgr.ndim != 3 or crop_bgr.shape[0] < 2 or crop_bgr.shape[1] < 2:
-        return LampMeasurement(0.0, 0.0)
-    c = colours or LampColours(min_value=min_value, min_saturation=min_saturation, white_min_value=white_min_value,
-                               white_max_saturation=white_max_saturation)
+        return tuple(LampMeasurement(0.0, 0.0) for _ in colour_sets)
     rows = max(1, int(round(crop_bgr.shape[0] * top_fraction)))
     band = np.ascontiguousarray(crop_bgr[:rows])
-    hsv = cv2.cvtColor(band, cv2.COLOR_BGR2HSV)
-    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    if c.kind == "chroma":
-        b, g, r = (band[..., i].astype(np.int16) for i in range(3))
-        red = (r >= c.min_value) & (r - np.maximum(g, b) >= c.min_chroma)
-        blue = (b >= c.min_value) & (b - np.maximum(r, g) >= c.min_chroma)
-    else:
-        bright = (s >= c.min_saturation) & (v >= c.min_value)
-        red = bright & ((h <= 10) | (h >= 170))
-        blue = bright & (h >= 100) & (h <= 130)
-    white = (v >= c.white_min_value) & (s <= c.white_max_saturation)
-    n = float(h.size)
-    if ignore is not None:
-        keep = ~ignore[:rows]
-        red, blue, white = red & keep, blue & keep, white & keep
-        n = float(max(np.count_nonzero(keep), 1))
-    return LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
-                           float(np.count_nonzero(white)) / n, _centre_share(red), _centre_share(blue))
+    keep = None if ignore is None else ~ignore[:rows]
+    n = float(band.shape[0] * band.shape[1]) if keep is None else float(max(np.count_nonzero(keep), 1))
+    hsv = cv2.cvtColor(band, cv2.COLOR_BGR2HSV) if any(c.kind != "chroma" for c in colour_sets) else None
+    bgr = band.astype(np.int16) if any(c.kind == "chroma" for c in colour_sets) else None
+    out = []
+    for c in colour_sets:
+        if c.kind == "chroma":
+            b, g, r = bgr[..., 0], bgr[..., 1], bgr[..., 2]
+            red = (r >= c.min_value) & (r - np.maximum(g, b) >= c.min_chroma)
+            blue = (b >= c.min_value) & (b - np.maximum(r, g) >= c.min_chroma)
+        else:
+            h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+            bright = (s >= c.min_saturation) & (v >= c.min_value)
+            red = bright & ((h <= 10) | (h >= 170))
+            blue = bright & (h >= 100) & (h <= 130)
+        if keep is not None:
+            red, blue = red & keep, blue & keep
+        out.append(LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
+                                   _centre_share(red), _centre_share(blue)))
+    return tuple(out)
+
+
+def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: int = 240,
+                  min_saturation: int = 120, *, colours: LampColours | None = None,
+                  ignore: np.ndarray | None = None) -> LampMeasurement:
+    """Fractions of the top ``top_fraction`` band's pixels that are red / blue lamp pixels and their central
+    shares (:func:`measure_band` with one definition; ``colours`` overrides the keyword thresholds)."""
+    c = colours or LampColours(min_value=min_value, min_saturation=min_saturation)
+    return measure_band(crop_bgr, top_fraction, (c,), ignore)[0]
 
 
 def blink_transitions(values: np.ndarray, on_level: float, off_level: float) -> int:
