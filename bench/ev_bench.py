@@ -21,7 +21,7 @@ snapshot, the scenario's lights-on time) is used here to *score*:
 
 Seeds: ``EvidenceConfig``/``measure_lamps`` defaults were tuned on seeds 1-4 and then looked at on 101 and
 102, the held-out seeds of the figures below; after that much use 1-4 and 101/102 are all tuning seeds.
-The held-out seeds are now ``HELD_OUT_SEEDS`` = 301, 302, drawn once (2026-11-26, issue 17) and frozen: do
+The held-out seeds are now ``HELD_OUT_SEEDS`` = 301, 302, drawn once (2026-11-25, issue 17) and frozen: do
 not tune on them. With ``--json`` the last line is one JSON object of the figures.
 
 Decoy lamps (issue 17): the traffic holds ordinary vehicles with amber hazard flashers at their four
