@@ -50,7 +50,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from rsu.classify.body import load_body_classifier  # noqa: E402
-from rsu.classify.evaluation import load_scene_crops, metrics  # noqa: E402
+from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # noqa: E402
 from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import OnnxDetector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
@@ -101,14 +101,8 @@ def split_figures(root: Path, body, crop_calls: int) -> dict:
             labels.append(s.label)
     prob = np.concatenate([body.predict(crops[i:i + 32]) for i in range(0, len(crops), 32)])
     acc, p, r, f = metrics(np.array(labels), prob, body.threshold)
-    times = []
-    for k in range(crop_calls):
-        crop = crops[k % len(crops)]
-        t0 = time.perf_counter()
-        body.predict([crop])
-        times.append(time.perf_counter() - t0)
     return dict(split_crops=len(crops), split_ev_crops=int(sum(labels)), split_accuracy=acc, split_precision=p,
-                split_recall=r, split_f_measure=f, crop_ms=1000 * float(np.median(times)), crop_calls=crop_calls)
+                split_recall=r, split_f_measure=f, crop_ms=ms_per_crop(body, crops, crop_calls), crop_calls=crop_calls)
 
 
 def main(argv=None) -> int:

@@ -58,6 +58,7 @@ from models.evaluate_detector import ZONE_M  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
 from rsu.classify.body import DEFAULT_BODY_MODEL, EvBodyClassifier  # noqa: E402
 from rsu.classify.ev import TrackEvClassifier  # noqa: E402
+from rsu.classify.evaluation import ms_per_crop  # noqa: E402
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import Frame as RsuFrame  # noqa: E402
@@ -186,13 +187,7 @@ def body_crop_ms(body: EvBodyClassifier, n: int, seed: int = 0) -> float:
     rng = np.random.default_rng(seed)
     crops = [rng.integers(0, 256, (int(rng.integers(40, 200)), int(rng.integers(40, 260)), 3), dtype=np.uint8)
              for _ in range(16)]
-    body(crops[0])
-    times = []
-    for k in range(n):
-        t0 = time.perf_counter()
-        body(crops[k % len(crops)])
-        times.append(time.perf_counter() - t0)
-    return 1000.0 * float(np.median(times))
+    return ms_per_crop(body, crops, n)
 
 
 def ev_classifier_cost(frames: list, make_detector: Callable[[], Detector], corridor, rsu_id: str,

@@ -36,6 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from rsu.classify.classifiers import CnnClassifier  # noqa: E402
+from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
@@ -117,19 +119,11 @@ def predict_torch(model, x: np.ndarray, batch: int = 64) -> np.ndarray:
     return np.concatenate(out)
 
 
-def pr(y: np.ndarray, p: np.ndarray, t: float) -> tuple[float, float, float]:
-    pred = p >= t
-    tp = float(np.sum(pred & (y == 1)))
-    prec = tp / max(float(pred.sum()), 1.0)
-    rec = tp / max(float((y == 1).sum()), 1.0)
-    return float(np.mean(pred == (y == 1))), prec, rec
-
-
 def best_threshold(y: np.ndarray, p: np.ndarray) -> float:
     """The threshold on ``val`` that maximises min(precision, recall) (ties: the higher threshold)."""
     best, best_t = -1.0, 0.5
     for t in np.linspace(0.05, 0.95, 91):
-        _, prec, rec = pr(y, p, t)
+        _, prec, rec, _ = metrics(y, p, t)
         if min(prec, rec) >= best:
             best, best_t = min(prec, rec), float(t)
     return best_t
@@ -140,7 +134,7 @@ def confident_threshold(y: np.ndarray, p: np.ndarray, min_precision: float = 0.9
     calls *confident* (a steady light bar counts only above it, so the classifier's mistakes on ordinary
     vehicles must be rare there)."""
     for t in np.linspace(0.05, 0.99, 95):
-        if pr(y, p, t)[1] >= min_precision:
+        if metrics(y, p, t)[1] >= min_precision:
             return float(t)
     return 0.99
 
@@ -244,7 +238,6 @@ def main(argv=None) -> int:
     ap.add_argument("--budget-s", type=float, default=1500.0, help="stop after the epoch that passes this time")
     args = ap.parse_args(argv)
 
-    import onnxruntime as ort
     import torch
 
     torch.set_num_threads(args.threads)
@@ -268,23 +261,21 @@ def main(argv=None) -> int:
         torch.save(model.state_dict(), args.checkpoint)
         print(f"weights: {args.checkpoint}", flush=True)
     p_torch = predict_torch(model, data["val"][0])
-    print(f"torch (float) on val at 0.5: accuracy/precision/recall {pr(data['val'][1], p_torch, 0.5)}", flush=True)
+    print(f"torch (float) on val at 0.5: accuracy/precision/recall/F {metrics(data['val'][1], p_torch, 0.5)}",
+          flush=True)
     export(model, args.size, out)
 
-    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    onnx_model = CnnClassifier(out, threads=None)  # the exported file, as the runtime loads it
 
     def run(x):
-        return np.concatenate([sess.run(None, {"crops": (x[i:i + 64].astype(np.float32) / 255.0)
-                                                .transpose(0, 3, 1, 2).copy()})[0].reshape(-1)
-                               for i in range(0, len(x), 64)])
+        return np.concatenate([onnx_model.predict(list(x[i:i + 64])) for i in range(0, len(x), 64)])
 
     p_val = run(data["val"][0])
     thr = best_threshold(data["val"][1], p_val)
     confident = confident_threshold(data["val"][1], p_val)
     report = {"size": args.size, "threshold": thr, "confident_threshold": confident, "above_fraction": ABOVE_FRACTION}
     for k in ("val", "test"):
-        acc, prec, rec = pr(data[k][1], run(data[k][0]) if k == "test" else p_val, thr)
-        f = 2 * prec * rec / max(prec + rec, 1e-9)
+        acc, prec, rec, f = metrics(data[k][1], run(data[k][0]) if k == "test" else p_val, thr)
         report[k] = dict(n=len(data[k][1]), ev=int(data[k][1].sum()), accuracy=acc, precision=prec, recall=rec, f=f)
     set_metadata(out, {"ev_threshold": f"{thr:.2f}", "confident_threshold": f"{confident:.2f}",
                        "above_fraction": f"{ABOVE_FRACTION}",

@@ -52,6 +52,19 @@ def metrics(labels: np.ndarray, prob: np.ndarray, threshold: float = 0.5) -> tup
     return acc, p, r, f
 
 
+def ms_per_crop(model, crops: Sequence[np.ndarray], calls: int) -> float:
+    """Median milliseconds of one ``model.predict([crop])`` call over ``calls`` calls cycling through
+    ``crops`` (after one warm-up call): the cost of classifying one crop, as the RSU classifies them."""
+    model.predict([crops[0]])
+    times = []
+    for k in range(calls):
+        crop = crops[k % len(crops)]
+        t0 = time.perf_counter()
+        model.predict([crop])
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * float(np.median(times))
+
+
 def make_classifier(name: str, seed: int = 0):
     """A scikit-learn estimator (needs the ``train`` extra); hyper-parameters as thesis App. C."""
     try:
