@@ -41,7 +41,7 @@ import numpy as np
 
 from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState, LightState
 from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
-from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence
+from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, lamp_activity
 from rsu.track import associate
 
 CropScore = Callable[[np.ndarray], float]
@@ -257,10 +257,12 @@ class TrackEvClassifier:
         lamps, bar = measure_band(crop, self.band_fraction, (self.colours, self.bar_colours), ignore)
         return lamps, bar, score, crop
 
-    def _body_score(self, info: TrackInfo, now_s: float, bar: LampMeasurement, crop: np.ndarray | None) -> float | None:
-        """The EV-body score of this frame's crop, when the track shows light-bar colour and the last score
-        is at least ``body_period_s`` old; else None."""
-        if self.body is None or crop is None or bar.coloured < self.config.bar_on_fraction:
+    def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, bar: LampMeasurement,
+                    crop: np.ndarray | None) -> float | None:
+        """The EV-body score of this frame's crop, when the band shows lamp activity
+        (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least ``body_period_s`` old;
+        else None."""
+        if self.body is None or crop is None or not lamp_activity(lamps, bar, self.config):
             return None
         if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
             return None
@@ -296,7 +298,7 @@ class TrackEvClassifier:
             else:
                 occluders = [bounds[j] for j in np.flatnonzero(boxes[:, 3] > box[3]) if bounds[j] is not None]
                 lamps, bar, score, crop = self._measure(image, bounds[k], occluders)
-                state = ev.update(now, lamps, score, self._body_score(info, now, bar, crop), bar)
+                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar)
             out[tid] = (ev.ev_score, ev.light_state, state)
         self._forget(now)
         return out

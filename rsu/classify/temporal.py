@@ -137,6 +137,23 @@ SIGNALS = tuple(f"{k}_{c}{x}" for k in ("bright", "bar") for c in ("red", "blue"
 """Per-frame signals a track keeps: lamp-bright and light-bar fractions of red and blue, and their centre shares."""
 
 
+def lamp_activity(lamps: LampMeasurement, bar: LampMeasurement, config: EvidenceConfig) -> bool:
+    """Does one frame's band show what a light bar could be, so that the EV-body classifier is worth running
+    (issue 17: "only while it has lamp activity")? A lamp-bright colour lit in the middle of the band, or a
+    light-bar colour lit in the middle and covering at most ``steady_max_fraction`` of it. Red or blue paint
+    covers more of the band than a bar (and could give no lamp cue: a lamp lit that long or that wide is no
+    flash and no steady bar), and corner lamps (tail, brake, turn, hazard) sit off the middle: neither earns
+    a body score."""
+    for c in ("red", "blue"):
+        centre = getattr(lamps, f"{c}_centre")
+        if getattr(lamps, c) >= config.lamp_on_fraction and centre >= config.centre_min_share:
+            return True
+        x, centre = getattr(bar, c), getattr(bar, f"{c}_centre")
+        if config.bar_on_fraction <= x <= config.steady_max_fraction and centre >= config.centre_min_share:
+            return True
+    return False
+
+
 def _logit(p: float) -> float:
     p = min(max(p, 1e-4), 1 - 1e-4)
     return math.log(p / (1 - p))

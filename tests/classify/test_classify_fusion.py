@@ -7,7 +7,7 @@ import numpy as np
 
 from protocol.messages import EvCue, EvState, LightState
 from rsu.classify.lamps import measure_lamps
-from rsu.classify.temporal import LampMeasurement, TrackEvidence
+from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, lamp_activity
 
 FPS = 25.0
 BAR = 0.04  # a lit bar covers ~4 % of the band
@@ -98,3 +98,15 @@ def test_measure_lamps_centre_share_tells_a_roof_bar_from_corner_lamps():
     crop[15:20, 72:80] = (0, 0, 255)
     m = measure_lamps(crop, top_fraction=0.4)
     assert m.red > 0 and m.red_centre == 0.0
+
+
+def test_lamp_activity_gates_the_body_classifier_to_bar_like_light():
+    """The EV-body classifier runs only on bands that could hold a light bar: a thin central bar or bright
+    central lamps, not paint that fills the band, nor corner lamps (tail, brake, turn, hazard)."""
+    cfg = EvidenceConfig()
+    dark = LampMeasurement(0.0, 0.0)
+    assert lamp_activity(dark, LampMeasurement(0.02, 0.0, 0.9, 1.0), cfg)  # a thin red bar in the middle
+    assert lamp_activity(LampMeasurement(0.0, 0.03, 1.0, 0.8), dark, cfg)  # bright blue lamps in the middle
+    assert not lamp_activity(dark, LampMeasurement(0.35, 0.0, 0.9, 1.0), cfg)  # red paint over the band
+    assert not lamp_activity(LampMeasurement(0.05, 0.0, 0.1, 1.0), LampMeasurement(0.05, 0.0, 0.1, 1.0), cfg)
+    assert not lamp_activity(dark, dark, cfg)
