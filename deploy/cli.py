@@ -41,16 +41,19 @@ def _run_service(name: str, argv: list[str]) -> int:
 def _schema(argv: list[str]) -> int:
     from protocol.schema_export import SCHEMA_DIR, stale_schemas, write_schemas
 
-    ap = argparse.ArgumentParser(prog="iea schema", description="Write the JSON Schema of every message "
-                                 f"model to {SCHEMA_DIR} (or check that the committed files match the code).")
-    ap.add_argument("--check", action="store_true", help="exit 1 if a committed schema differs from the code")
+    ap = argparse.ArgumentParser(prog="iea schema", description="Write the JSON Schema (draft 2020-12) of the "
+                                 f"wire payload of every message kind to {SCHEMA_DIR} (or check that the committed "
+                                 "files match the code).")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1, naming each stale file, if a committed schema differs from the message models")
     args = ap.parse_args(argv)
     if args.check:
         stale = stale_schemas()
         if stale:
-            print(f"schemas out of date: {', '.join(stale)}; run `iea schema` and commit", file=sys.stderr)
+            print(f"error: stale schema(s) in {SCHEMA_DIR}: {'; '.join(stale)}. Run `iea schema` (or `make schema`) "
+                  "and commit protocol/schema/", file=sys.stderr)
             return 1
-        print("schemas match the code")
+        print(f"schemas in {SCHEMA_DIR} match the message models")
         return 0
     for path in write_schemas():
         print(f"wrote {path}")
