@@ -15,6 +15,16 @@ Create the (secret, never committed) bundle once with::
     iea deploy acl --out secrets/acl --dictionary-path /etc/iea/acl/users.txt
 
 ``--no-acl`` writes an open deployment for a closed lab network.
+
+File format (issue 25): the Compose Specification with neither a ``version`` nor a ``name`` key, which the
+two tools users have both read with the same meaning: Docker Compose v2 (``docker compose``) and Debian 12's
+``docker-compose`` 1.29.2, which since 1.27 validates every non-v1 file against its own early-2021 copy of
+the specification (``deploy/compose_schema.py`` checks both schemas). Long-form ``depends_on`` with a
+``condition`` (``service_started``/``service_healthy``), ``restart``, ``healthcheck`` with
+``start_period`` and ``build`` all mean the same to both. Not used: the top-level ``name`` (added to the
+specification later; 1.29.2 refuses the file), so the project name comes from the file's folder or
+``COMPOSE_PROJECT_NAME`` / ``-p`` (the header suggests ``iea-<corridor>``); nor ``version``: optional for
+both, 1.29.2 validates "2.x", "3.x" and no version alike, and Docker Compose v2 warns it is obsolete.
 """
 
 from __future__ import annotations
@@ -95,7 +105,7 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             s0, lane, speed = av_start[v.vehicle_id]
             cmd += ["--start-s", f"{s0:g}", "--start-lane", str(lane), "--speed", f"{speed:g}"]
         services[v.vehicle_id] = iea_service(v.vehicle_id, cmd, "vehicle", v.vehicle_id)
-    return {"name": f"iea-{corridor.corridor_id}", "services": services}
+    return {"services": services}  # no top-level `name`: docker-compose 1.29.2 refuses it (module docstring)
 
 
 def compose_yaml(doc: dict[str, Any], header: str = "") -> str:
@@ -111,4 +121,6 @@ HEADER = """\
 # Before the first `docker compose up`, create the router ACL and each service's credentials (secret):
 #   iea deploy acl --out secrets/acl --dictionary-path /etc/iea/acl/users.txt
 # Real cameras: RSU1_SOURCE=rtsp://... docker compose up   (default: each RSU renders the simulator's view)
+# Valid for Docker Compose v2 (`docker compose`) and Debian 12's docker-compose 1.29.2 (`docker-compose`).
+# Project name: this folder's name, or COMPOSE_PROJECT_NAME=iea-rellis (or `-p iea-rellis`).
 """
