@@ -43,8 +43,11 @@ def _where(error: Any) -> str:
 def schema_errors(doc: dict[str, Any], name: str) -> list[str]:
     """Every violation of schema ``name`` by the compose document ``doc`` (a parsed YAML mapping), each as
     ``"path: message"``; empty when the document is valid."""
-    import jsonschema
-
+    try:
+        import jsonschema
+    except ImportError as exc:
+        raise RuntimeError("checking a compose file needs the jsonschema library: "
+                           "pip install -e '.[dev]' (or `make test`, which installs it)") from exc
     schema = load_schema(name)
     if name == COMPOSE_SPEC:
         validator = jsonschema.Draft202012Validator(schema)
