@@ -218,8 +218,10 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
                                     tuple(int(v) for v in e.obj.bbox_px))
                 if DEBUG and not ok:
                     evd = clf.tracks[e.track_id].evidence
-                    print("  FALSE", rsu_id, e.track_id, actor, snap.sim_time_s, "red", np.round(list(evd._red)[-20:], 3),
-                          "blue", np.round(list(evd._blue)[-20:], 3))
+                    print("  FALSE", rsu_id, e.track_id, actor, round(snap.sim_time_s, 2), "cues",
+                          [c.value for c in evd.cues], "body", np.round(list(evd.body_scores), 2))
+                    for name, series in evd._signals.items():
+                        print(f"    {name:18s}", np.round(list(series)[-20:], 3))
                 if ok:
                     found.add((rsu_id, actor))
                     first_alert_ev.setdefault(actor, snap.sim_time_s)
