@@ -2,7 +2,7 @@
 
 ``models/ev_body.onnx`` is EfficientNet-Lite0 (ImageNet) fine-tuned on the real photos of
 ``../shared/data/real/ev_train`` (ambulances, fire engines, police vs other vehicles) by
-``models/train_ev_body.py``, int8-quantised; card: ``models/ev_body.md``. It takes the crop the RSU
+``models/train_ev_body.py``, weights stored as float16; card: ``models/ev_body.md``. It takes the crop the RSU
 takes of a track (the box grown upwards by ``above_fraction`` of its height, where a roof light bar
 sits) and returns p(EV). It knows the vehicle's *type*, not its lamps: the per-track fusion
 (:class:`rsu.classify.temporal.TrackEvidence`) alerts only on a confident body *and* lamp activity.
