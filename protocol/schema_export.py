@@ -10,9 +10,9 @@ alone can check every message.
 The schemas are applied to the JSON view of the msgpack value (``JSON_VIEW``): maps with string keys
 are objects, arrays are arrays, msgpack bin (only ``Signature.sig``) is a base64 string (RFC 4648 §4,
 as RFC 8949 §6.1 maps CBOR byte strings to JSON), NaN and +-inf have no JSON form and are refused, and
-extension types are refused. Two things the decoder checks go beyond JSON Schema and are listed in
-each schema's ``$comment``: the invariants between fields (e.g. a box's x2 >= x1), and integer vs
-float (JSON has one number type: a schema accepts 1.0 where the decoder wants 1).
+extension types are refused. What the decoder checks beyond JSON Schema is listed in each schema's
+``$comment``: the invariants between fields (e.g. a box's x2 >= x1), integer vs float (JSON has one
+number type: a schema accepts 1.0 where the decoder wants 1), and bin vs str (both JSON strings).
 """
 
 from __future__ import annotations
@@ -32,7 +32,10 @@ DRAFT = "https://json-schema.org/draft/2020-12/schema"
 JSON_VIEW = (
     "Validate the JSON view of the msgpack payload: a map with string keys is an object, an array an array, "
     "bin a base64 string (RFC 4648 section 4), a float that is NaN or infinite and any extension type are "
-    "invalid (they have no JSON form). Records travel as positional arrays (prefixItems, in field order)."
+    "invalid (they have no JSON form). Records travel as positional arrays (prefixItems, in field order). "
+    "Beyond JSON Schema the decoder also refuses a float with an integral value where an integer is due "
+    "(integer vs float: JSON has one number type) and text where the schema says x-msgpack: bin, or bin "
+    "where it does not (both are JSON strings)."
 )
 
 UNIT_BY_SUFFIX = (
@@ -51,7 +54,6 @@ INVARIANTS = {
     "ObjectList": ["objects[].bbox_px: x2 >= x1 and y2 >= y1"],
     "PathSwitchCommand": ["valid_until > issued_at",
                           "speed_profile_mps is empty or has one entry per waypoint"],
-    "WorldSnapshot": ["actors[].colour_bgr: each channel in 0..255"],
 }
 """Cross-field rules the decoder enforces that JSON Schema cannot state (listed in ``$comment``)."""
 
