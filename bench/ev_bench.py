@@ -106,6 +106,7 @@ from rsu.track import FrameworkTracker, iou_matrix  # noqa: E402
 from sim.camera_source import SimCamera  # noqa: E402
 from sim.lamps import signal_on, style_signal  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
+from sim.warmup import warmup_frames  # noqa: E402
 from sim.world import World  # noqa: E402
 
 cv2.setNumThreads(1)
@@ -113,7 +114,6 @@ SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_nev
 YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
 if not YOLOX.is_file():
     YOLOX = Path("/work/shared/data/real/yolox_nano/yolox_nano.onnx")
-WARMUP_FRAMES = 30
 HELD_OUT_SEEDS = (301, 302)
 """Drawn once for issue 17 and frozen; 1-4 and 101/102 are tuning seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
@@ -142,10 +142,9 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
     for r in corridor.rsus:
         cam = SimCamera(corridor, r.rsu_id, seed=seed)
         det = make_detector(detector)
-        if detector == "motion":  # an RSU that has been running: it has learned the empty road
-            empty = world.snapshot().model_copy(update={"actors": []})
-            for _ in range(WARMUP_FRAMES):
-                det.detect(cam.render(empty).image)
+        if detector == "motion":  # an RSU that has been running: MOG2 learnt the road from its own frames
+            for _rid, image in warmup_frames(sc, {r.rsu_id: cam}):
+                det.detect(image)
         kw = dict(classifier_kwargs or {})
         if box_gate:
             kw["box_gate"] = SingleVehicleGate(r.camera, corridor.road)

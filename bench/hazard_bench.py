@@ -8,7 +8,7 @@ Lockstep, one process, on a simulated clock: ``deploy.lockstep.CorridorLockstep`
 -> localiser -> ``rsu.hazard.HazardDetector``; ``RsuService`` publishes), the ``DdmService`` (fusion,
 EV and hazard policies, command manager) and the AV's ``VehicleService`` (controller on the bicycle
 plant; its true pose drives the sim AV) over a ``LocalBus``. Each RSU has been running before the
-scenario starts: its motion and hazard background models have learnt the empty road.
+scenario starts: its motion and hazard background models learnt the road from its own frames (``sim.warmup``).
 
 - **hazard scenarios** (``--scenarios``, default hazard_in_lane and hazard_falls) run end to end;
 - **hazard-free scenarios** (``--clean``, default rellis_ev_yield and ev_lights_never_on) run with the

@@ -54,11 +54,10 @@ from rsu.track import FrameworkTracker
 from sim.camera_source import SimCamera
 from sim.scenario import Scenario, load_scenario
 from sim.service import SimService
+from sim.warmup import WARMUP_S, warmup_frames
 from vehicle.service import VehicleService
 
 WORLD_PERIOD_S = 0.05
-MOTION_WARMUP_FRAMES = 30
-"""MotionDetector frames of the empty road before the run: an RSU that has been running has a background."""
 
 
 @dataclass
@@ -81,7 +80,10 @@ class LockstepConfig:
     realtime: bool = False
     """Pace the simulated clock to the wall clock (for watching); the default runs as fast as it can."""
     hazards: bool = True
-    """RSUs run the static-object hazard detector (``rsu.hazard``, issue 10), started from the empty road."""
+    """RSUs run the static-object hazard detector (``rsu.hazard``, issue 10)."""
+    warmup_s: float = WARMUP_S
+    """Before scenario time 0 the motion and hazard detectors learn their background from this many seconds
+    of each camera's own frames of the road with traffic (``sim.warmup``): no picture of the empty road."""
 
 
 class _Task:
@@ -124,6 +126,7 @@ class CorridorLockstep:
         self._snapshot = None
         for r in corridor.rsus:
             self._add_rsu(r.rsu_id)
+        self._warm_up()
         self.ddm: DdmService | None = None
         self.start_ddm()
         self.link: DsrcLink | None = None
@@ -151,17 +154,10 @@ class CorridorLockstep:
         r = self.corridor.rsu(rsu_id)
         cam = SimCamera(self.corridor, rsu_id, seed=self.scenario.seed)
         det = self._make_detector()
-        empty = None
-        if isinstance(det, MotionDetector) or self.config.hazards:
-            empty = cam.render(self.sim.world.snapshot().model_copy(update={"actors": []})).image
-        if isinstance(det, MotionDetector):
-            for _ in range(MOTION_WARMUP_FRAMES):
-                det.detect(empty)
         loc = Localizer(self.corridor, r)
         hazards = None
-        if self.config.hazards:  # an RSU that has been running: its background is the empty road
+        if self.config.hazards:
             hazards = HazardDetector(self.corridor.road, loc.mapper.to_ground, camera=r.camera)
-            hazards.prime(empty)
         clf = TrackEvClassifier(body=load_body_classifier("default"))  # as iea-rsu runs it (--ev-body default)
         pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, clf, hazards=hazards)
         annotate = None
@@ -173,6 +169,21 @@ class CorridorLockstep:
         self._cameras[rsu_id] = cam
         self._tasks.append(_Task(f"rsu:{rsu_id}", 1.0 / cam.fps, lambda now, rid=rsu_id: self._rsu_step(rid, now),
                                  start_s=1.0 / cam.fps))
+
+    def _warm_up(self) -> None:
+        """The RSUs have been running: their background models learn from the cameras' own frames of the
+        road before the scenario (``sim.warmup``), never from a render with the actors removed."""
+        learners = {rid: svc.pipeline for rid, svc in self.rsus.items()
+                    if isinstance(svc.pipeline.detector, MotionDetector) or svc.pipeline.hazards is not None}
+        if not learners:
+            return
+        cams = {rid: self._cameras[rid] for rid in learners}
+        for rid, image in warmup_frames(self.scenario, cams, self.config.warmup_s):
+            pipe = learners[rid]
+            if isinstance(pipe.detector, MotionDetector):
+                pipe.detector.detect(image)
+            if pipe.hazards is not None:
+                pipe.hazards.learn_background(image)
 
     def kill_rsu(self, rsu_id: str) -> None:
         """The RSU process dies: it stops publishing (no goodbye message)."""

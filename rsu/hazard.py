@@ -539,6 +539,14 @@ class HazardDetector:
         """Start from a known empty-road frame instead of the initial median (full-size BGR)."""
         self.fg.prime(self.fg.small(empty_road))
 
+    def learn_background(self, image: np.ndarray) -> None:
+        """A frame from before the watch starts (full-size BGR, e.g. ``sim.warmup``): learnt into the
+        backgrounds (initial median, then the running averages) with no static evidence kept and no
+        hazard raised, so traffic that stood still during the warm-up is not a hazard later."""
+        self.fg.update(self.fg.small(image))
+        if self.fg.evidence is not None:
+            self.fg.evidence[:] = 0
+
     # ------------------------------------------------------------------ per frame
     def update(self, image: np.ndarray, t_s: float, track_ids=(), boxes=(),
                speeds: dict[int, float] | None = None) -> list[HazardEvent]:
