@@ -3,7 +3,8 @@
     python bench/protocol_bench.py [--json] [--duration-s 10]
 
 Prints the encode+decode time of every message kind (an ObjectList of 30 objects is the headline
-figure; target <= 100 us), then runs two separate processes over Zenoh on loopback (peer mode, no
+figure; target <= 100 us), the same ObjectList with its records sent as maps instead of positional
+arrays (the layout issue 26 weighed: size and round trip both ways), then runs two separate processes over Zenoh on loopback (peer mode, no
 router): a publisher streaming 30-object ObjectLists as fast as it can (messages/s received), and
 the same at 1,000 msg/s for the one-way latency p50/p99 (target p99 <= 2 ms).
 """
@@ -11,6 +12,7 @@ the same at 1,000 msg/s for the one-way latency p50/p99 (target p99 <= 2 ms).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -24,6 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from protocol import codec  # noqa: E402
 from protocol.codec import decode, encode  # noqa: E402
 from protocol.examples import example_messages, object_list  # noqa: E402
 
@@ -45,6 +48,37 @@ def codec_us(message, repeat: int) -> tuple[float, float, float]:
         dec.append((t2 - t1) / repeat * 1e6)
     e, d = min(enc), min(dec)
     return e, d, e + d
+
+
+@contextlib.contextmanager
+def records_as_maps():
+    """The codec with nested records sent as maps {field: value} instead of arrays (issue 26's alternative)."""
+
+    def to_map(plan, obj):
+        row = plan.getter(obj)
+        out = dict(zip(plan.names, (row,) if len(plan.names) == 1 else row, strict=True))
+        for n in plan.nested:
+            v = out[n.name]
+            if v is not None:
+                out[n.name] = [n.plan.to_row(x) for x in v] if n.many else n.plan.to_row(v)
+        return out
+
+    def from_map(plan, value, where):
+        if not isinstance(value, dict):
+            raise codec.ProtocolError(f"{where}: a {plan.cls.__name__} must be a map", "invalid")
+        if plan.nested:
+            value = dict(value)
+            for n in plan.nested:
+                if n.name in value:
+                    value[n.name] = codec._from_wire(n, value[n.name], f"{where}.{n.name}")
+        return value
+
+    saved = codec._RecordPlan.to_row, codec._RecordPlan.from_row
+    codec._RecordPlan.to_row, codec._RecordPlan.from_row = to_map, from_map
+    try:
+        yield
+    finally:
+        codec._RecordPlan.to_row, codec._RecordPlan.from_row = saved
 
 
 def zenoh_run(rate_hz: float, duration_s: float) -> dict:
@@ -86,9 +120,19 @@ def main() -> int:
     for _, msg in example_messages():
         e, d, rt = codec_us(msg, args.repeat)
         print(f"{msg.KIND:<20}{len(encode(msg)):>8}{e:>10.1f}{d:>10.1f}{rt:>12.1f}")
-    e, d, rt = codec_us(object_list(30), args.repeat)
+    ol = object_list(30)
+    e, d, rt = codec_us(ol, args.repeat)
+    with records_as_maps():
+        assert decode(encode(ol), type(ol)) == ol
+        map_bytes = len(encode(ol))
+        me, md, mrt = codec_us(ol, args.repeat)
     figures["codec_roundtrip_us_30obj"] = round(rt, 2)
-    print(f"ObjectList, 30 objects: round trip {rt:.1f} us (target <= 100 us)")
+    figures["objectlist_30obj_bytes"] = len(encode(ol))
+    figures["codec_roundtrip_us_30obj_records_as_maps"] = round(mrt, 2)
+    figures["objectlist_30obj_bytes_records_as_maps"] = map_bytes
+    print(f"ObjectList, 30 objects: round trip {rt:.1f} us (target <= 100 us), {len(encode(ol))} bytes")
+    print(f"  the same with records as maps (not the wire format): round trip {mrt:.1f} us "
+          f"(encode {me:.1f}, decode {md:.1f}), {map_bytes} bytes")
 
     if not args.skip_zenoh:
         print(f"\nZenoh loopback, two processes, peer mode, 30-object ObjectLists, {args.duration_s:g} s each")
