@@ -3,6 +3,7 @@
     iea schema [--check]        write (or check) the message JSON Schemas in protocol/schema/
     iea router ...              start a Zenoh router (same as iea-router)
     iea corridor [FILE]         validate a corridor file and print a summary
+    iea calibrate RSU ...       commission a camera: its pose from surveyed points, error table, check image
     iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
     iea deploy compose|acl ...  generate docker-compose.yml / router ACL and credentials for a corridor
@@ -241,6 +242,12 @@ def _health(argv: list[str]) -> int:
     return 0 if h.status.value in ("ok", "degraded") else 1
 
 
+def _calibrate(argv: list[str]) -> int:
+    from deploy import commission
+
+    return commission.main(argv)
+
+
 def _demo(argv: list[str]) -> int:
     from deploy import demo
 
@@ -265,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
         "schema": ("write or check the message JSON Schemas", _schema),
         "router": ("start a Zenoh router (iea-router)", None),
         "corridor": ("validate and summarise a corridor file", _corridor),
+        "calibrate": ("commission a camera from surveyed points (iea calibrate RSU --image F --points P.csv)",
+                      _calibrate),
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
         "deploy": ("generate deployment files (iea deploy acl|compose ...)", _deploy),
         "demo": ("run the main scenario end to end (make demo)", _demo),

@@ -256,9 +256,10 @@ def solve_camera(points: Sequence[SurveyPoint], width_px: int, height_px: int, *
     cy = height_px / 2.0 if cy_px is None else float(cy_px)
     ransac_px = max(3.0, 0.006 * width_px) if ransac_px is None else float(ransac_px)
     notes: list[str] = []
-    if fx_px is None:
-        fx_px = _sweep_focal(pts, width_px, cx, cy, aspect, ransac_px)
-        notes.append(f"focal length guessed by a sweep: {fx_px:.0f} px")
+    if fx_px is None or (solve_focal != "no" and len(pts) >= MIN_POINTS_FOCAL):
+        guess = fx_px
+        fx_px = _sweep_focal(pts, width_px, cx, cy, aspect, ransac_px, guess)
+        notes.append(f"focal length guess from a sweep: {fx_px:.0f} px" + (f" (given {guess:.0f} px)" if guess else ""))
     kept = list(pts)
     flagged: list[str] = []
     max_drop = max(0, len(pts) - max(MIN_POINTS, int(math.ceil(0.6 * len(pts)))))
@@ -310,9 +311,9 @@ def _k(fx: float, cx: float, cy: float, aspect: float) -> np.ndarray:
 
 def _ransac(obj: np.ndarray, img: np.ndarray, k: np.ndarray, dist: np.ndarray, ransac_px: float):
     ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, k, dist, iterationsCount=300, reprojectionError=ransac_px,
-                                             confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+                                             confidence=0.999, flags=cv2.SOLVEPNP_SQPNP)
     if not ok or inl is None or len(inl) < MIN_POINTS:
-        # EPnP's minimal sets fail on near-planar, far-away surveys: the best exhaustive all-point solution
+        # no consensus: the globally optimal all-point solution, then its points within reach
         ok, rvec, tvec = cv2.solvePnP(obj, img, k, dist, flags=cv2.SOLVEPNP_SQPNP)
         if not ok:
             return None
@@ -326,20 +327,23 @@ def _ransac(obj: np.ndarray, img: np.ndarray, k: np.ndarray, dist: np.ndarray, r
 
 
 def _sweep_focal(points: Sequence[SurveyPoint], width_px: int, cx: float, cy: float, aspect: float,
-                 ransac_px: float) -> float:
-    """The focal length (px) of the lowest median reprojection error over guesses 0.3-4 x the image width."""
+                 ransac_px: float, around_px: float | None = None) -> float:
+    """The focal length (px) of the best robust fit (MSAC score: squared errors truncated at ``ransac_px``) over
+    guesses 0.5-2 x ``around_px`` (0.3-4 x the image width without one), then a finer sweep about the best."""
     obj, img = _arrays(points)
-    best = (math.inf, float(width_px))
-    for f in width_px * np.geomspace(0.3, 4.0, 40):
+
+    def score(f: float) -> float:
         k = _k(f, cx, cy, aspect)
         got = _ransac(obj, img, k, np.zeros(5), ransac_px)
         if got is None:
-            continue
+            return math.inf
         err = np.linalg.norm(cv2.projectPoints(obj, got[0], got[1], k, np.zeros(5))[0].reshape(-1, 2) - img, axis=1)
-        score = float(np.median(err))
-        if score < best[0]:
-            best = (score, float(f))
-    return best[1]
+        return float(np.sum(np.minimum(err, ransac_px) ** 2))
+
+    grid = (around_px * np.geomspace(0.5, 2.0, 25)) if around_px else width_px * np.geomspace(0.3, 4.0, 40)
+    best = min(grid, key=score)
+    step = grid[1] / grid[0]
+    return float(min(best * np.geomspace(1 / step, step, 9), key=score))
 
 
 def _solve_once(points, width_px, height_px, fx_px, cx, cy, aspect, solve_focal, solve_distortion,

@@ -135,7 +135,7 @@ def error_table(solution: CameraSolution, road: Road, max_range_m: float = 100.0
                 draws: int = 200, seed: int = 0, step_m: float = 20.0) -> list[BandError]:
     """One row per distance band: predicted transformation error, both methods' cross-validated errors, the pick."""
     cam = solution.camera
-    dist_of = {p.name: math.hypot(p.x_m - cam.x_m, p.y_m - cam.y_m) for p in solution.points}
+    dist_of = {p.name: math.hypot(p.x_m - cam.x_m, p.y_m - cam.y_m) for p in solution.kept}
     t_cv, r_cv = transform_cv(solution), reference_cv(solution.kept)
     rows = []
     for centre, lo, hi in bands_for(max_range_m, step_m):

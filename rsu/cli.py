@@ -85,7 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-box-gate", action="store_true",
                     help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
                          "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
-    ap.add_argument("--annotate", metavar="OUT.mp4", default=None, help="write the video with boxes, ids and labels")
+    ap.add_argument("--annotate", metavar="OUT.mp4", default=None,
+                    help="write the video with boxes, ids and labels over the corridor drawn through the camera "
+                         "(lanes, road edges, coverage limit, 10 m grid: lines off the painted lanes mean the "
+                         "camera moved; recommission with `iea calibrate`)")
     ap.add_argument("--key", metavar="PEM", default=None,
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
     ap.add_argument("--key-id", metavar="ID", default=None,

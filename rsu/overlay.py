@@ -12,7 +12,7 @@ Pure: numpy/OpenCV drawing on arrays, no I/O.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -135,9 +135,19 @@ def draw_legend(img: np.ndarray, lines: Sequence[tuple[str, tuple[int, int, int]
 
 def check_image(frame: np.ndarray, cam: CameraConfig, road: Road, *, dist: np.ndarray | None = None,
                 max_range_m: float | None = None, points: Sequence[OverlayPoint] = (),
-                title: str = "") -> np.ndarray:
-    """The check image of issue 27 (module docstring) on a copy of ``frame``."""
-    img = draw_corridor(frame.copy(), cam, road, dist=dist, max_range_m=max_range_m)
+                title: str = "", min_width_px: int = 960) -> np.ndarray:
+    """The check image of issue 27 (module docstring) on a copy of ``frame``, enlarged by a whole factor to at
+    least ``min_width_px`` wide so that labels stay legible on small frames."""
+    k = max(1, int(np.ceil(min_width_px / frame.shape[1])))
+    img = cv2.resize(frame, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else frame.copy()
+    if k > 1:
+        cam = replace(cam, width_px=cam.width_px * k, height_px=cam.height_px * k, fx_px=cam.fx_px * k,
+                      fy_px=cam.fy_px * k, cx_px=(cam.cx_px + 0.5) * k - 0.5, cy_px=(cam.cy_px + 0.5) * k - 0.5)
+
+        def up(uv):
+            return None if uv is None else tuple((np.asarray(uv, dtype=float) + 0.5) * k - 0.5)
+        points = [replace(p, measured_uv=up(p.measured_uv), reprojected_uv=up(p.reprojected_uv)) for p in points]
+    draw_corridor(img, cam, road, dist=dist, max_range_m=max_range_m)
     draw_points(img, points)
     legend = [(title, (255, 255, 255))] if title else []
     legend += [("grid 10 m", GRID), ("lanes", LANE), ("road edge", EDGE), ("coverage limit", LIMIT),

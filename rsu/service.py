@@ -3,8 +3,9 @@
 
 :class:`RsuPipeline` is the per-frame wiring of the pure cores (no I/O, no clock); :class:`RsuService`
 is the imperative shell: it pulls frames, times every stage, publishes, writes the optional annotated
-video and reports health. Frames never queue without bound: live sources keep at most
-``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
+video (boxes over the corridor's lanes, road edges, coverage limit and 10 m grid drawn through the
+camera: ``rsu.overlay.CalibrationOverlay``) and reports health. Frames never queue without bound: live
+sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
 Classifier hook: any callable ``(frame, tracks) -> {track_id: (ev_score, light_state | None[, ev_state])}``
@@ -58,6 +59,7 @@ from rsu.detect import EV, Detector
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardDetector, HazardEvent
 from rsu.localize import LocalizedObject, Localizer
+from rsu.overlay import CalibrationOverlay
 from rsu.track import FrameworkTracker, TrackSet
 
 log = logging.getLogger(__name__)
@@ -173,6 +175,7 @@ class RsuService:
         self._next_health_s: float | None = None
         self._seq = {"objects": 0, "health": 0, "ev": 0, "hazard": 0}
         self._writer: cv2.VideoWriter | None = None
+        self._overlay: CalibrationOverlay | None = None
         self._stop = False
         self.frames = 0
         self.stalls = 0
@@ -301,7 +304,11 @@ class RsuService:
                      h.x_m, h.y_m, h.length_m, h.width_m)
 
     def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
-        image = annotate(frame.image, result)
+        if self._overlay is None:  # the corridor drawn through the camera (issue 27): drift shows as misfit lines
+            rsu = self.corridor.rsu(self.rsu_id)
+            self._overlay = CalibrationOverlay(rsu.camera, self.corridor.road, max_range_m=rsu.max_range_m,
+                                               calibration=rsu.calibration)
+        image = annotate(self._overlay.apply(frame.image), result)
         if self._writer is None:
             fps = float(getattr(self.source, "fps", None) or 15.0)
             h, w = image.shape[:2]
