@@ -9,7 +9,7 @@ router with --connect), keeps every payload, and after the run validates each on
 1. msgpack -> the JSON view the schemas describe: maps with string keys, arrays, bin as base64
    (RFC 4648 section 4); NaN, +-inf and extension types have no JSON form and are invalid;
 2. the schema is chosen by the payload's ``kind``; the key must match one of its ``x-key-expressions``;
-3. Draft 2020-12 validation.
+3. Draft 2020-12 validation (``pattern`` with ECMA-262's ``$``, as the spec reads it).
 
 Validation runs after the subscription ends so that the client takes no CPU from the services while
 they run. Ends with one JSON line: messages, valid, valid_fraction, by_kind, by_corridor, first errors.
@@ -21,6 +21,7 @@ import argparse
 import base64
 import json
 import math
+import re
 import sys
 import threading
 import time
@@ -28,9 +29,21 @@ from pathlib import Path
 from typing import Any
 
 import msgpack
-from jsonschema import Draft202012Validator
+from jsonschema import Draft202012Validator, ValidationError, validators
 
 SCHEMA_DIR = Path(__file__).resolve().parent.parent / "protocol" / "schema"
+
+
+def _ecma_pattern(validator: Any, pattern: str, instance: Any, schema: dict) -> Any:
+    """``pattern`` as JSON Schema reads it (ECMA-262): ``$`` ends the input; Python's re.search, which
+    jsonschema uses, also lets ``$`` match before a final newline ("rsu1\\n" would pass)."""
+    if validator.is_type(instance, "string"):
+        python = pattern[:-1] + r"\Z" if pattern.endswith("$") and not pattern.endswith("\\$") else pattern
+        if not re.search(python, instance):
+            yield ValidationError(f"{instance!r} does not match {pattern!r}")
+
+
+WireValidator = validators.extend(Draft202012Validator, {"pattern": _ecma_pattern})
 
 
 def _no_ext(code: int, data: bytes) -> Any:
@@ -68,7 +81,7 @@ class WireChecker:
             raise FileNotFoundError(f"no *.json schema in {schema_dir}")
         for schema in self.schemas.values():
             Draft202012Validator.check_schema(schema)
-        self.validators = {kind: Draft202012Validator(s) for kind, s in self.schemas.items()}
+        self.validators = {kind: WireValidator(s) for kind, s in self.schemas.items()}
         self.messages = 0
         self.valid = 0
         self.by_kind: dict[str, list[int]] = {}

@@ -147,6 +147,7 @@ INVALID: dict[str, tuple[str, bytes]] = {
     "box of 3 numbers": _mutated("ObjectList", _set(("objects", 0, OBJ("bbox_px")), [1.0, 2.0, 3.0])),
     "unknown enum value": _mutated("ObjectList", _set(("objects", 0, OBJ("light_state")), "disco")),
     "id with a space": _mutated("ObjectList", _set(("src",), "rsu 1")),
+    "id ending in a newline": _mutated("ObjectList", _set(("rsu_id",), "rsu1\n")),
     "id of 65 characters": _mutated("ObjectList", _set(("rsu_id",), "r" * 65)),
     "negative speed": _mutated("VehicleState", _set(("speed_mps",), -1.0)),
     "evidence of 4 fields": _mutated("EvAlert", lambda b: b["evidence"].pop()),
