@@ -196,6 +196,38 @@ def test_what_only_the_decoder_refuses_is_stated_in_the_schema(case):
     assert stated in CHECKER.schemas[kind]["$comment"]
 
 
+def _leaf_paths(value: Any, path: tuple = ()):
+    yield path
+    if isinstance(value, dict):
+        for k, x in value.items():
+            yield from _leaf_paths(x, (*path, k))
+    elif isinstance(value, list):
+        for i, x in enumerate(value):
+            yield from _leaf_paths(x, (*path, i))
+
+
+def test_the_schema_never_refuses_what_the_decoder_accepts():
+    """Differential run: 600 seeded mutations of the examples (one value replaced by an edge value); any
+    payload the project's decoder accepts, the outside client accepts too."""
+    import random
+
+    rng = random.Random(26)
+    pool = [0, 1, -1, 2**53, 2**53 + 1, 2**64 - 1, -(2**63), 0.5, 1.0, -0.0, 1e300, -1e300, 91.0, 181.0, 16, 255,
+            256, "", "a", "rsu1", "rsu1\n", "x" * 65, "a b", "none", "vehicle", "resume", True, False, None, [],
+            [1.0, 2.0], {}, {"a": 1}, b"abc", bytes(64)]
+    accepted = 0
+    for _ in range(600):
+        key, msg = rng.choice(list(EXAMPLES.values()))
+        body = msgpack.unpackb(encode(msg), raw=False)
+        path = rng.choice([p for p in _leaf_paths(body) if p])
+        _set(path, rng.choice(pool))(body)
+        payload = msgpack.packb(body, use_bin_type=True)
+        if _decoder_error(key, payload) is None:
+            accepted += 1
+            assert CHECKER.error(key, payload) is None, (path, body)
+    assert accepted > 50
+
+
 def test_json_view_maps_bin_to_base64_and_refuses_what_json_cannot_hold():
     assert CLIENT.json_view(msgpack.packb({"a": b"\x00\x01"}, use_bin_type=True)) == {"a": "AAE="}
     for bad in (msgpack.packb(math.nan), msgpack.packb(msgpack.ExtType(1, b"")), b"\x91", b"\xc0\xc0"):
