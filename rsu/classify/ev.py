@@ -262,7 +262,10 @@ class TrackEvClassifier:
         """The EV-body score of this frame's crop, when the band shows lamp activity
         (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least ``body_period_s`` old;
         else None."""
-        if self.body is None or crop is None or not lamp_activity(lamps, bar, self.config):
+        if self.body is None or crop is None:
+            return None
+        cue_s = info.evidence.last_lamp_cue_s  # e.g. a white strobe's flashes, which lamp_activity does not see
+        if not lamp_activity(lamps, bar, self.config) and (cue_s is None or now_s - cue_s > self.config.steady_window_s):
             return None
         if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
             return None

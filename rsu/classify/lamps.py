@@ -3,7 +3,7 @@
 :func:`measure_lamps` reads the *lamp band* of a crop (the top rows, where a light bar sits when the
 camera looks down at a vehicle; the caller grows the box upwards first, since a roof bar sits above a
 COCO car box): the fractions of its pixels that are lamp-bright red and blue, and the share of those
-pixels in the central half of the band's width. White lamps are not measured. A light bar sits on the roof,
+pixels in the central half of the band's width (and white, with the light-bar definition). A light bar sits on the roof,
 in the middle; tail, brake and turn lamps and hazard flashers sit at the corners of the body, so a
 lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and gives no EV evidence
 (:class:`rsu.classify.temporal.TrackEvidence`).
@@ -36,13 +36,16 @@ import numpy as np
 
 @dataclass(frozen=True)
 class LampMeasurement:
-    """Red and blue lamp pixel fractions in the lamp band of one crop, and the share of each colour's lamp
-    pixels in the central half of the band's width (1.0 when none is lit)."""
+    """Red, blue (and, with the light-bar definition, white) lamp pixel fractions in the lamp band of one
+    crop, and the share of each colour's lamp pixels in the central half of the band's width (1.0 when none
+    is lit)."""
 
     red: float
     blue: float
     red_centre: float = 1.0
     blue_centre: float = 1.0
+    white: float = 0.0
+    white_centre: float = 1.0
 
     @property
     def coloured(self) -> float:
@@ -60,12 +63,17 @@ class LampColours:
     min_value: int = 240
     min_saturation: int = 120
     min_chroma: int = 50
+    white_min_value: int = 0
+    """``chroma`` only: a white lamp pixel has every channel at least this (0: white not measured)."""
+    white_max_chroma: int = 40
+    """... and its channels at most this far apart."""
 
 
 LAMP_BRIGHT = LampColours()
 """A lamp that saturates the sensor (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
-BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50)
-"""A red or blue light bar in compressed real video, lit or dim (module docstring)."""
+BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50, white_min_value=245)
+"""A red or blue light bar in compressed real video, lit or dim, and white lamps (every channel >= 245, within
+40 of each other: a lit white strobe clips the sensor) (module docstring)."""
 
 
 def _centre_share(mask: np.ndarray) -> float:
@@ -101,10 +109,16 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
             bright = (s >= c.min_saturation) & (v >= c.min_value)
             red = bright & ((h <= 10) | (h >= 170))
             blue = bright & (h >= 100) & (h <= 130)
+        white = None
+        if c.kind == "chroma" and c.white_min_value > 0:
+            lo, hi = np.minimum(np.minimum(b, g), r), np.maximum(np.maximum(b, g), r)
+            white = (lo >= c.white_min_value) & (hi - lo <= c.white_max_chroma)
         if keep is not None:
             red, blue = red & keep, blue & keep
+            white = None if white is None else white & keep
+        w_frac, w_centre = (0.0, 1.0) if white is None else (float(np.count_nonzero(white)) / n, _centre_share(white))
         out.append(LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
-                                   _centre_share(red), _centre_share(blue)))
+                                   _centre_share(red), _centre_share(blue), w_frac, w_centre))
     return tuple(out)
 
 

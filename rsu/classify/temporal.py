@@ -36,6 +36,9 @@ classifies tracks, not frames). Three cues are combined:
    frames at ~80 % duty), so a third lamp cue, the **steady bar**, is accepted *only* with a confident
    body: a red or blue lamp in the middle of the band, covering at most ``steady_max_fraction`` of it
    (a bar, not paint), lit on at least ``steady_min_share`` of the samples of the last ``steady_window_s``.
+   White lamps (strobes) are measured in the light-bar definition too; they give a flash cue (two complete
+   flashes), which, like every light-bar cue, counts only with a confident body; a steady white never counts
+   (sky, a white roof, headlight glare).
 
 Lamps at the corners of the band (centre share < ``centre_min_share``: tail, brake and turn lamps,
 hazard flashers) give no cue of any kind.
@@ -133,8 +136,10 @@ class EvidenceConfig:
     body_window: int = 6
 
 
-SIGNALS = tuple(f"{k}_{c}{x}" for k in ("bright", "bar") for c in ("red", "blue") for x in ("", "_centre"))
-"""Per-frame signals a track keeps: lamp-bright and light-bar fractions of red and blue, and their centre shares."""
+COLOURS = {"bright": ("red", "blue"), "bar": ("red", "blue", "white")}
+"""The lamp colours each measurement kind keeps (white only in the light-bar definition)."""
+SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre"))
+"""Per-frame signals a track keeps: lamp-bright red and blue, light-bar red, blue and white, and their centre shares."""
 
 
 def lamp_activity(lamps: LampMeasurement, bar: LampMeasurement, config: EvidenceConfig) -> bool:
@@ -185,7 +190,7 @@ class TrackEvidence:
         keep = t >= now_s - window_s
         sig = self._signals
         out = {c: (np.fromiter(sig[f"{kind}_{c}"], float)[keep], np.fromiter(sig[f"{kind}_{c}_centre"], float)[keep])
-               for c in ("red", "blue")}
+               for c in COLOURS[kind]}
         return t[keep], out
 
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
@@ -224,6 +229,8 @@ class TrackEvidence:
         if best_hz is not None and kind == "bright":
             self.flash_hz = best_hz
         cue = flash_pattern(runs.get("red", []), runs.get("blue", []), cfg)
+        if cue is None and runs.get("white"):  # a white strobe: two flashes of its own (white alternates with nothing)
+            cue = flash_pattern(runs["white"], [], cfg)
         return EvCue(cue) if cue else None
 
     def _steady_bar(self, now_s: float) -> bool:
@@ -231,7 +238,9 @@ class TrackEvidence:
         t, series = self._series(now_s, cfg.steady_window_s, "bar")
         if len(t) < 3:
             return False
-        for x, centre in series.values():
+        for colour, (x, centre) in series.items():
+            if colour == "white":
+                continue  # steady white is sky, a white roof or headlight glare, never a bar on its own
             lit = x >= cfg.bar_on_fraction
             if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
                     and self._central(x, centre, cfg.bar_on_fraction)):
@@ -259,7 +268,7 @@ class TrackEvidence:
         bar = lamps if bar is None else bar
         self._t.append(now_s)
         for kind, m in (("bright", lamps), ("bar", bar)):
-            for c in ("red", "blue"):
+            for c in COLOURS[kind]:
                 self._signals[f"{kind}_{c}"].append(getattr(m, c))
                 self._signals[f"{kind}_{c}_centre"].append(getattr(m, f"{c}_centre"))
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
@@ -275,7 +284,7 @@ class TrackEvidence:
         lamp_cue = flash or self._flash_cue(now_s, "bar") or (EvCue.STEADY_BAR if self._steady_bar(now_s) else None)
         if lamp_cue is not None:
             self.last_lamp_cue_s = now_s
-        if lamps.coloured >= cfg.lamp_on_fraction or bar.coloured >= cfg.bar_on_fraction:
+        if lamps.coloured >= cfg.lamp_on_fraction or bar.coloured >= cfg.bar_on_fraction:  # red/blue: white may be sky
             self.last_lamp_on_s = now_s
         step = cfg.flash_gain if flash is not None else -cfg.decay
         if crop_score is not None:

@@ -110,3 +110,34 @@ def test_lamp_activity_gates_the_body_classifier_to_bar_like_light():
     assert not lamp_activity(dark, LampMeasurement(0.35, 0.0, 0.9, 1.0), cfg)  # red paint over the band
     assert not lamp_activity(LampMeasurement(0.05, 0.0, 0.1, 1.0), LampMeasurement(0.05, 0.0, 0.1, 1.0), cfg)
     assert not lamp_activity(dark, dark, cfg)
+
+
+def _white_run(white, body, duration_s=3.0):
+    ev, states, last = TrackEvidence(), [], None
+    for i in range(int(duration_s * FPS)):
+        t = i / FPS
+        b = None
+        if body is not None and (last is None or t - last >= 0.25 - 1e-9):
+            b, last = body, t
+        bar = LampMeasurement(0.0, 0.0, white=white(t))
+        states.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b, bar=bar)))
+    return ev, states
+
+
+def test_white_strobe_confirms_only_with_a_confident_body_and_steady_white_never():
+    strobe = lambda t: BAR if (t * 2.0) % 1.0 < 0.4 else 0.0  # noqa: E731  (2 Hz, 40 % duty)
+    ev, states = _white_run(strobe, body=0.95)
+    assert first(states) is not None and first(states) <= 1.5
+    assert EvCue.FLASH in ev.cues and EvCue.EV_BODY in ev.cues
+    assert first(_white_run(strobe, body=None)[1]) is None  # a white flash alone: headlight glints, reflections
+    assert first(_white_run(lambda t: BAR, body=0.95)[1]) is None  # steady white: sky, a white roof
+
+
+def test_bar_definition_measures_a_central_white_lamp():
+    from rsu.classify.lamps import BAR_COLOURED, measure_band
+
+    crop = np.full((100, 100, 3), 90, np.uint8)
+    crop[5:12, 40:60] = 255  # a lit white strobe in the middle of the roof
+    crop[60:70, 0:10] = 255  # a headlight at the corner, below the band
+    bar, = measure_band(crop, 0.4, (BAR_COLOURED,))
+    assert 0.03 < bar.white < 0.04 and bar.white_centre == 1.0 and bar.red == bar.blue == 0.0
