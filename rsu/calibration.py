@@ -284,9 +284,10 @@ def solve_camera(points: Sequence[SurveyPoint], width_px: int, height_px: int, *
         kept = [p for p in kept if p.name not in bad_names]
     cam, dist = sol["camera"], sol["dist"]
     if not (0.0 <= cam.pitch_rad <= math.pi / 2) or abs(cam.roll_rad) > 0.5 or cam.height_m <= 0.0:
-        raise CalibrationError(f"the solved camera is not a roadside camera looking down (height {cam.height_m:.1f} m, "
+        raise CalibrationError(f"no roadside camera looking down fits the pairs (solved: height {cam.height_m:.1f} m, "
                                f"pitch {math.degrees(cam.pitch_rad):.1f} deg, roll {math.degrees(cam.roll_rad):.1f} "
-                               "deg): check the pairs (mirrored world axes? x/y swapped?)")
+                               "deg): the pairs are inconsistent (pixel and world rows mismatched?) or the world axes "
+                               "mirrored (x/y swapped?)")
     notes += sol["notes"]
     all_uv, _ = project(cam, np.array([[p.x_m, p.y_m, p.z_m] for p in pts]), dist)
     residuals = tuple(

@@ -46,7 +46,7 @@ def _polyline(img: np.ndarray, cam: CameraConfig, dist: np.ndarray | None, xyz: 
     ok = (depth > 1.0) & (np.abs(uv[:, 0] - w / 2) < 2 * w) & (np.abs(uv[:, 1] - h / 2) < 2 * h)
     if dash_samples:
         ok &= (np.arange(len(ok)) // dash_samples) % 2 == 0
-    pts = np.round(uv * 16).astype(np.int32)  # 4 fractional bits: smooth lines
+    pts = np.round(np.where(ok[:, None], uv, 0.0) * 16).astype(np.int32)  # 4 fractional bits: smooth lines
     edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
     runs = [pts[a:b] for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= 2]
     if runs:
