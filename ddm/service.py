@@ -28,6 +28,13 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   the EV policy has nothing to do for a vehicle (no EV to yield to, not yielding), the hazard policy
   (:func:`ddm.hazard.decide_hazard`) may command a lane change around a hazard, a stop before it, or a
   resume. An EV command supersedes a hazard command (EV > hazard).
+- Presence and state (issue 21, ``protocol.presence``, ``ddm.catchup``): the service declares its
+  liveliness token and watches the RSUs' and vehicles'; an RSU whose token is lost is stale at once
+  (not after ``rsu_stale_s`` of silence), a vehicle whose token is lost gets no decisions. It answers
+  ``iea/{c}/ddm/state`` (its picture, JSON) and ``iea/{c}/ddm/health`` (its latest Health). At start it
+  queries the RSUs' latest object lists and active alerts and the vehicles' states; once every RSU of
+  the corridor has answered, the listen period ends and it decides at once (EV-aware without waiting
+  for the next alert repeat).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ from collections import Counter, deque
 
 import numpy as np
 
+from ddm.catchup import catch_up_order, catch_up_queries, encode_state, state_document
 from ddm.commands import CommandManager, CommandState
 from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
@@ -49,7 +57,16 @@ from ddm.policy import Decision, Ego, Response, decide, plan
 from ddm.world import CorridorWorld
 from protocol.clock import Clock, RateTimer
 from protocol.corridor import Corridor
-from protocol.keys import KeyError_, all_rsus_expr, all_vehicles_expr, ddm_health_key, parse_key, vehicle_key
+from protocol import presence
+from protocol.keys import (
+    KeyError_,
+    all_rsus_expr,
+    all_vehicles_expr,
+    ddm_health_key,
+    ddm_state_key,
+    parse_key,
+    vehicle_key,
+)
 from protocol.messages import (
     CommandAck,
     EvAlert,
@@ -161,12 +178,106 @@ class DdmService:
         self.hazard_responses: dict[str, HazardResponse] = {}
         self._hazard_rollback: dict[str, HazardResponse] = {}
         self._last_hazard_reason: dict[str, tuple[str, int | None]] = {}
+        self.listen_until_s = now + cfg.startup_listen_s
+        self.presence = presence.PresenceBook()
+        self.stale_now: set[str] = set()
+        self.last_health: Health | None = None
+        self.ev_aware_s: float | None = None
+        """Clock time of the first decision made with an EV in the picture (restart -> EV-aware)."""
+        self.catch_up_replies: dict[str, int] = {}
+        self._last_seq: dict[str, int] = {}
         # subscribe last: a Zenoh callback may run (on its own thread) as soon as this returns
         self._subs = [
             transport.subscribe(all_rsus_expr(c), self._on_rsu),
             transport.subscribe(all_vehicles_expr(c, "state"), self._on_vehicle_state),
             transport.subscribe(all_vehicles_expr(c, "ack"), self._on_ack),
         ]
+        self._handles = [
+            presence.watch(transport, c, self._on_presence),
+            presence.serve(transport, ddm_state_key(c), self._answer_state),
+            presence.serve(transport, self._health_key, self._answer_health),
+            presence.announce(transport, c, "ddm", ddm_id),
+        ]
+        self.catch_up()
+
+    # ------------------------------------------------------------------ presence, state, catch-up
+    def _on_presence(self, key: str, alive: bool) -> None:
+        now = self.clock.now()
+        with self._lock:
+            change = self.presence.update(key, alive, now)
+            if change is None:
+                return
+            role, node, up = change
+            if role == "rsu":
+                log.log(logging.INFO if up else logging.WARNING, "RSU %s %s (liveliness token)", node,
+                        "is up" if up else "is gone")
+                self._refresh_stale(now)
+            elif role == "vehicle" and not up:
+                log.warning("vehicle %s is gone (liveliness token lost): no decisions for it", node)
+
+    def _refresh_stale(self, now: float, publish: bool = True) -> bool:
+        """Stale RSUs: silent streams (``world.stale_rsus``) and lost tokens; log and publish changes."""
+        stale = set(self.world.stale_rsus(now)) | set(self.presence.lost("rsu"))
+        for r in sorted(stale - self.stale_now):
+            log.warning("RSU %s is stale (%s)", r, "token lost" if r in self.presence.lost("rsu")
+                        else f"no objects for > {self.config.rsu_stale_s:.2f} s")
+        for r in sorted(self.stale_now - stale):
+            log.info("RSU %s is alive again", r)
+        changed = stale != self.stale_now
+        self.stale_now = stale
+        self._stale_reported = stale
+        if changed and publish and self.last_health is not None:
+            self.publish_health(now)  # at once, not at the next 1 Hz beat
+        return changed
+
+    def _count_missed(self, key: str, seq: int) -> None:
+        """Sample-miss detection on the alert and ack streams: a gap in a publisher's ``seq``."""
+        last = self._last_seq.get(key)
+        self._last_seq[key] = seq
+        if last is not None and seq > last + 1:
+            self.counters["missed_alert_samples" if "/rsu/" in key else "missed_ack_samples"] += seq - last - 1
+
+    def _answer_state(self, _query: str) -> list[tuple[str, bytes]]:
+        with self._lock:
+            doc = state_document(self, self.clock.now())
+        return [(ddm_state_key(self.corridor_id), encode_state(doc))]
+
+    def _answer_health(self, _query: str) -> list[tuple[str, bytes]]:
+        from protocol.codec import encode
+
+        h = self.last_health
+        return [] if h is None else [(self._health_key, encode(h))]
+
+    def catch_up(self, timeout_s: float = 0.5) -> int:
+        """Query what the corridor knows now (object lists, active alerts, vehicle states) and ingest it;
+        when every RSU of the corridor answered with objects, stop listening and decide at once."""
+        replies = []
+        try:
+            for expr in catch_up_queries(self.corridor_id):
+                replies += self.transport.query(expr, timeout_s)
+        except NotImplementedError:
+            return 0
+        ordered = catch_up_order(replies)
+        for key, msg in ordered:
+            topic = parse_key(key).topic
+            self.catch_up_replies[topic] = self.catch_up_replies.get(topic, 0) + 1
+            if parse_key(key).domain == "vehicle":
+                self._on_vehicle_state(key, msg)
+            else:
+                self._on_rsu(key, msg)
+        heard = {parse_key(k).node for k, m in ordered if isinstance(m, ObjectList)}
+        expected = {r.rsu_id for r in self.corridor.rsus}
+        if expected and expected <= heard:
+            now = self.clock.now()
+            with self._lock:
+                self.listen_until_s = min(self.listen_until_s, now)
+                self._decide_all(now)
+            log.info("caught up from %d replies (%s): deciding at once", len(ordered),
+                     ", ".join(f"{k}={v}" for k, v in sorted(self.catch_up_replies.items())))
+        elif ordered:
+            log.info("caught up from %d replies; RSUs not heard yet: %s", len(ordered),
+                     ", ".join(sorted(expected - heard)) or "-")
+        return len(ordered)
 
     # ------------------------------------------------------------------ inputs
     def _reject(self, reason: str, detail: str) -> None:
@@ -217,6 +328,7 @@ class DdmService:
                 if msg.alert_id not in self.world.alerts and len(self.world.alerts) >= MAX_ALERTS:
                     self._reject("alert_limit", f"{key}: already {MAX_ALERTS} alerts")
                     return
+                self._count_missed(key, msg.seq)
                 self.world.ingest_ev_alert(msg, now)
                 self.counters["ev_alerts"] += 1
                 # decide at once for the vehicles this EV can concern; the others at the next loop step
@@ -227,6 +339,7 @@ class DdmService:
                 if msg.rsu_id != node:
                     self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
                     return
+                self._count_missed(key, msg.seq)
                 self.hazards.ingest(msg, now)
                 self.counters["hazard_alerts"] += 1
 
@@ -296,6 +409,7 @@ class DdmService:
         now = self.clock.now()
         with self._lock:
             self.counters["acks"] += 1
+            self._count_missed(key, msg.seq)
             self.commands.on_ack(msg, now)
             self._process_events(now)
 
@@ -324,6 +438,8 @@ class DdmService:
         rec = self.world.vehicles.get(vid)
         if rec is None or self.clock.now() - rec.received_s > self.config.vehicle_state_timeout_s:
             return None
+        if not self.presence.is_alive("vehicle", vid) and vid in self.presence.lost("vehicle"):
+            return None  # its session is gone: nothing it would receive
         s = rec.state
         return Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
                    s.active_command_id, rec.track_id)
@@ -331,7 +447,7 @@ class DdmService:
     def _decide_all(self, now: float, t0: float | None = None, near: tuple[float, float] | None = None) -> None:
         """Decide for every vehicle; ``near`` (an EV alert's position): only for the vehicles within
         ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it (the alert path stays short with many vehicles)."""
-        if now - self.started_s < self.config.startup_listen_s:
+        if now < self.listen_until_s:
             return
         evs = None
         radius = self.config.ev_lookbehind_m + ALERT_RADIUS_MARGIN_M
@@ -351,6 +467,9 @@ class DdmService:
                 continue
             others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
             decision = decide(ego, evs, others, self.frame, self.config, resp, now)
+            if evs and self.ev_aware_s is None:
+                self.ev_aware_s = now
+                log.info("first EV-aware decision %.3f s after start (%s)", now - self.started_s, decision.action)
             if decision.ev_near:
                 resp.ev_near_s = now
             if decision.ev_s_m is not None and decision.ev_speed_mps is not None:
@@ -436,13 +555,7 @@ class DdmService:
         with self._lock:
             t0 = time.perf_counter()
             self.world.maintain(now)
-            stale = set(self.world.stale_rsus(now))
-            for r in sorted(stale - self._stale_reported):
-                log.warning("RSU %s is stale (no objects for > %.2f s)", r, self.config.rsu_stale_s)
-            for r in sorted(self._stale_reported - stale):
-                log.info("RSU %s is alive again", r)
-            changed = stale != self._stale_reported
-            self._stale_reported = stale
+            changed = self._refresh_stale(now, publish=False)
             self.hazards.maintain(now)
             for what, hid in self.hazards.drain():
                 log.info("hazard %d %s", hid, what)
@@ -463,25 +576,31 @@ class DdmService:
         if self._period_latency:
             lat["decision_mean"] = float(np.mean(self._period_latency))
         lat["step"] = self._step_time_s * 1000.0
+        if self.ev_aware_s is not None:
+            lat["ev_aware_after_start"] = (self.ev_aware_s - self.started_s) * 1000.0
         rejected = dict(self.rejected)
         for reason, n in self.transport.stats.rejected.items():
             rejected[f"decode_{reason}"] = int(n)
         stale = sorted(self._stale_reported)
         n_rsu = len(self.world.rsu_ids)
         counts = {"tracks": self.world.track_count, "vehicles": len(self.world.vehicles),
-                  "outstanding": self.commands.outstanding(), "hazards": len(self.hazards.hazards)}
+                  "outstanding": self.commands.outstanding(), "hazards": len(self.hazards.hazards),
+                  "rsus_lost": len(self.presence.lost("rsu")), "vehicles_lost": len(self.presence.lost("vehicle"))}
         return Health(
             src=self.ddm_id, seq=self._health_seq, stamp=now, role=Role.DDM,
             status=HealthStatus.DEGRADED if stale else HealthStatus.OK, uptime_s=max(0.0, now - self.started_s),
             rates_hz=rates, latency_ms=lat,
             drops={"old_measurements": self.world.stats.dropped_old, "cmd_expired": self.counters["cmd_expired"],
-                   "cmd_rejected": self.counters["cmd_rejected"]},
+                   "cmd_rejected": self.counters["cmd_rejected"],
+                   "missed_alert_samples": self.counters["missed_alert_samples"],
+                   "missed_ack_samples": self.counters["missed_ack_samples"]},
             rejected=rejected, stale=stale[:64], counts=counts,
             detail=f"rsus_alive={n_rsu - len(stale)}/{n_rsu} " + " ".join(f"{k}={v}" for k, v in counts.items()),
         )
 
     def publish_health(self, now: float) -> Health:
         h = self.health(now)
+        self.last_health = h
         self.transport.publish(self._health_key, h)
         self._health_seq += 1
         self._last_health_s = now
@@ -509,6 +628,7 @@ class DdmService:
             stop.wait(delay)
 
     def close(self) -> None:
+        presence.close_all(self._handles)
         for s in self._subs:
             s.close()
         self._subs = []

@@ -5,6 +5,15 @@
     iea/{c}/ddm/health
     iea/{c}/sim/world | health
 
+Beside the published keys (issue 21):
+
+    iea/{c}/alive/{role}/{id}       liveliness token of every running service (role: rsu, ddm, vehicle, sim)
+    iea/{c}/ddm/state               queryable: the DDM's picture as a JSON document
+    iea/{c}/rsu/{rsu}/state         queryable: an RSU's tracks and configuration summary (JSON)
+
+and every service answers queries on its published keys with the latest message (health, an RSU's
+objects and active alerts, a vehicle's state).
+
 Builders return concrete keys; ``parse_key`` turns a concrete key back into its parts and the
 message type it carries; ``key_matches`` implements Zenoh's key-expression wildcards (``*`` one
 chunk, ``**`` any number of chunks, ``$*`` inside a chunk) for the in-process bus.
@@ -79,6 +88,39 @@ def sim_world_key(corridor: str) -> str:
 
 def sim_health_key(corridor: str) -> str:
     return f"{ROOT}/{_chunk(corridor, 'corridor')}/sim/health"
+
+
+PRESENCE_ROLES = ("rsu", "ddm", "vehicle", "sim")
+
+
+def alive_key(corridor: str, role: str, node_id: str) -> str:
+    """The liveliness token of one service: it exists exactly while the service's session is up."""
+    if role not in PRESENCE_ROLES:
+        raise KeyError_(f"unknown role {role!r} for a liveliness token; expected one of {PRESENCE_ROLES}")
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/alive/{role}/{_chunk(node_id, 'service id')}"
+
+
+def alive_expr(corridor: str, role: str = "*") -> str:
+    """Every liveliness token of ``role`` (``*``: of every role) in the corridor."""
+    if role != "*" and role not in PRESENCE_ROLES:
+        raise KeyError_(f"unknown role {role!r}; expected '*' or one of {PRESENCE_ROLES}")
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/alive/{role}/*"
+
+
+def parse_alive_key(key: str) -> tuple[str, str, str]:
+    """``(corridor, role, id)`` of a liveliness token key; ``KeyError_`` for anything else."""
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] != "alive" or parts[3] not in PRESENCE_ROLES:
+        raise KeyError_(f"key {key!r} is not a liveliness token iea/<corridor>/alive/<role>/<id>")
+    return _chunk(parts[1], "corridor"), parts[3], _chunk(parts[4], "service id")
+
+
+def ddm_state_key(corridor: str) -> str:
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/ddm/state"
+
+
+def rsu_state_key(corridor: str, rsu_id: str) -> str:
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/rsu/{_chunk(rsu_id, 'rsu id')}/state"
 
 
 def all_rsus_expr(corridor: str) -> str:

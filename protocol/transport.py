@@ -10,6 +10,19 @@ One small interface, ``publish(key, message)`` / ``subscribe(key_expr, callback)
 - ``DsrcLink``: wraps any transport with a seeded radio channel model (``protocol/channel.py``):
   latency + jitter, independent and bursty loss, range, bandwidth, scheduled outages.
 
+Beyond publish/subscribe (issue 21), the same interface carries Zenoh's other primitives, so the
+services use them without knowing the transport:
+
+- presence: ``declare_token(key)`` (a liveliness token, gone when the session is) and
+  ``subscribe_presence(key_expr, callback(key, alive), history=True)``;
+- state: ``declare_queryable(key_expr, handler(query_expr) -> [(key, payload)])`` and
+  ``query_bytes(key_expr, timeout_s)`` / ``query(key_expr, timeout_s)`` (decoded replies);
+- QoS: every publication gets the priority / congestion control / express of its kind
+  (``protocol.qos.qos_for_key``; ``ZenohTransport(qos=...)`` overrides it).
+
+Wrappers with an ``inner`` transport (``DsrcLink``, ``protocol.security.SecureTransport``) pass presence
+and queries to it unchanged: the radio model applies to the data streams only.
+
 Every transport decodes strictly (``protocol.codec``) before a callback sees a message: bad input is
 counted in ``stats.rejected`` by reason and dropped; an exception raised by a callback is counted
 and logged, never propagated into the transport's thread.
@@ -34,12 +47,17 @@ from protocol.clock import Clock, WallClock
 from protocol.codec import ProtocolError, decode, encode
 from protocol.keys import KeyError_, key_matches, message_type_for_key
 from protocol.messages import Envelope
+from protocol.qos import QosClass, qos_for_key
 
 log = logging.getLogger(__name__)
 
 MessageCallback = Callable[[str, Envelope], None]
 BytesCallback = Callable[[str, bytes], None]
 RejectCallback = Callable[[str, Exception], None]
+PresenceCallback = Callable[[str, bool], None]
+"""``callback(token_key, alive)``: a liveliness token appeared (True) or was lost (False)."""
+QueryHandler = Callable[[str], list[tuple[str, bytes]]]
+"""``handler(query_key_expr) -> [(concrete_key, payload)]``: the replies to one query."""
 
 
 @dataclass
@@ -77,6 +95,47 @@ class Transport:
 
     def close(self) -> None:
         pass
+
+    # -- presence and queries (wrappers pass them to ``inner``)
+    def _inner(self, what: str) -> Transport:
+        inner = getattr(self, "inner", None)
+        if not isinstance(inner, Transport):
+            raise NotImplementedError(f"{type(self).__name__} does not implement {what}")
+        return inner
+
+    def declare_token(self, key: str) -> Subscription:
+        """Declare a liveliness token on concrete ``key``; ``close()`` withdraws it."""
+        return self._inner("declare_token").declare_token(key)
+
+    def subscribe_presence(self, key_expr: str, callback: PresenceCallback, *, history: bool = True) -> Subscription:
+        """``callback(key, alive)`` for every token under ``key_expr`` that appears or is lost; with
+        ``history`` the tokens alive now are reported first."""
+        return self._inner("subscribe_presence").subscribe_presence(key_expr, callback, history=history)
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
+        """Answer queries intersecting ``key_expr`` with ``handler(query_expr)``'s (key, payload) pairs."""
+        return self._inner("declare_queryable").declare_queryable(key_expr, handler)
+
+    def query_bytes(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+        """Every reply to a query on ``key_expr``; returns when all queryables answered or at ``timeout_s``."""
+        return self._inner("query_bytes").query_bytes(key_expr, timeout_s)
+
+    def query(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, Envelope]]:
+        """``query_bytes`` decoded strictly by key (as ``subscribe`` does); bad replies are counted in
+        ``stats.rejected`` and left out."""
+        out = []
+        for key, payload in self.query_bytes(key_expr, timeout_s):
+            try:
+                out.append((key, decode(payload, message_type_for_key(key))))
+            except (ProtocolError, KeyError_) as exc:
+                with self._stats_lock:
+                    self.stats.rejected[exc.reason if isinstance(exc, ProtocolError) else "key"] += 1
+                log.debug("rejected reply on %s: %s", key, exc)
+        return out
+
+    def answer_latest(self, key_expr: str, latest: Callable[[], list[tuple[str, Envelope]]]) -> Subscription:
+        """A queryable answering with the encoded messages ``latest()`` returns (latest Health, objects...)."""
+        return self.declare_queryable(key_expr, lambda _q: [(k, encode(m)) for k, m in latest()])
 
     # -- message level
     def publish(self, key: str, message: Envelope) -> None:
@@ -129,6 +188,9 @@ class LocalBus(Transport):
     def __init__(self) -> None:
         super().__init__()
         self._subs: dict[int, tuple[str, BytesCallback]] = {}
+        self._tokens: dict[int, str] = {}
+        self._presence: dict[int, tuple[str, PresenceCallback]] = {}
+        self._queryables: dict[int, tuple[str, QueryHandler]] = {}
         self._ids = itertools.count()
         self._lock = threading.Lock()
         self._closed = False
@@ -154,9 +216,67 @@ class LocalBus(Transport):
 
         return Subscription(close)
 
+    def declare_token(self, key: str) -> Subscription:
+        if "*" in key or "$" in key:
+            raise KeyError_(f"a liveliness token needs a concrete key, got {key!r}")
+        with self._lock:
+            tid = next(self._ids)
+            self._tokens[tid] = key
+        self._notify_presence(key, True)
+
+        def close() -> None:
+            with self._lock:
+                gone = self._tokens.pop(tid, None)
+            if gone is not None:
+                self._notify_presence(gone, False)
+
+        return Subscription(close)
+
+    def _notify_presence(self, key: str, alive: bool) -> None:
+        with self._lock:
+            targets = [cb for expr, cb in self._presence.values() if key_matches(expr, key)]
+        for cb in targets:
+            cb(key, alive)
+
+    def subscribe_presence(self, key_expr: str, callback: PresenceCallback, *, history: bool = True) -> Subscription:
+        with self._lock:
+            sid = next(self._ids)
+            self._presence[sid] = (key_expr, callback)
+            alive = sorted({k for k in self._tokens.values() if key_matches(key_expr, k)}) if history else []
+        for k in alive:
+            callback(k, True)
+
+        def close() -> None:
+            with self._lock:
+                self._presence.pop(sid, None)
+
+        return Subscription(close)
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
+        with self._lock:
+            qid = next(self._ids)
+            self._queryables[qid] = (key_expr, handler)
+
+        def close() -> None:
+            with self._lock:
+                self._queryables.pop(qid, None)
+
+        return Subscription(close)
+
+    def query_bytes(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+        with self._lock:
+            handlers = [h for _, h in self._queryables.values()]
+        out = []
+        for h in handlers:  # every queryable sees the query and answers the keys it has that match it
+            out.extend((k, bytes(p)) for k, p in h(key_expr) if key_matches(key_expr, k))
+        return out
+
     def close(self) -> None:
         with self._lock:
             self._subs.clear()
+            self._presence.clear()
+            self._queryables.clear()
+            self._tokens.clear()
         self._closed = True
 
 
@@ -229,14 +349,17 @@ class ZenohSettings:
 
 
 class ZenohTransport(Transport):
-    """eclipse-zenoh 1.x session. Publishers are declared once per key and publish in express mode."""
+    """eclipse-zenoh 1.x session. Publishers are declared once per key with their kind's QoS
+    (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
 
-    def __init__(self, settings: ZenohSettings | None = None) -> None:
+    def __init__(self, settings: ZenohSettings | None = None, *,
+                 qos: Callable[[str], QosClass] = qos_for_key) -> None:
         super().__init__()
         import zenoh
 
         self._zenoh = zenoh
         self.settings = settings or ZenohSettings()
+        self.qos = qos
         self.session = zenoh.open(self.settings.to_config())
         self._publishers: dict[str, Any] = {}
         self._subs: list[Any] = []
@@ -249,10 +372,12 @@ class ZenohTransport(Transport):
             with self._lock:
                 pub = self._publishers.get(key)
                 if pub is None:
+                    q = self.qos(key)
                     pub = self.session.declare_publisher(
                         key,
-                        congestion_control=self._zenoh.CongestionControl.DROP,
-                        express=True,
+                        congestion_control=getattr(self._zenoh.CongestionControl, q.congestion),
+                        priority=getattr(self._zenoh.Priority, q.priority),
+                        express=q.express,
                     )
                     self._publishers[key] = pub
         pub.put(payload)
@@ -264,20 +389,65 @@ class ZenohTransport(Transport):
             except Exception:  # never raise into zenoh's thread
                 log.exception("subscriber callback on %s failed", key_expr)
 
-        sub = self.session.declare_subscriber(key_expr, on_sample)
+        return self._declared(self.session.declare_subscriber(key_expr, on_sample))
+
+    def _declared(self, entity: Any) -> Subscription:
+        """Keep ``entity`` (subscriber, token, queryable) until closed here or with the session."""
         with self._lock:
-            self._subs.append(sub)
+            self._subs.append(entity)
 
         def close() -> None:
             with self._lock:
-                if sub in self._subs:
-                    self._subs.remove(sub)
+                if entity in self._subs:
+                    self._subs.remove(entity)
             try:
-                sub.undeclare()
+                entity.undeclare()
             except Exception:  # session may already be closed
                 pass
 
         return Subscription(close)
+
+    def declare_token(self, key: str) -> Subscription:
+        return self._declared(self.session.liveliness().declare_token(key))
+
+    def subscribe_presence(self, key_expr: str, callback: PresenceCallback, *, history: bool = True) -> Subscription:
+        put = self._zenoh.SampleKind.PUT
+
+        def on_sample(sample: Any) -> None:
+            try:
+                callback(str(sample.key_expr), sample.kind == put)
+            except Exception:  # never raise into zenoh's thread
+                log.exception("presence callback on %s failed", key_expr)
+
+        return self._declared(self.session.liveliness().declare_subscriber(key_expr, on_sample, history=history))
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
+        z = self._zenoh
+
+        def on_query(query: Any) -> None:
+            try:
+                expr = str(query.key_expr)
+                for key, payload in handler(expr):
+                    if key_matches(expr, key):  # zenoh refuses replies outside the query's key expression
+                        q = self.qos(key)
+                        query.reply(key, payload, priority=getattr(z.Priority, q.priority), express=True)
+            except Exception:
+                log.exception("queryable %s failed", key_expr)
+            finally:
+                query.drop()  # finalise: the querier stops waiting for this queryable
+
+        return self._declared(self.session.declare_queryable(key_expr, on_query))
+
+    def query_bytes(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+        z = self._zenoh
+        out = []
+        replies = self.session.get(key_expr, target=z.QueryTarget.ALL, consolidation=z.ConsolidationMode.NONE,
+                                   timeout=timeout_s, priority=z.Priority.INTERACTIVE_HIGH, express=True)
+        for reply in replies:  # ends when every matching queryable has answered, or at the timeout
+            sample = reply.ok
+            if sample is not None:
+                out.append((str(sample.key_expr), sample.payload.to_bytes()))
+        return out
 
     def close(self) -> None:
         if self._closed:

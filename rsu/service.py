@@ -23,10 +23,16 @@ in a lane are published as ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``: ``ap
 
 Signing (issue 9): with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
 Ed25519 signature (``protocol.security.SecureTransport`` wraps the transport).
+
+Presence and state (issue 21): the service declares its liveliness token ``iea/{c}/alive/rsu/{rsu}`` and
+answers queries on ``iea/{c}/rsu/{rsu}/*``: its latest ``objects`` and ``health``, the latest message of
+each active EV alert and hazard (a DDM that starts late is EV-aware at once), and ``state``, a JSON
+summary (tracks, frames, configuration) for ``iea status``.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections import Counter
@@ -36,15 +42,19 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from protocol import presence
 from protocol.clock import Clock, WallClock
+from protocol.codec import encode
 from protocol.corridor import Corridor
-from protocol.keys import rsu_key
+from protocol.keys import rsu_key, rsu_state_key
 from protocol.messages import (
+    AlertState,
     DetectedObject,
     EvAlert,
     EvEvidence,
     EvState,
     HazardAlert,
+    HazardState,
     Health,
     HealthStatus,
     LightState,
@@ -186,6 +196,33 @@ class RsuService:
         self._period_start_s = self._start_s
         self._period_stage_s = dict.fromkeys(STAGES, 0.0)
         self._stalled = False
+        self.state_key = rsu_state_key(cid, rsu_id)
+        self._latest: dict[str, object] = {}  # "objects" / "health" -> the last message published
+        self._active: dict[str, tuple[str, object]] = {}  # alert or hazard id -> (key, its last message)
+        self._handles = [presence.serve(transport, rsu_key(cid, rsu_id, "objects").rsplit("/", 1)[0] + "/*",
+                                        self._answer),
+                         presence.announce(transport, cid, "rsu", rsu_id)]
+
+    def _answer(self, _query: str) -> list[tuple[str, bytes]]:
+        """Replies to a query on this RSU's keys (the transport keeps those matching the query)."""
+        out = [(self.objects_key if k == "objects" else self.health_key, encode(m))
+               for k, m in list(self._latest.items())]
+        out += [(key, encode(m)) for key, m in list(self._active.values())]
+        objs = getattr(self._latest.get("objects"), "objects", [])
+        summary = {"rsu_id": self.rsu_id, "frames": self.frames, "uptime_s": round(self.clock.now() - self._start_s, 2),
+                   "stalled": self._stalled, "errors": self.errors, "last_error": self.last_error,
+                   "source": getattr(self.source, "source_id", None), "fps": getattr(self.source, "fps", None),
+                   "ev_alerts_active": sorted(k for k, (key, _) in self._active.items() if key == self.ev_key),
+                   "hazards_active": sorted(k for k, (key, _) in self._active.items() if key == self.hazard_key),
+                   "tracks": [{"id": o.object_id, "type": str(o.obj_type.value), "x_m": round(o.pos_x_m, 2),
+                               "y_m": round(o.pos_y_m, 2), "speed_mps": round(o.speed_mps, 2), "lane": o.lane,
+                               "ev_state": str(o.ev_state.value)} for o in objs]}
+        out.append((self.state_key, json.dumps(summary, default=str).encode()))
+        return out
+
+    def close(self) -> None:
+        """Withdraw the liveliness token and the queryable (the session's end does it too)."""
+        presence.close_all(self._handles)
 
     def stop(self) -> None:
         self._stop = True
@@ -251,6 +288,7 @@ class RsuService:
                          rsu_id=self.rsu_id, frame=frame.frame_number,
                          measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
         self.transport.publish(self.objects_key, msg)
+        self._latest["objects"] = msg
         self._seq["objects"] += 1
         if log.isEnabledFor(logging.DEBUG):
             for o in result.objects:
@@ -284,6 +322,10 @@ class RsuService:
                                                       else float(np.clip(e.body_score, 0.0, 1.0)))),
                       clear_reason=e.clear_reason)
         self.transport.publish(self.ev_key, msg)
+        if msg.state == AlertState.CLEARED:
+            self._active.pop(msg.alert_id, None)
+        else:
+            self._active[msg.alert_id] = (self.ev_key, msg)
         self._seq["ev"] += 1
         self.alerts_published[str(e.state)] += 1
         log.info("EvAlert %s %s (track %d, lane %s, x %.1f m, cues %s)", msg.alert_id, e.state, e.track_id, o.lane,
@@ -297,6 +339,10 @@ class RsuService:
                           length_m=max(h.length_m, 0.0), width_m=max(h.width_m, 0.0),
                           confidence=float(np.clip(h.confidence, 0.0, 1.0)), first_seen=max(h.first_seen_s, 0.0))
         self.transport.publish(self.hazard_key, msg)
+        if msg.state == HazardState.CLEAR:
+            self._active.pop(msg.hazard_id, None)
+        else:
+            self._active[msg.hazard_id] = (self.hazard_key, msg)
         self._seq["hazard"] += 1
         self.hazards_published[str(h.state)] += 1
         if h.state != "persist":
@@ -351,6 +397,7 @@ class RsuService:
                      rejected={"frame_errors": self.errors, "stalls": self.stalls},
                      detail=self.last_error[:256])
         self.transport.publish(self.health_key, msg)
+        self._latest["health"] = msg
         self._seq["health"] += 1
         self._period_frames = 0
         self._period_start_s = now

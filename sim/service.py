@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import cv2
 
 from protocol.clock import Clock, RateTimer, WallClock
+from protocol import presence
+from protocol.codec import encode
 from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
 from protocol.messages import Health, HealthStatus, Role, VehicleState, WorldSnapshot
 from protocol.transport import Transport
@@ -72,6 +74,13 @@ class SimService:
         self._vehicle_ids = {v.vehicle_id for v in self.world.vehicles() if v.kind == "av"}
         self._sub = transport.subscribe(all_vehicles_expr(self.corridor_id, "state"), self._on_state,
                                         on_reject=lambda _k, _e: None)
+        self._last_health: Health | None = None
+        self._handles = [  # issue 21: presence token, latest Health on query
+            presence.serve(transport, sim_health_key(self.corridor_id),
+                           lambda _q: [] if self._last_health is None
+                           else [(sim_health_key(self.corridor_id), encode(self._last_health))]),
+            presence.announce(transport, self.corridor_id, "sim", "sim"),
+        ]
 
     def _on_state(self, _key: str, msg: VehicleState) -> None:
         if msg.vehicle_id not in self._vehicle_ids:
@@ -163,7 +172,8 @@ class SimService:
                 self.step_once()
                 now = self.clock.now()
                 if health_timer.due(now):
-                    self.transport.publish(sim_health_key(self.corridor_id), self.health(now - start))
+                    self._last_health = self.health(now - start)
+                    self.transport.publish(sim_health_key(self.corridor_id), self._last_health)
                 next_t += self.dt_s / self.speed
                 delay = next_t - self.clock.now()
                 if delay > 0:
@@ -175,6 +185,7 @@ class SimService:
         return self.published
 
     def close(self) -> None:
+        presence.close_all(self._handles)
         self._sub.close()
         for _rsu, _r, writer, _last in self._recorders:
             writer.release()

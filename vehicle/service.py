@@ -12,6 +12,12 @@ Commands are authenticated first (``vehicle.commands.CommandGate``; by default f
 scope and not replayed are offered to the command book). Each refusal is counted in Health
 ``rejected`` as ``auth_<reason>``; the inbox is bounded (``MAX_INBOX``, overflow counted as
 ``inbox_full``).
+
+Presence (issue 21): the service declares its liveliness token ``iea/{c}/alive/vehicle/{id}``, answers
+queries on its keys (latest ``state`` and ``health``: a restarted DDM learns the active command at
+once) and watches the DDM's token: ``ddm_present`` is True while a DDM token is alive, False once the
+last one was lost (``ddm_lost_s``: when, on the service clock), None before any was seen. A lost token
+is a lost heartbeat: the link watchdog may act on it without waiting ``link_timeout_s``.
 """
 
 from __future__ import annotations
@@ -23,7 +29,9 @@ import time
 from collections import Counter, deque
 from dataclasses import dataclass
 
+from protocol import presence
 from protocol.clock import Clock, RateTimer
+from protocol.codec import encode
 from protocol.keys import all_rsus_expr, ddm_health_key, parse_key, vehicle_key
 from protocol.messages import (
     AckStatus,
@@ -105,6 +113,16 @@ class VehicleService:
         ]
         if localisation in ("rsu", "both"):
             self._subs.append(transport.subscribe(all_rsus_expr(c), self._on_rsu, on_reject=self._on_reject))
+        self.ddm_present: bool | None = None
+        self.ddm_lost_s: float | None = None
+        self._ddm_tokens = presence.PresenceBook()
+        self._latest: dict[str, object] = {}  # key -> the last state / health published
+        self._handles = [
+            presence.serve(transport, f"{self.state_key.rsplit('/', 1)[0]}/*",
+                           lambda _q: [(k, encode(m)) for k, m in list(self._latest.items())]),
+            presence.watch(transport, c, self._on_ddm_presence, role="ddm"),
+            presence.announce(transport, c, "vehicle", vehicle_id),
+        ]
 
     # ------------------------------------------------------------------ transport callbacks (queue only)
     def _queue(self, kind: str, msg) -> None:
@@ -119,6 +137,17 @@ class VehicleService:
 
     def _on_ddm_health(self, key: str, msg) -> None:
         self._queue("link", msg)
+
+    def _on_ddm_presence(self, key: str, alive: bool) -> None:
+        """A DDM token appeared or was lost (Zenoh's thread: only record it, as the other callbacks queue)."""
+        now = self.clock.now()
+        if self._ddm_tokens.update(key, alive, now) is None:
+            return
+        if self._ddm_tokens.alive.get("ddm"):
+            self.ddm_present, self.ddm_lost_s = True, None
+        else:
+            self.ddm_present, self.ddm_lost_s = False, now
+            log.warning("%s: the DDM's liveliness token is lost (%s)", self.vehicle_id, key)
 
     def _on_rsu(self, key: str, msg) -> None:
         if isinstance(msg, ObjectList) and parse_key(key).topic == "objects":
@@ -191,6 +220,7 @@ class VehicleService:
                      drops={"rejected_fixes": core.estimator.rejected_fixes},
                      detail=f"{core.mode.value}: {core.detail}"[:250])
         self.transport.publish(self.health_key, msg)
+        self._latest[self.health_key] = msg
         self._ctrl_time_ns, self._ctrl_steps, self._states_in_period = 0, 0, 0
         self._last_health_s = now_s
 
@@ -258,7 +288,9 @@ class VehicleService:
             self._next_control_s = t + dt
             steps += 1
         if self._state_timer.due(now_s):
-            self.transport.publish(self.state_key, self.state_message(now_s))
+            state = self.state_message(now_s)
+            self.transport.publish(self.state_key, state)
+            self._latest[self.state_key] = state
             self.states_sent += 1
             self._states_in_period += 1
         if self._health_timer.due(now_s):
@@ -279,6 +311,7 @@ class VehicleService:
 
     def close(self) -> None:
         self._stop.set()
+        presence.close_all(self._handles)
         for sub in self._subs:
             sub.close()
         self._subs.clear()
