@@ -55,9 +55,9 @@ from ddm.geometry import RoadFrame
 from ddm.hazard import HazardBook, HazardConfig, HazardDecision, HazardResponse, decide_hazard
 from ddm.policy import Decision, Ego, Response, decide, plan
 from ddm.world import CorridorWorld
+from protocol import presence
 from protocol.clock import Clock, RateTimer
 from protocol.corridor import Corridor
-from protocol import presence
 from protocol.keys import (
     KeyError_,
     all_rsus_expr,

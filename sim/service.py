@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import cv2
 
-from protocol.clock import Clock, RateTimer, WallClock
 from protocol import presence
+from protocol.clock import Clock, RateTimer, WallClock
 from protocol.codec import encode
 from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
 from protocol.messages import Health, HealthStatus, Role, VehicleState, WorldSnapshot
