@@ -323,7 +323,13 @@ def _ransac(obj: np.ndarray, img: np.ndarray, k: np.ndarray, dist: np.ndarray, r
         if len(inl) < MIN_POINTS:
             return None
     inl = np.asarray(inl).ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], k, dist, rvec, tvec)
+    for _ in range(5):  # local optimisation: refine on the consensus, re-test every point (EPnP minimal sets are rough)
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], k, dist, rvec, tvec)
+        err = np.linalg.norm(cv2.projectPoints(obj, rvec, tvec, k, dist)[0].reshape(-1, 2) - img, axis=1)
+        new = np.flatnonzero(err <= ransac_px)
+        if len(new) < MIN_POINTS or np.array_equal(new, inl):
+            break
+        inl = new
     return rvec.reshape(3), tvec.reshape(3), inl
 
 
