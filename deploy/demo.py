@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from deploy.outcome import YieldTrace
 from deploy.procs import ServiceGroup, child_env, corridor_services
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -62,6 +63,8 @@ class RunMonitor:
     """(sim time, EV speed) while its lights are on: how much the EV had to slow."""
     road: Any = None
     """The corridor road (protocol.corridor.Road): lanes in road coordinates; None: y is the lateral offset."""
+    trace: YieldTrace | None = None
+    """The AV's and the EV's ground truth for the one yield judge (``deploy.outcome.judge_yield``)."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def mark(self, name: str, t: float) -> None:
@@ -125,20 +128,10 @@ class RunMonitor:
             return
         if ev is not None and ev.pos_x_m > av.pos_x_m + av.length_m / 2 + ev.length_m / 2:
             self.mark("ev_passed_av", snap.stamp)
-        if ev is not None and ev.light_bar is not None and ev.light_bar.on and "ev_passed_av" not in self.events:
-            # the AV has moved over: its whole body is out of the lane the EV drives in
-            if self.road is not None:
-                _, d_av = self.road.to_frenet(av.pos_x_m, av.pos_y_m)
-                _, d_ev = self.road.to_frenet(ev.pos_x_m, ev.pos_y_m)
-                w = self.road.lane_width_m
-            else:
-                d_av, d_ev, w = av.pos_y_m, ev.pos_y_m, 3.7
-            k = math.floor(float(d_ev) / w)
-            lo, hi = k * w, (k + 1) * w
-            if float(d_av) + av.width_m / 2 <= lo or float(d_av) - av.width_m / 2 >= hi:
-                self.mark("av_out_of_ev_lane", snap.stamp)
-            else:
-                self.events.pop("av_out_of_ev_lane", None)
+        if self.road is not None:  # the yield judge reads the EV's lane from its own path (deploy/outcome.py)
+            if self.trace is None:
+                self.trace = YieldTrace(road=self.road)
+            self.trace.on_snapshot(snap, self.road)
         for other in snap.actors:
             if other is av or other.kind.value == "debris":
                 continue
@@ -193,8 +186,11 @@ class RunMonitor:
                 if a in ev and b in ev:
                     hop[name] = round(ev[b] - ev[a], 3)
             stopped_before_pass = "stopped" in ev and ("ev_passed_av" not in ev or ev["stopped"] <= ev["ev_passed_av"])
-            moved_over = "av_out_of_ev_lane" in ev and ("ev_passed_av" not in ev
-                                                        or ev["av_out_of_ev_lane"] <= ev["ev_passed_av"])
+            verdict = None if self.trace is None else self.trace.verdict(collision=self.min_gap_m < 0.0)
+            moved_over = verdict is not None and verdict.status == "yielded"
+            out_s = None
+            if verdict is not None and verdict.lane_clear_s is not None and verdict.lights_on_s is not None:
+                out_s = round(verdict.lane_clear_s - verdict.lights_on_s, 3)
             return {
                 "corridor_id": self.corridor_id,
                 "events_since_lights_on_s": rel,
@@ -207,7 +203,8 @@ class RunMonitor:
                 "stopped_before_ev_passed": stopped_before_pass,
                 "moved_over_before_ev_passed": moved_over,
                 "ev_passed_av_s": rel.get("ev_passed_av"),
-                "out_of_ev_lane_s": rel.get("av_out_of_ev_lane"),
+                "out_of_ev_lane_s": out_s,
+                "yield": None if verdict is None or verdict.status == "no_lights" else verdict.to_dict(),
                 "max_abs_lateral_error_m": self.facts.get("max_abs_lateral_error_m"),
                 "min_gap_to_any_vehicle_m": None if math.isinf(self.min_gap_m) else round(self.min_gap_m, 2),
                 "min_gap_with": self.facts.get("min_gap_with"),
@@ -337,7 +334,9 @@ def print_summary(m: dict[str, Any]) -> None:
         ("stop lane (None: shoulder)", m.get("stop_lane"), ""),
         ("AV out of the EV's lane (after lights on)", m.get("out_of_ev_lane_s"), "s"),
         ("EV passed the AV (after lights on)", m.get("ev_passed_av_s"), "s"),
-        ("moved over before the EV passed", m.get("moved_over_before_ev_passed"), ""),
+        ("yield (out of the EV's lane before it reached the AV)",
+         None if not m.get("yield") else f"{m['yield']['status']}: {m['yield']['reason']}", ""),
+        ("EV delay to the AV (yield judge)", None if not m.get("yield") else m["yield"]["ev_delay_s"], "s"),
         ("stopped before the EV passed", m.get("stopped_before_ev_passed"), ""),
         ("max |lateral error|", m.get("max_abs_lateral_error_m"), "m"),
         ("min gap to any vehicle", m.get("min_gap_to_any_vehicle_m"), "m"),

@@ -3,7 +3,9 @@
 Each function starts the corridor as ``iea up`` does (a router on a free loopback port, the vehicle, the
 DDM, the RSUs with ``--source sim`` and the simulator running ``rellis_ev_yield``, all as processes),
 breaks one thing, and returns a ``FaultOutcome`` measured from what a client of the router heard
-(the simulator's ground truth only scores the run):
+(the simulator's ground truth only scores the run). Every row passes only on its own criterion below AND
+the one yield judge's verdict of the run (``deploy/outcome.py``: out of the EV's lane before it reached
+the AV):
 
 - ``rsu_killed``: the RSU that raised the first EvAlert is SIGKILLed at once (the EV is in its view).
   Pass: the DDM's Health names it stale (status degraded) within ``stale_limit_s``; a neighbouring
@@ -31,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from deploy.faults import FaultOutcome
+from deploy.faults import FaultOutcome, with_yield
 from deploy.up import Up
 
 RUNNER = "processes over Zenoh (iea up)"
@@ -145,6 +147,7 @@ def rsu_killed(run_root: Path | None = None, stale_limit_s: float = 2.0, timeout
         outcome = "DDM resumed before the EV passed"
     else:
         outcome = f"{victim} stale after {stale_at - t_kill:.2f} s; EV kept by {','.join(later_ev)}"
+    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
     margin = None if stale_at is None else round(stale_limit_s - (stale_at - t_kill), 3)
     return FaultOutcome("RSU killed with the EV in view", "rsu_kill", ok, outcome, margin, RUNNER, details)
 
@@ -201,6 +204,7 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
         outcome = f"AV {how}; DDM back after {ddm_back - t_kill:.1f} s"
     if passed_at is None:
         outcome += " (the EV had not passed the AV by the end of the run)"
+    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
     margin = None if passed_at is None else round((first_resume or time.time()) - passed_at, 3)
     return FaultOutcome("DDM killed + restarted mid-manoeuvre", "ddm_restart", ok, outcome, margin, RUNNER, details)
 
@@ -236,6 +240,7 @@ def router_restarted(run_root: Path | None = None, at_s: float = 0.5, down_s: fl
         outcome = "no command accepted after the restart"
     else:
         outcome = f"all {len(SERVICES)} services back within {slowest:.1f} s"
+    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
     margin = None if slowest is None or missing else round(reconnect_limit_s - slowest, 3)
     return FaultOutcome("router restarted (iea up)", "router_restart", ok, outcome, margin, RUNNER, details)
 

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 from deploy.demo import RunMonitor, print_summary
-from deploy.faults import YieldJudge
 from deploy.procs import ROOT, ServiceGroup, corridor_services
 
 ROUTER = "router"
@@ -72,8 +71,6 @@ class Up:
             (self.run_dir / CLIENT_CONFIG).write_text(CLIENT_CONFIG_TEXT)
         self.monitor = RunMonitor(self.corridor_id, road=self.corridor.road)
         self.health: dict[str, tuple[float, str]] = {}
-        self.judge = YieldJudge()
-        """Scores the EV approach from the simulator's ground truth (deploy/faults.py)."""
         self.transport = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -126,9 +123,6 @@ class Up:
         self.stop()
 
     def _on_health(self, key: str, msg: Any) -> None:
-        if msg.KIND == "WorldSnapshot":
-            self.judge.on_snapshot(msg, self.corridor.road)
-            return
         if msg.KIND != "Health":
             return
         from protocol.keys import parse_key
@@ -155,10 +149,7 @@ class Up:
         return "up: " + " ".join(parts)
 
     def metrics(self) -> dict[str, Any]:
-        m = self.monitor.metrics()
-        ok, outcome, margin = self.judge.outcome()
-        m["yield"] = {"passed": ok, "outcome": outcome, "margin_s": None if margin is None else round(margin, 3),
-                      "events_sim_s": {k: round(v, 2) for k, v in self.judge.events.items()}}
+        m = self.monitor.metrics()  # m["yield"]: the one yield judge's verdict (deploy/outcome.py)
         m["restarts"] = dict(self.group.restarts)
         m["exit_codes"] = self.group.exited()
         return m

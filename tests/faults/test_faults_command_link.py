@@ -1,25 +1,55 @@
-"""Latency and drop-out on the vehicle's radio link (issue 8 fault tests), in lockstep.
+"""Latency and drop-out on the vehicle's radio link (issue 8 fault tests, judged as issue 18 asks), in lockstep.
 
 The real DdmService and VehicleService on one SimClock; every message to and from the vehicle passes a
-DsrcLink with the channel under test; scripted RSUs report the EV approach (deploy/faults.py). Each
-case asserts the outcome measured from the run, and that the fault really was injected.
+DsrcLink with the channel under test; scripted RSUs report the EV approach (deploy/faults.py) with the
+first EvAlert at the measured p99 alert delay. Each row passes only on its own criterion AND the one
+yield judge (deploy/outcome.py); a row that cannot pass physically is listed beyond its computed bound.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
-from deploy.faults import LATENCIES_S, LOSSES, OUTAGES_S, latency_channel, run_command_link
+from deploy.faults import (
+    LATENCIES_S,
+    LOSSES,
+    MEASURED_ALERT_DELAY_S,
+    OUTAGES_S,
+    YieldScenario,
+    dropout_faults,
+    latency_channel,
+    latency_faults,
+    rig_bound,
+    run_command_link,
+)
 from protocol.channel import ChannelModel
+
+P99 = MEASURED_ALERT_DELAY_S["p99"]
+
+
+def _consistent(f):
+    """PASS needs the yield; BEYOND needs the fault's earliest alert past the computed bound."""
+    if f.passed:
+        assert f.details["yield"]["passed"] and f.details["yield"]["status"] == "yielded", f.outcome
+        assert not f.beyond_bound
+    if f.beyond_bound:
+        assert not f.passed
+        assert f.details["earliest_alert_with_fault_s"] > f.details["bound_latest_alert_s"]
+    assert f.passed or f.beyond_bound or f.verdict == "FAIL"
+
+
+def test_the_rig_runs_at_the_measured_p99_alert_delay():
+    assert YieldScenario().alert_delay_s == P99
+    r = run_command_link(latency_channel(0.0), seed=1)
+    assert r.events["first_alert"] - r.events["lights_on"] == pytest.approx(P99, abs=0.02)
 
 
 @pytest.mark.parametrize("latency_s", LATENCIES_S)
-def test_latency_av_clears_the_ev_lane_or_stops_in_time(latency_s):
+def test_latency_command_arrives_as_late_as_the_radio_makes_it(latency_s):
     r = run_command_link(latency_channel(latency_s), name=f"latency {latency_s}", seed=1)
-    f, ev = r.outcome, r.events
-    assert f.passed, f"{f.outcome}: margin {f.margin_s} s; {f.details}"
-    assert f.margin_s is not None and f.margin_s > 0
-    # the command reached the car no earlier than the radio allows, and not much later
+    ev = r.events
     start_delay = ev["manoeuvre"] - ev["command_sent"]
     assert latency_s - 0.011 <= start_delay <= latency_s + 0.2 + 4 * latency_s / 4, start_delay
     assert r.counts["lost_commands"] == [] and r.counts["duplicate_activations"] == {}
@@ -28,37 +58,49 @@ def test_latency_av_clears_the_ev_lane_or_stops_in_time(latency_s):
         assert r.counts["transmissions"] > r.counts["commands_issued"]
 
 
-def test_latency_margin_shrinks_with_latency():
-    """The figures show how late: the manoeuvre starts later by about the added latency."""
-    fast = run_command_link(latency_channel(0.0), seed=1).events
-    slow = run_command_link(latency_channel(0.3), seed=1).events
-    lag = (slow["manoeuvre"] - slow["lights_on"]) - (fast["manoeuvre"] - fast["lights_on"])
-    assert 0.29 <= lag <= 0.6, lag
+def test_every_rig_row_passes_only_with_the_yield_or_is_beyond_its_bound():
+    rows = latency_faults(alert_delay_s=P99) + dropout_faults(alert_delay_s=P99)
+    assert len(rows) == len(LATENCIES_S) + len(LOSSES) + len(OUTAGES_S)
+    for f in rows:
+        _consistent(f)
+        assert f.verdict != "FAIL", f.row()  # at p99 every row passes or is physically impossible
+
+
+def test_a_row_that_delivers_every_command_but_blocks_the_ev_does_not_pass():
+    """Issue 18: the outage rows used to pass on delivery alone while the AV blocked the EV."""
+    r = run_command_link(ChannelModel(latency_s=0.003), kind="dropout", seed=3, outage_after_alert=(0.0, 2.0))
+    f = r.outcome
+    assert r.counts["lost_commands"] == [] and r.counts["duplicate_activations"] == {}  # delivery fine ...
+    assert f.details["yield"]["status"] == "blocked" and not f.passed  # ... but the EV was blocked
+
+
+def test_the_bound_is_where_the_yield_stops_passing():
+    easy = YieldScenario(ev_gap_m=80.0, alert_delay_s=0.0)  # lights on with the EV far behind: time to spare
+    latest, start = rig_bound(easy)
+    assert 0.0 < latest < easy.duration_s
+    ok = run_command_link(ChannelModel(), scenario=dataclasses.replace(easy, alert_delay_s=max(0.0, latest - 0.1)))
+    late = run_command_link(ChannelModel(), scenario=dataclasses.replace(easy, alert_delay_s=latest + 0.1))
+    assert ok.outcome.details["yield"]["passed"] and not late.outcome.details["yield"]["passed"]
 
 
 @pytest.mark.parametrize("loss", LOSSES)
 def test_independent_loss_no_command_lost_no_duplicate_manoeuvre(loss):
     r = run_command_link(ChannelModel(latency_s=0.003, loss=loss), name=f"loss {loss}", kind="dropout", seed=2)
-    f = r.outcome
     link = r.counts["link"]
     assert link["tx"].get("dropped_loss", 0) + link["rx"].get("dropped_loss", 0) > 0, "no loss was injected"
-    assert f.passed, f"{f.outcome}; {f.details}"
     assert r.counts["lost_commands"] == [] and r.counts["ddm_expired"] == 0
     assert r.counts["duplicate_activations"] == {}
-    assert f.details["yield"]["passed"], f.outcome  # the first send gets through: the AV clears in time
+    assert r.outcome.passed == r.outcome.details["yield"]["passed"]
 
 
 @pytest.mark.parametrize("outage_s", OUTAGES_S)
 def test_burst_outage_at_the_alert_command_retransmitted_and_acked(outage_s):
     r = run_command_link(ChannelModel(latency_s=0.003), name=f"outage {outage_s}", kind="dropout", seed=3,
                          outage_after_alert=(0.0, outage_s))
-    f, ev = r.outcome, r.events
+    ev = r.events
     assert r.counts["link"]["rx"].get("dropped_outage", 0) > 0, "the first send should fall in the outage"
-    assert f.passed, f"{f.outcome}; {f.details}"
-    assert f.margin_s is not None  # how late the AV left the EV's lane (negative: the EV had to brake)
     assert r.counts["transmissions"] > r.counts["commands_issued"]  # retransmitted ...
     assert r.counts["lost_commands"] == [] and r.counts["duplicate_activations"] == {}  # ... acked, once
     # The car starts the manoeuvre right after the outage: the DDM hears the car again with its command
-    # unacknowledged and plans it again from the car's fresh state (the retransmitted path starts behind
-    # the car, which would reject it; waiting for that and the re-plan back-off cost 1.1 s more).
+    # unacknowledged and plans it again from the car's fresh state.
     assert outage_s <= ev["manoeuvre"] - ev["command_sent"] <= outage_s + 0.3

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from deploy.faults import latency_channel, run_corridor_fault
+from deploy.corridor_faults import run_corridor_fault
+from deploy.faults import latency_channel
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
