@@ -1,6 +1,6 @@
 """DDM service: the imperative shell around the world model, the EV policy and the command manager.
 
-Subscribes to ``iea/{c}/rsu/*/*`` (objects, EV alerts, hazards, health) and to every vehicle's
+Subscribes to every RSU topic (``iea/{c}/rsu/*/objects``, ``ev``, ``hazard``, ``health``; the bulk object lists apart) and to every vehicle's
 ``state`` and ``ack``; publishes ``PathSwitchCommand`` on ``iea/{c}/vehicle/{v}/cmd`` and ``Health``
 on ``iea/{c}/ddm/health`` at 1 Hz.
 
@@ -59,12 +59,13 @@ from protocol import presence
 from protocol.clock import Clock, RateTimer
 from protocol.corridor import Corridor
 from protocol.keys import (
+    RSU_TOPICS,
     KeyError_,
-    all_rsus_expr,
     all_vehicles_expr,
     ddm_health_key,
     ddm_state_key,
     parse_key,
+    rsu_topic_expr,
     vehicle_key,
 )
 from protocol.messages import (
@@ -132,9 +133,10 @@ class DdmService:
     def __init__(self, transport: Transport, clock: Clock, corridor: Corridor, config: DdmConfig | None = None,
                  *, corridor_id: str | None = None, ddm_id: str = "ddm",
                  hazard_config: HazardConfig | None = None, signer: Signer | None = None,
-                 verify_alerts: bool | None = None) -> None:
+                 verify_alerts: bool | None = None, catch_up: bool = True) -> None:
         """``signer``: signs every command. ``verify_alerts``: refuse alerts without a valid RSU signature
-        (default: when the corridor's trust list names RSU keys)."""
+        (default: when the corridor's trust list names RSU keys). ``catch_up``: query the corridor's state
+        at start (False: learn it from the streams only, as before issue 21; for comparisons)."""
         self.config = cfg = config or DdmConfig()
         trust = TrustList.from_corridor(corridor)
         if verify_alerts is None:
@@ -188,7 +190,7 @@ class DdmService:
         self._last_seq: dict[str, int] = {}
         # subscribe last: a Zenoh callback may run (on its own thread) as soon as this returns
         self._subs = [
-            transport.subscribe(all_rsus_expr(c), self._on_rsu),
+            *(transport.subscribe(rsu_topic_expr(c, topic), self._on_rsu) for topic in RSU_TOPICS),
             transport.subscribe(all_vehicles_expr(c, "state"), self._on_vehicle_state),
             transport.subscribe(all_vehicles_expr(c, "ack"), self._on_ack),
         ]
@@ -198,7 +200,8 @@ class DdmService:
             presence.serve(transport, self._health_key, self._answer_health),
             presence.announce(transport, c, "ddm", ddm_id),
         ]
-        self.catch_up()
+        if catch_up:
+            self.catch_up()
 
     # ------------------------------------------------------------------ presence, state, catch-up
     def _on_presence(self, key: str, alive: bool) -> None:

@@ -8,6 +8,7 @@
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
     iea deploy compose|acl ...  generate docker-compose.yml / router ACL and credentials for a corridor
     iea health ROLE [ID]        wait for a service's Health (the containers' health check)
+    iea status [--corridor-id]  every service of a running corridor as one table (tokens, health, state)
     iea demo                    run the main scenario end to end (what `make demo` runs)
     iea scenario run NAME       run any scenario end to end (--inprocess --fast: lockstep, faster than real time)
     iea up                      the compose topology as local processes around one router
@@ -242,6 +243,12 @@ def _health(argv: list[str]) -> int:
     return 0 if h.status.value in ("ok", "degraded") else 1
 
 
+def _status(argv: list[str]) -> int:
+    from deploy import status
+
+    return status.main(argv)
+
+
 def _calibrate(argv: list[str]) -> int:
     from deploy import commission
 
@@ -279,6 +286,7 @@ def main(argv: list[str] | None = None) -> int:
         "demo": ("run the main scenario end to end (make demo)", _demo),
         "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)", _scenario),
         "health": ("check a running service's Health (docker-compose health check)", _health),
+        "status": ("every service of a running corridor as one table (iea status --corridor-id ID)", _status),
         "up": ("router + every service as local processes (no Docker)", _up),
     }
     if not argv or argv[0] in ("-h", "--help"):

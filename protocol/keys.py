@@ -128,6 +128,13 @@ def all_rsus_expr(corridor: str) -> str:
     return f"{ROOT}/{_chunk(corridor, 'corridor')}/rsu/*/*"
 
 
+def rsu_topic_expr(corridor: str, topic: str) -> str:
+    """One topic of every RSU (the DDM subscribes to the bulk ``objects`` apart from the alerts)."""
+    if topic not in RSU_TOPICS:
+        raise KeyError_(f"unknown RSU topic {topic!r}; expected one of {sorted(RSU_TOPICS)}")
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/rsu/*/{topic}"
+
+
 def all_vehicles_expr(corridor: str, topic: str) -> str:
     if topic not in VEHICLE_TOPICS:
         raise KeyError_(f"unknown vehicle topic {topic!r}")

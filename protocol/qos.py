@@ -65,6 +65,13 @@ def qos_for_key(key: str) -> QosClass:
     return BY_TOPIC.get(key.rsplit("/", 1)[-1], OBJECTS)
 
 
+def is_bulk_expr(key_expr: str) -> bool:
+    """True when every key of ``key_expr`` is a bulk kind (its last chunk ``objects``, ``world``, ``video``):
+    such subscriptions are delivered off the network thread through a bounded ring that keeps the newest
+    samples (``ZenohTransport``), so decoding bulk never holds up a command behind it."""
+    return BY_TOPIC.get(key_expr.rsplit("/", 1)[-1]) in (OBJECTS, BULK)
+
+
 def check_separation(table: dict[str, QosClass] = BY_TOPIC) -> None:
     """Raise if a priority carries both BLOCK and DROP kinds (the head-of-line case of the module doc)."""
     modes: dict[str, set[str]] = {}

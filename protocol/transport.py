@@ -18,7 +18,10 @@ services use them without knowing the transport:
 - state: ``declare_queryable(key_expr, handler(query_expr) -> [(key, payload)])`` and
   ``query_bytes(key_expr, timeout_s)`` / ``query(key_expr, timeout_s)`` (decoded replies);
 - QoS: every publication gets the priority / congestion control / express of its kind
-  (``protocol.qos.qos_for_key``; ``ZenohTransport(qos=...)`` overrides it).
+  (``protocol.qos.qos_for_key``; ``ZenohTransport(qos=...)`` overrides it). On the receiving side a
+  subscription to a bulk kind only (``.../objects``, ``.../world``) is delivered by a worker thread
+  from a bounded ring (newest kept, ``bulk_queue`` samples): the network thread never decodes bulk, so
+  a command queued behind a flood of snapshots is delivered at once.
 
 Wrappers with an ``inner`` transport (``DsrcLink``, ``protocol.security.SecureTransport``) pass presence
 and queries to it unchanged: the radio model applies to the data streams only.
@@ -36,6 +39,7 @@ import itertools
 import json
 import logging
 import os
+import sys
 import threading
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -47,7 +51,7 @@ from protocol.clock import Clock, WallClock
 from protocol.codec import ProtocolError, decode, encode
 from protocol.keys import KeyError_, key_matches, message_type_for_key
 from protocol.messages import Envelope
-from protocol.qos import QosClass, qos_for_key
+from protocol.qos import QosClass, is_bulk_expr, qos_for_key
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +115,10 @@ class Transport:
         """``callback(key, alive)`` for every token under ``key_expr`` that appears or is lost; with
         ``history`` the tokens alive now are reported first."""
         return self._inner("subscribe_presence").subscribe_presence(key_expr, callback, history=history)
+
+    def query_presence(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        """The liveliness tokens alive now under ``key_expr`` (a liveliness query)."""
+        return self._inner("query_presence").query_presence(key_expr, timeout_s)
 
     def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
         """Answer queries intersecting ``key_expr`` with ``handler(query_expr)``'s (key, payload) pairs."""
@@ -252,6 +260,10 @@ class LocalBus(Transport):
 
         return Subscription(close)
 
+    def query_presence(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        with self._lock:
+            return sorted({k for k in self._tokens.values() if key_matches(key_expr, k)})
+
     def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
         with self._lock:
             qid = next(self._ids)
@@ -353,13 +365,15 @@ class ZenohTransport(Transport):
     (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
 
     def __init__(self, settings: ZenohSettings | None = None, *,
-                 qos: Callable[[str], QosClass] = qos_for_key) -> None:
+                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16) -> None:
         super().__init__()
         import zenoh
 
         self._zenoh = zenoh
         self.settings = settings or ZenohSettings()
         self.qos = qos
+        self.bulk_queue = bulk_queue
+        """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
         self.session = zenoh.open(self.settings.to_config())
         self._publishers: dict[str, Any] = {}
         self._subs: list[Any] = []
@@ -389,7 +403,29 @@ class ZenohTransport(Transport):
             except Exception:  # never raise into zenoh's thread
                 log.exception("subscriber callback on %s failed", key_expr)
 
+        if self.bulk_queue > 0 and is_bulk_expr(key_expr):
+            return self._subscribe_bulk(key_expr, callback)
         return self._declared(self.session.declare_subscriber(key_expr, on_sample))
+
+    def _subscribe_bulk(self, key_expr: str, callback: BytesCallback) -> Subscription:
+        """A ring channel (zenoh drops the oldest sample when full, without the GIL) drained by a worker."""
+        sub = self.session.declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
+        # a decode in the worker holds the GIL; let the network thread's callbacks in every millisecond
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+
+        def drain() -> None:
+            while True:
+                try:
+                    sample = sub.handler.recv()
+                except Exception:  # undeclared, or the session closed
+                    return
+                try:
+                    callback(str(sample.key_expr), sample.payload.to_bytes())
+                except Exception:
+                    log.exception("bulk subscriber callback on %s failed", key_expr)
+
+        threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True).start()
+        return self._declared(sub)
 
     def _declared(self, entity: Any) -> Subscription:
         """Keep ``entity`` (subscriber, token, queryable) until closed here or with the session."""
@@ -420,6 +456,10 @@ class ZenohTransport(Transport):
                 log.exception("presence callback on %s failed", key_expr)
 
         return self._declared(self.session.liveliness().declare_subscriber(key_expr, on_sample, history=history))
+
+    def query_presence(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
+        return sorted({str(r.ok.key_expr) for r in replies if r.ok is not None})
 
     def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
         z = self._zenoh

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from protocol import presence
 from protocol.clock import Clock, RateTimer
 from protocol.codec import encode
-from protocol.keys import all_rsus_expr, ddm_health_key, parse_key, vehicle_key
+from protocol.keys import ddm_health_key, parse_key, rsu_topic_expr, vehicle_key
 from protocol.messages import (
     AckStatus,
     CommandAck,
@@ -112,7 +112,7 @@ class VehicleService:
             transport.subscribe(ddm_health_key(c), self._on_ddm_health, on_reject=self._on_reject),
         ]
         if localisation in ("rsu", "both"):
-            self._subs.append(transport.subscribe(all_rsus_expr(c), self._on_rsu, on_reject=self._on_reject))
+            self._subs.append(transport.subscribe(rsu_topic_expr(c, "objects"), self._on_rsu, on_reject=self._on_reject))
         self.ddm_present: bool | None = None
         self.ddm_lost_s: float | None = None
         self._ddm_tokens = presence.PresenceBook()
