@@ -69,14 +69,19 @@ class CorridorStub:
         self._lock = threading.Lock()
         self.handles = []
         for r in self.rsus:
-            self.handles.append(presence.serve(transport, f"iea/{corridor_id}/rsu/{r}/*", self._answer))
+            self.handles.append(presence.serve(transport, f"iea/{corridor_id}/rsu/{r}/*",
+                                               self._answer(f"iea/{corridor_id}/rsu/{r}/")))
             self.handles.append(presence.announce(transport, corridor_id, "rsu", r))
-        self.handles.append(presence.serve(transport, f"iea/{corridor_id}/vehicle/{vehicle_id}/*", self._answer))
+        prefix = f"iea/{corridor_id}/vehicle/{vehicle_id}/"
+        self.handles.append(presence.serve(transport, prefix + "*", self._answer(prefix)))
         self.handles.append(presence.announce(transport, corridor_id, "vehicle", vehicle_id))
 
-    def _answer(self, _q: str) -> list[tuple[str, bytes]]:
-        with self._lock:
-            return [(k, encode(m)) for k, m in self.latest.items()]
+    def _answer(self, prefix: str):
+        """Each service answers with its own latest messages."""
+        def answer(_q: str) -> list[tuple[str, bytes]]:
+            with self._lock:
+                return [(k, encode(m)) for k, m in self.latest.items() if k.startswith(prefix)]
+        return answer
 
     def _put(self, key: str, msg) -> None:
         self.t.publish(key, msg)
