@@ -7,6 +7,13 @@ well-formed message of the expected kind: truncated or trailing bytes, a payload
 a non-map, an unknown kind, the wrong kind for the key, an unknown schema version, a missing or
 extra field, a wrong type, NaN/inf or an out-of-range value all raise ``ProtocolError`` whose text
 names the field and the problem. Nothing else escapes ``decode``.
+
+Bounded work (issue 24): what one payload can make ``decode`` build is capped before validation, by
+the largest valid message rather than by the payload size alone: the payload size, every array's and
+map's length, every string's and binary's size, and (for payloads over ``HOOK_FROM_BYTES``) the number
+of arrays and maps in the whole payload. A list field longer than its model allows is refused before
+its records are built. A hostile payload therefore costs about as much as the largest valid message
+(a ~190 kB WorldSnapshot of 1,024 actors decodes in a few ms), not megabytes of nested tuples.
 """
 
 from __future__ import annotations
@@ -22,10 +29,32 @@ import msgpack
 from pydantic import ValidationError
 from pydantic_core import ArgsKwargs
 
-from protocol.messages import MESSAGE_BY_KIND, MESSAGE_TYPES, SCHEMA_VERSION, Envelope
+from protocol.messages import (
+    MAX_ACTORS,
+    MAX_HEALTH_ENTRIES,
+    MAX_TEXT,
+    MESSAGE_BY_KIND,
+    MESSAGE_TYPES,
+    SCHEMA_VERSION,
+    Envelope,
+)
 
-MAX_PAYLOAD_BYTES = 512 * 1024
-"""Largest payload a decoder accepts (a full WorldSnapshot of 1,024 actors fits)."""
+MAX_PAYLOAD_BYTES = 256 * 1024
+"""Largest payload a decoder accepts: the largest valid message, a WorldSnapshot of 1,024 actors with
+64-character ids, is about 188 kB."""
+MAX_CONTAINER_ITEMS = max(MAX_ACTORS, max(len(m.model_fields) + 1 for m in MESSAGE_TYPES), MAX_HEALTH_ENTRIES)
+"""Longest array or map in any valid message (the actors of a WorldSnapshot)."""
+MAX_STR_BYTES = 4 * MAX_TEXT
+"""Longest string (a ``Text`` of 256 characters, 4 UTF-8 bytes each)."""
+MAX_BIN_BYTES = 64
+"""Longest binary (an Ed25519 signature)."""
+MAX_CONTAINERS = 3 * MAX_ACTORS + 64
+"""Most arrays and maps in one valid message: a WorldSnapshot holds 3 per actor (row, colour, light bar)."""
+HOOK_FROM_BYTES = 16 * 1024
+"""Payloads up to this size hold at most ~8,000 containers (cheap): only larger ones are counted."""
+_UNPACK_LIMITS = dict(raw=False, use_list=False, strict_map_key=True, max_str_len=MAX_STR_BYTES,
+                      max_bin_len=MAX_BIN_BYTES, max_array_len=MAX_CONTAINER_ITEMS,
+                      max_map_len=MAX_CONTAINER_ITEMS, max_ext_len=0)
 
 M = TypeVar("M", bound=Envelope)
 
@@ -41,12 +70,13 @@ class ProtocolError(ValueError):
 # ------------------------------------------------------------------ wire plans
 @dataclass(frozen=True)
 class _Nested:
-    """A field holding a record (``many``: a list of them)."""
+    """A field holding a record (``many``: a list of them, at most ``max_items``)."""
 
     name: str
     index: int
     plan: _RecordPlan
     many: bool
+    max_items: int | None = None
 
 
 @dataclass(frozen=True)
@@ -111,7 +141,8 @@ def _plan_fields(fields: dict[str, Any]) -> tuple[tuple[str, ...], tuple[_Nested
     for i, (name, info) in enumerate(fields.items()):
         cls, many = _record_type(info.annotation)
         if cls is not None:
-            nested.append(_Nested(name, i, _record_plan(cls), many))
+            caps = [m.max_length for m in getattr(info, "metadata", ()) if hasattr(m, "max_length")]
+            nested.append(_Nested(name, i, _record_plan(cls), many, min(caps) if caps else None))
     return names, tuple(nested)
 
 
@@ -136,6 +167,8 @@ def _from_wire(n: _Nested, value: Any, where: str) -> Any:
     if n.many:
         if not isinstance(value, tuple | list):
             return value  # pydantic reports the wrong type with the field's name
+        if n.max_items is not None and len(value) > n.max_items:
+            raise ProtocolError(f"{where}: at most {n.max_items} items, got {len(value)}", "invalid")
         return [n.plan.from_row(r, f"{where}.{i}") for i, r in enumerate(value)]
     return n.plan.from_row(value, where)
 
@@ -159,6 +192,29 @@ def encode(message: Envelope) -> bytes:
 
 def _reject_ext(code: int, data: bytes) -> None:
     raise ProtocolError(f"msgpack extension type {code} is not allowed", "format")
+
+
+class _ContainerBudget:
+    """``list_hook`` / ``object_hook`` that refuses a payload once it built ``MAX_CONTAINERS`` arrays and maps."""
+
+    __slots__ = ("left",)
+
+    def __init__(self) -> None:
+        self.left = MAX_CONTAINERS
+
+    def __call__(self, container: Any) -> Any:
+        self.left -= 1
+        if self.left < 0:
+            raise ProtocolError(f"more than {MAX_CONTAINERS} arrays and maps: larger than any message", "format")
+        return container
+
+
+def _unpack(payload: bytes | bytearray | memoryview) -> Any:
+    """msgpack -> Python with the limits above (module docstring)."""
+    if len(payload) <= HOOK_FROM_BYTES:
+        return msgpack.unpackb(payload, ext_hook=_reject_ext, **_UNPACK_LIMITS)
+    budget = _ContainerBudget()
+    return msgpack.unpackb(payload, ext_hook=_reject_ext, list_hook=budget, object_hook=budget, **_UNPACK_LIMITS)
 
 
 def _name_loc(loc: tuple[Any, ...], nested: tuple[_Nested, ...]) -> list[str]:
@@ -213,9 +269,7 @@ def decode(
     if size == 0:
         raise ProtocolError("empty payload", "format")
     try:
-        body = msgpack.unpackb(
-            payload, raw=False, use_list=False, strict_map_key=True, ext_hook=_reject_ext
-        )
+        body = _unpack(payload)
     except ProtocolError:
         raise
     except msgpack.ExtraData:

@@ -36,7 +36,8 @@ def object_list(n_objects: int = 30, stamp: float = 1.0, seq: int = 0, rsu_id: s
 
 
 def example_messages(corridor: str = "rellis", stamp: float = 1.0, seq: int = 0) -> list[tuple[str, Envelope]]:
-    """(key, message) for each of the eight message kinds."""
+    """(key, message) for each of the eight message kinds. The world's ``sim_time_s`` counts from the
+    start of the example scenario, at 00:00 UTC of the stamp's day (``stamp`` for stamps under a day)."""
     c = corridor
     return [
         (keys.rsu_key(c, "rsu1", "objects"), object_list(30, stamp, seq)),
@@ -63,7 +64,7 @@ def example_messages(corridor: str = "rellis", stamp: float = 1.0, seq: int = 0)
             src="ddm", seq=seq, stamp=stamp, role="ddm", uptime_s=12.0, rates_hz={"loop": 20.0},
             latency_ms={"decision": 0.8}, drops={}, rejected={"invalid": 1}, stale=["rsu3"])),
         (keys.sim_world_key(c), WorldSnapshot(
-            src="sim", seq=seq, stamp=stamp, scenario="rellis_ev_yield", sim_time_s=stamp, seed=1, actors=[
+            src="sim", seq=seq, stamp=stamp, scenario="rellis_ev_yield", sim_time_s=stamp % 86400.0, seed=1, actors=[
                 Actor(actor_id="av1", kind="av", pos_x_m=100.0, pos_y_m=5.55, heading_rad=0.0, length_m=4.9,
                       width_m=1.9, height_m=1.5, speed_mps=13.4, lane=1),
                 Actor(actor_id="ev1", kind="ev", pos_x_m=50.0, pos_y_m=5.55, heading_rad=0.0, length_m=5.5,

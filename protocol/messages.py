@@ -11,14 +11,14 @@ Field names follow the SAE V2X messages RSU software already speaks:
 - ``EvAlert`` after SAE J2735 EmergencyVehicleAlert: ``alert_id``, ``response_type``, ``state``,
   position, ``confidence`` and the vision ``evidence``.
 
-Models validate on construction and on decoding: finite numbers only, lanes >= 0, probabilities in
-[0, 1], bounded lists and strings. A service therefore cannot publish, nor accept, a message that is
-out of range.
+Models validate on construction and on decoding: every number lies in its physical range (one
+named type per quantity, ``protocol/ranges.py``: clock readings up to the year 2100, positions within
+1,000 km, speeds up to 1,000 m/s ...), lists and strings are bounded. A service therefore cannot
+publish, nor accept, a message that is out of range, and arithmetic on a decoded value cannot overflow.
 """
 
 from __future__ import annotations
 
-import math
 from enum import StrEnum
 from typing import Annotated, ClassVar, Literal
 
@@ -33,6 +33,37 @@ from pydantic import (
 )
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
+from protocol.ranges import (
+    AccelMps2,
+    ActorHeightM,
+    ActorLengthM,
+    ActorWidthM,
+    Angle,
+    ColourByte,
+    Count,
+    CovarianceM2,
+    DurationS,
+    FlashHz,
+    ImageCoordPx,
+    Lane,
+    LatencyMs,
+    Latitude,
+    LightBarHz,
+    Longitude,
+    OffsetM,
+    PhaseS,
+    PositionM,
+    Probability,
+    RateHz,
+    SimTimeS,
+    SizeM,
+    SpeedMps,
+    TimeS,
+    VarianceM2,
+    VelocityMps,
+    YawRateRps,
+)
+
 SCHEMA_VERSION = 1
 """Version carried in ``v``; a decoder refuses any other."""
 
@@ -43,18 +74,11 @@ MAX_HEALTH_ENTRIES = 64
 MAX_TEXT = 256
 
 # ---------------------------------------------------------------- scalar types
-Float = Annotated[float, Field(strict=True, allow_inf_nan=False)]
-"""A finite float (ints are accepted, NaN and +-inf are not)."""
-NonNegFloat = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0)]
-Probability = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=1.0)]
-Angle = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-4 * math.pi, le=4 * math.pi)]
-Latitude = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-90.0, le=90.0)]
-Longitude = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-180.0, le=180.0)]
-Lane = Annotated[int, Field(strict=True, ge=0, le=15)]
-Count = Annotated[int, Field(strict=True, ge=0, le=2**53)]
+# Every number has a physical range: the types live in protocol/ranges.py (issue 24).
 Ident = Annotated[str, Field(strict=True, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")]
 Text = Annotated[str, Field(strict=True, max_length=MAX_TEXT)]
-Point2 = tuple[Float, Float]
+Point2 = tuple[PositionM, PositionM]
+"""(x, y) in the corridor frame, m."""
 
 
 _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, validate_default=False)
@@ -77,7 +101,7 @@ class Envelope(_Model):
     v: StrictInt = SCHEMA_VERSION
     src: Ident
     seq: Count = 0
-    stamp: NonNegFloat
+    stamp: TimeS
 
     @field_validator("v")
     @classmethod
@@ -203,8 +227,8 @@ class Signature:
     after IEEE 1609.2: the signer's key id and a validity window on the signer's clock."""
 
     key_id: Ident
-    not_before: NonNegFloat
-    not_after: NonNegFloat
+    not_before: TimeS
+    not_after: TimeS
     sig: Annotated[bytes, Field(strict=True, min_length=64, max_length=64)]
 
 
@@ -214,29 +238,29 @@ class DetectedObject:
     """One tracked object (SDSM DetectedObjectCommonData + size), corridor frame."""
 
     object_id: Count
-    pos_x_m: Float
-    pos_y_m: Float
+    pos_x_m: PositionM
+    pos_y_m: PositionM
     lat_deg: Latitude
     lon_deg: Longitude
-    bbox_px: tuple[Float, Float, Float, Float]
+    bbox_px: tuple[ImageCoordPx, ImageCoordPx, ImageCoordPx, ImageCoordPx]
     """Image box (x1, y1, x2, y2) in pixels."""
     obj_type: ObjectType = ObjectType.VEHICLE
     obj_type_cfd: Probability = 1.0
     ev_score: Probability = 0.0
     ev_state: EvState = EvState.NONE
     light_state: LightState = LightState.UNKNOWN
-    vel_x_mps: Float = 0.0
-    vel_y_mps: Float = 0.0
-    speed_mps: NonNegFloat = 0.0
+    vel_x_mps: VelocityMps = 0.0
+    vel_y_mps: VelocityMps = 0.0
+    speed_mps: SpeedMps = 0.0
     heading_rad: Angle = 0.0
-    length_m: NonNegFloat = 0.0
-    width_m: NonNegFloat = 0.0
-    height_m: NonNegFloat = 0.0
-    pos_cov_m2: tuple[NonNegFloat, Float, NonNegFloat] = (1.0, 0.0, 1.0)
+    length_m: SizeM = 0.0
+    width_m: SizeM = 0.0
+    height_m: SizeM = 0.0
+    pos_cov_m2: tuple[VarianceM2, CovarianceM2, VarianceM2] = (1.0, 0.0, 1.0)
     """Position covariance (xx, xy, yy) in m^2."""
     lane: Lane | None = None
     """Lane index, 0 = rightmost; None when off the road or unknown."""
-    age_s: NonNegFloat = 0.0
+    age_s: DurationS = 0.0
     hits: Count = 0
 
     @field_validator("bbox_px")
@@ -254,7 +278,7 @@ class ObjectList(Envelope):
 
     rsu_id: Ident
     frame: Count
-    measurement_time: NonNegFloat
+    measurement_time: TimeS
     """Capture time of the frame (s, RSU clock)."""
     objects: list[DetectedObject] = Field(default_factory=list, max_length=MAX_OBJECTS)
 
@@ -262,7 +286,7 @@ class ObjectList(Envelope):
 @record
 class EvEvidence:
     frames: Count = 0
-    flash_hz: NonNegFloat | None = None
+    flash_hz: FlashHz | None = None
     mean_score: Probability = 0.0
     cues: list[EvCue] = Field(default_factory=list, max_length=4)
     """The cues that confirmed the alert (issue 17)."""
@@ -280,17 +304,17 @@ class EvAlert(Envelope):
     rsu_id: Ident
     object_id: Count
     response_type: Literal["emergency"] = "emergency"
-    pos_x_m: Float
-    pos_y_m: Float
+    pos_x_m: PositionM
+    pos_y_m: PositionM
     lat_deg: Latitude
     lon_deg: Longitude
-    vel_x_mps: Float = 0.0
-    vel_y_mps: Float = 0.0
-    speed_mps: NonNegFloat = 0.0
+    vel_x_mps: VelocityMps = 0.0
+    vel_y_mps: VelocityMps = 0.0
+    speed_mps: SpeedMps = 0.0
     heading_rad: Angle = 0.0
     lane: Lane | None = None
     confidence: Probability
-    first_seen: NonNegFloat
+    first_seen: TimeS
     evidence: EvEvidence = Field(default_factory=lambda: EvEvidence())
     clear_reason: ClearReason | None = None
     """With state ``cleared``: why (None: not given, treated as lights off)."""
@@ -305,15 +329,15 @@ class HazardAlert(Envelope):
     hazard_id: Ident
     state: HazardState
     rsu_id: Ident
-    pos_x_m: Float
-    pos_y_m: Float
+    pos_x_m: PositionM
+    pos_y_m: PositionM
     lat_deg: Latitude
     lon_deg: Longitude
     lane: Lane | None = None
-    length_m: NonNegFloat = 0.0
-    width_m: NonNegFloat = 0.0
+    length_m: SizeM = 0.0
+    width_m: SizeM = 0.0
     confidence: Probability
-    first_seen: NonNegFloat
+    first_seen: TimeS
     auth: Signature | None = None
 
 
@@ -332,12 +356,12 @@ class PathSwitchCommand(Envelope):
     target_lane: Lane
     waypoints: list[Point2] = Field(max_length=MAX_WAYPOINTS)
     """Reference path (x, y) in the corridor frame, m, in driving order."""
-    speed_profile_mps: list[NonNegFloat] = Field(default_factory=list, max_length=MAX_WAYPOINTS)
+    speed_profile_mps: list[SpeedMps] = Field(default_factory=list, max_length=MAX_WAYPOINTS)
     """Target speed at each waypoint (empty: keep ``target_speed_mps``)."""
-    target_speed_mps: NonNegFloat
+    target_speed_mps: SpeedMps
     stop_point: Point2 | None = None
-    issued_at: NonNegFloat
-    valid_until: NonNegFloat
+    issued_at: TimeS
+    valid_until: TimeS
     supersedes: Ident | None = None
     auth: Signature | None = None
 
@@ -367,24 +391,24 @@ class VehicleState(Envelope):
     KIND: ClassVar[str] = "VehicleState"
 
     vehicle_id: Ident
-    pos_x_m: Float
-    pos_y_m: Float
+    pos_x_m: PositionM
+    pos_y_m: PositionM
     lat_deg: Latitude
     lon_deg: Longitude
     heading_rad: Angle
-    speed_mps: NonNegFloat
-    yaw_rate_rps: Float = 0.0
-    accel_mps2: Float = 0.0
-    steer_rad: Float = 0.0
-    length_m: NonNegFloat = 4.9
-    width_m: NonNegFloat = 1.9
+    speed_mps: SpeedMps
+    yaw_rate_rps: YawRateRps = 0.0
+    accel_mps2: AccelMps2 = 0.0
+    steer_rad: Angle = 0.0
+    length_m: SizeM = 4.9
+    width_m: SizeM = 1.9
     lane: Lane | None = None
     mode: VehicleMode
     active_command_id: Ident | None = None
-    lateral_error_m: Float = 0.0
-    yaw_error_rad: Float = 0.0
-    yaw_rate_error_rps: Float = 0.0
-    localisation_age_s: NonNegFloat = 0.0
+    lateral_error_m: OffsetM = 0.0
+    yaw_error_rad: Angle = 0.0
+    yaw_rate_error_rps: YawRateRps = 0.0
+    localisation_age_s: DurationS = 0.0
     detail: Text = ""
 
 
@@ -396,9 +420,9 @@ class Health(Envelope):
 
     role: Role
     status: HealthStatus = HealthStatus.OK
-    uptime_s: NonNegFloat = 0.0
-    rates_hz: dict[Ident, NonNegFloat] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
-    latency_ms: dict[Ident, NonNegFloat] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    uptime_s: DurationS = 0.0
+    rates_hz: dict[Ident, RateHz] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
+    latency_ms: dict[Ident, LatencyMs] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
     """Per-stage latency (mean over the last period)."""
     drops: dict[Ident, Count] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
     rejected: dict[Ident, Count] = Field(default_factory=dict, max_length=MAX_HEALTH_ENTRIES)
@@ -416,8 +440,8 @@ class Health(Envelope):
 class LightBar:
     on: StrictBool = False
     pattern: Literal["alternating", "strobe"] = "alternating"
-    frequency_hz: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=20.0)] = 2.0
-    phase_s: Float = 0.0
+    frequency_hz: LightBarHz = 2.0
+    phase_s: PhaseS = 0.0
 
 
 @record
@@ -426,26 +450,19 @@ class Actor:
 
     actor_id: Ident
     kind: ActorKind
-    pos_x_m: Float
-    pos_y_m: Float
+    pos_x_m: PositionM
+    pos_y_m: PositionM
     heading_rad: Angle
-    length_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=30.0)]
-    width_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=5.0)]
-    height_m: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0, le=6.0)]
-    speed_mps: NonNegFloat = 0.0
+    length_m: ActorLengthM
+    width_m: ActorWidthM
+    height_m: ActorHeightM
+    speed_mps: SpeedMps = 0.0
     lane: Lane | None = None
-    colour_bgr: tuple[StrictInt, StrictInt, StrictInt] = (128, 128, 128)
+    colour_bgr: tuple[ColourByte, ColourByte, ColourByte] = (128, 128, 128)
     brake_on: StrictBool = False
     light_bar: LightBar | None = None
     style: Count = 0
     """Seed of the actor's appearance (body shape details, livery)."""
-
-    @field_validator("colour_bgr")
-    @classmethod
-    def _byte_colour(cls, colour: tuple[int, int, int]) -> tuple[int, int, int]:
-        if not all(0 <= c <= 255 for c in colour):
-            raise ValueError("colour_bgr channels must be in 0..255")
-        return colour
 
 
 class WorldSnapshot(Envelope):
@@ -454,7 +471,7 @@ class WorldSnapshot(Envelope):
     KIND: ClassVar[str] = "WorldSnapshot"
 
     scenario: Ident
-    sim_time_s: NonNegFloat
+    sim_time_s: SimTimeS
     lighting: Lighting = Lighting.DAY
     seed: Count = 0
     actors: list[Actor] = Field(default_factory=list, max_length=MAX_ACTORS)

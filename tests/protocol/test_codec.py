@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import msgpack
 import pytest
@@ -11,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from protocol import keys
+from protocol import ranges as R
 from protocol.codec import MAX_PAYLOAD_BYTES, ProtocolError, decode, encode
 from protocol.examples import example_messages, object_list
 from protocol.messages import (
@@ -29,62 +29,78 @@ from protocol.messages import (
     WorldSnapshot,
 )
 
+
 # ------------------------------------------------------------------ strategies
+# Every number over its whole physical range (protocol/ranges.py), bounds included.
+def span(lo, hi):
+    return st.floats(min_value=lo, max_value=hi, allow_nan=False, allow_infinity=False)
+
+
 ident = st.text(alphabet="abcdefghijklmnopqrstuvwxyzABCXYZ0123456789_-.", min_size=1, max_size=24)
-finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
-nonneg = st.floats(min_value=0.0, max_value=1e6, allow_nan=False, allow_infinity=False)
+time_s = span(0.0, R.MAX_TIME_S)
+duration_s = span(0.0, R.MAX_TIME_S)
+position = span(-R.MAX_POSITION_M, R.MAX_POSITION_M)
+offset = span(-R.MAX_OFFSET_M, R.MAX_OFFSET_M)
+size = span(0.0, R.MAX_SIZE_M)
+speed = span(0.0, R.MAX_SPEED_MPS)
+velocity = span(-R.MAX_SPEED_MPS, R.MAX_SPEED_MPS)
+accel = span(-R.MAX_ACCEL_MPS2, R.MAX_ACCEL_MPS2)
+yaw_rate = span(-R.MAX_YAW_RATE_RPS, R.MAX_YAW_RATE_RPS)
+variance = span(0.0, R.MAX_VARIANCE_M2)
+covariance = span(-R.MAX_VARIANCE_M2, R.MAX_VARIANCE_M2)
+pixel = span(-R.MAX_IMAGE_COORD_PX / 2, R.MAX_IMAGE_COORD_PX / 2)
 prob = st.floats(min_value=0.0, max_value=1.0)
-angle = st.floats(min_value=-math.pi, max_value=math.pi)
+angle = span(-R.MAX_ANGLE_RAD, R.MAX_ANGLE_RAD)
 lat = st.floats(min_value=-90.0, max_value=90.0)
 lon = st.floats(min_value=-180.0, max_value=180.0)
 lane = st.none() | st.integers(min_value=0, max_value=15)
-count = st.integers(min_value=0, max_value=2**40)
+count = st.integers(min_value=0, max_value=R.MAX_COUNT)
 text = st.text(max_size=64)
 
 
 def envelope(**fields):
-    return dict(src=ident, seq=count, stamp=nonneg, **fields)
+    return dict(src=ident, seq=count, stamp=time_s, **fields)
 
 
 @st.composite
 def boxes(draw):
-    x1, y1 = draw(finite), draw(finite)
-    return (x1, y1, x1 + draw(nonneg), y1 + draw(nonneg))
+    x1, y1 = draw(pixel), draw(pixel)
+    return (x1, y1, x1 + draw(span(0.0, R.MAX_IMAGE_COORD_PX / 2)), y1 + draw(span(0.0, R.MAX_IMAGE_COORD_PX / 2)))
 
 
 detected = st.builds(
-    DetectedObject, object_id=count, pos_x_m=finite, pos_y_m=finite, lat_deg=lat, lon_deg=lon, bbox_px=boxes(),
+    DetectedObject, object_id=count, pos_x_m=position, pos_y_m=position, lat_deg=lat, lon_deg=lon, bbox_px=boxes(),
     obj_type=st.sampled_from(["unknown", "vehicle", "ev", "debris"]), obj_type_cfd=prob, ev_score=prob,
     ev_state=st.sampled_from(["none", "candidate", "confirmed", "cleared"]),
-    light_state=st.sampled_from(["unknown", "off", "flashing"]), vel_x_mps=finite, vel_y_mps=finite,
-    speed_mps=nonneg, heading_rad=angle, length_m=nonneg, width_m=nonneg, height_m=nonneg,
-    pos_cov_m2=st.tuples(nonneg, finite, nonneg), lane=lane, age_s=nonneg, hits=count,
+    light_state=st.sampled_from(["unknown", "off", "flashing"]), vel_x_mps=velocity, vel_y_mps=velocity,
+    speed_mps=speed, heading_rad=angle, length_m=size, width_m=size, height_m=size,
+    pos_cov_m2=st.tuples(variance, covariance, variance), lane=lane, age_s=duration_s, hits=count,
 )
-object_lists = st.builds(ObjectList, **envelope(rsu_id=ident, frame=count, measurement_time=nonneg,
+object_lists = st.builds(ObjectList, **envelope(rsu_id=ident, frame=count, measurement_time=time_s,
                                                   objects=st.lists(detected, max_size=8)))
 ev_alerts = st.builds(EvAlert, **envelope(
-    alert_id=ident, state=st.sampled_from(["active", "cleared"]), rsu_id=ident, object_id=count, pos_x_m=finite,
-    pos_y_m=finite, lat_deg=lat, lon_deg=lon, vel_x_mps=finite, vel_y_mps=finite, speed_mps=nonneg,
-    heading_rad=angle, lane=lane, confidence=prob, first_seen=nonneg,
-    evidence=st.builds(EvEvidence, frames=count, flash_hz=st.none() | st.floats(0.0, 100.0), mean_score=prob)))
+    alert_id=ident, state=st.sampled_from(["active", "cleared"]), rsu_id=ident, object_id=count, pos_x_m=position,
+    pos_y_m=position, lat_deg=lat, lon_deg=lon, vel_x_mps=velocity, vel_y_mps=velocity, speed_mps=speed,
+    heading_rad=angle, lane=lane, confidence=prob, first_seen=time_s,
+    evidence=st.builds(EvEvidence, frames=count, flash_hz=st.none() | span(0.0, R.MAX_FLASH_HZ), mean_score=prob)))
 hazards = st.builds(HazardAlert, **envelope(
-    hazard_id=ident, state=st.sampled_from(["appear", "persist", "clear"]), rsu_id=ident, pos_x_m=finite,
-    pos_y_m=finite, lat_deg=lat, lon_deg=lon, lane=lane, length_m=nonneg, width_m=nonneg, confidence=prob,
-    first_seen=nonneg))
+    hazard_id=ident, state=st.sampled_from(["appear", "persist", "clear"]), rsu_id=ident, pos_x_m=position,
+    pos_y_m=position, lat_deg=lat, lon_deg=lon, lane=lane, length_m=size, width_m=size, confidence=prob,
+    first_seen=time_s))
 
 
 @st.composite
 def commands(draw):
     n = draw(st.integers(min_value=2, max_value=20))
-    issued = draw(st.floats(0.0, 1e6))
+    issued = draw(span(0.0, R.MAX_TIME_S - 1e3))
     return PathSwitchCommand(
-        src=draw(ident), seq=draw(count), stamp=draw(nonneg), command_id=draw(ident), command_seq=draw(count),
+        src=draw(ident), seq=draw(count), stamp=draw(time_s), command_id=draw(ident), command_seq=draw(count),
         vehicle_id=draw(ident), manoeuvre=draw(st.sampled_from(["pull_over", "lane_change", "slow_in_lane",
                                                                  "stop_in_lane", "resume"])),
         reason=draw(text), target_lane=draw(st.integers(0, 15)),
-        waypoints=draw(st.lists(st.tuples(finite, finite), min_size=n, max_size=n)),
-        speed_profile_mps=draw(st.just([]) | st.lists(nonneg, min_size=n, max_size=n)),
-        target_speed_mps=draw(nonneg), stop_point=draw(st.none() | st.tuples(finite, finite)),
+        waypoints=draw(st.lists(st.tuples(position, position), min_size=n, max_size=n)),
+        speed_profile_mps=draw(st.just([]) | st.lists(speed, min_size=n, max_size=n)),
+        target_speed_mps=draw(speed), stop_point=draw(st.none() | st.tuples(position, position)),
         issued_at=issued, valid_until=issued + draw(st.floats(0.01, 1e3)),
         supersedes=draw(st.none() | ident))
 
@@ -92,26 +108,28 @@ def commands(draw):
 acks = st.builds(CommandAck, **envelope(command_id=ident, vehicle_id=ident,
                                         status=st.sampled_from(["accepted", "rejected", "completed"]), reason=text))
 states = st.builds(VehicleState, **envelope(
-    vehicle_id=ident, pos_x_m=finite, pos_y_m=finite, lat_deg=lat, lon_deg=lon, heading_rad=angle,
-    speed_mps=nonneg, yaw_rate_rps=finite, accel_mps2=finite, steer_rad=finite, lane=lane,
+    vehicle_id=ident, pos_x_m=position, pos_y_m=position, lat_deg=lat, lon_deg=lon, heading_rad=angle,
+    speed_mps=speed, yaw_rate_rps=yaw_rate, accel_mps2=accel, steer_rad=angle, lane=lane,
     mode=st.sampled_from(["driving", "manoeuvre", "stopped", "minimal_risk"]), active_command_id=st.none() | ident,
-    lateral_error_m=finite, yaw_error_rad=finite, yaw_rate_error_rps=finite, localisation_age_s=nonneg,
+    lateral_error_m=offset, yaw_error_rad=angle, yaw_rate_error_rps=yaw_rate, localisation_age_s=duration_s,
     detail=text))
 healths = st.builds(Health, **envelope(
     role=st.sampled_from(["rsu", "ddm", "vehicle", "sim", "router"]), status=st.sampled_from(["ok", "degraded", "error"]),
-    uptime_s=nonneg, rates_hz=st.dictionaries(ident, nonneg, max_size=5),
-    latency_ms=st.dictionaries(ident, nonneg, max_size=5), drops=st.dictionaries(ident, count, max_size=5),
+    uptime_s=duration_s, rates_hz=st.dictionaries(ident, span(0.0, R.MAX_RATE_HZ), max_size=5),
+    latency_ms=st.dictionaries(ident, span(0.0, R.MAX_LATENCY_MS), max_size=5),
+    drops=st.dictionaries(ident, count, max_size=5),
     rejected=st.dictionaries(ident, count, max_size=5), stale=st.lists(ident, max_size=5), detail=text))
 actors = st.builds(
     Actor, actor_id=ident, kind=st.sampled_from(["car", "van", "truck", "bus", "ev", "av", "debris"]),
-    pos_x_m=finite, pos_y_m=finite, heading_rad=angle, length_m=st.floats(0.1, 30.0), width_m=st.floats(0.1, 5.0),
-    height_m=st.floats(0.1, 6.0), speed_mps=nonneg, lane=lane,
+    pos_x_m=position, pos_y_m=position, heading_rad=angle, length_m=st.floats(0.1, 30.0),
+    width_m=st.floats(0.1, 5.0), height_m=st.floats(0.1, 6.0), speed_mps=speed, lane=lane,
     colour_bgr=st.tuples(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255)), brake_on=st.booleans(),
     light_bar=st.none() | st.builds(LightBar, on=st.booleans(), pattern=st.sampled_from(["alternating", "strobe"]),
-                                    frequency_hz=st.floats(0.0, 20.0), phase_s=finite), style=count)
+                                    frequency_hz=span(0.0, R.MAX_LIGHT_BAR_HZ),
+                                    phase_s=span(-R.MAX_SIM_TIME_S, R.MAX_SIM_TIME_S)), style=count)
 worlds = st.builds(WorldSnapshot, **envelope(
-    scenario=ident, sim_time_s=nonneg, lighting=st.sampled_from(["day", "dusk", "night"]), seed=count,
-    actors=st.lists(actors, max_size=6)))
+    scenario=ident, sim_time_s=span(0.0, R.MAX_SIM_TIME_S), lighting=st.sampled_from(["day", "dusk", "night"]),
+    seed=count, actors=st.lists(actors, max_size=6)))
 
 ALL = {
     "ObjectList": object_lists, "EvAlert": ev_alerts, "HazardAlert": hazards, "PathSwitchCommand": commands(),

@@ -6,6 +6,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
+import msgpack
+import pytest
 from sec_helpers import corridor_with, ddm_entry, key, rsu_entry
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "ddm"))
@@ -14,6 +16,7 @@ from ddm_rig import Rig, det, object_list  # noqa: E402
 from ddm import service as ddm_service  # noqa: E402
 from ddm.service import DdmService  # noqa: E402
 from protocol.clock import SimClock  # noqa: E402
+from protocol.codec import ProtocolError, decode, encode  # noqa: E402
 from protocol.keys import all_rsus_expr, rsu_key, vehicle_key  # noqa: E402
 from protocol.messages import AlertState, EvAlert, Health, Role, VehicleMode, VehicleState  # noqa: E402
 from protocol.security import AuthError, SecureTransport, TrustList, Verifier  # noqa: E402
@@ -159,20 +162,41 @@ def test_gate_without_ddm_keys_is_inactive():
     assert not gate.active
 
 
+def _with_field(msg, path: tuple, value) -> bytes:
+    """``msg``'s payload with one field (by msgpack path) set to ``value``: what a peer can send."""
+    body = msgpack.unpackb(encode(msg), raw=False)
+    node = body
+    for p in path[:-1]:
+        node = node[p]
+    node[path[-1]] = value
+    return msgpack.packb(body)
+
+
 def test_implausible_numbers_are_kept_from_the_fusion():
-    """1e16 m/s passed the codec (finite) and then made every DDM step raise in the KD-tree merge."""
+    """1e16 m/s once passed the codec (finite) and made every DDM step raise in the KD-tree merge. Since
+    issue 24 the codec refuses numbers outside their physical range (the bus counts the whole message as
+    ``invalid``, the DDM never sees it); the DDM's own limits still drop an object the codec lets through
+    but the fusion cannot use (a variance beyond ``MAX_POS_VAR_M2``), and keep a runaway SORT track."""
     r = Rig()
     t = r.clock.now()
-    objs = [det(r.corridor, k, 10.0 * k, 5.55, 0.0, 4.1e16) for k in range(3)]
-    objs.append(dataclasses.replace(det(r.corridor, 9, 10.0, 5.55, 0.0), pos_x_m=1e300))
-    objs.append(det(r.corridor, 10, 30.0, 5.55, 110.0))  # a runaway SORT track: real RSU output, kept
-    objs.append(det(r.corridor, 11, 60.0, 1.85, 13.0))
-    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), object_list("rsu1", 1, t, objs))
-    r.bus.publish(vehicle_key(r.c, "av1", "state"), _vehicle_state("av1", t).model_copy(update={"pos_x_m": -1e200}))
-    r.bus.publish(rsu_key(r.c, "rsu1", "ev"), EvAlert(
-        src="rsu1", stamp=t, alert_id="x", state=AlertState.ACTIVE, rsu_id="rsu1", object_id=1, pos_x_m=0.0,
-        pos_y_m=5.0, lat_deg=30.0, lon_deg=-96.0, vel_x_mps=1e9, confidence=0.9, first_seen=t))
-    assert r.svc.rejected["implausible_object"] == 4 and r.svc.rejected["implausible"] == 2
+    objs = [det(r.corridor, 10, 30.0, 5.55, 110.0),  # a runaway SORT track: real RSU output, kept
+            det(r.corridor, 11, 60.0, 1.85, 13.0),
+            dataclasses.replace(det(r.corridor, 12, 90.0, 1.85, 13.0), pos_cov_m2=(1e9, 0.0, 1e9))]
+    ol = object_list("rsu1", 1, t, objs)
+    vel_y = next(i for i, f in enumerate(dataclasses.fields(objs[0])) if f.name == "vel_y_mps")
+    state = _vehicle_state("av1", t)
+    alert = EvAlert(src="rsu1", stamp=t, alert_id="x", state=AlertState.ACTIVE, rsu_id="rsu1", object_id=1,
+                    pos_x_m=0.0, pos_y_m=5.0, lat_deg=30.0, lon_deg=-96.0, confidence=0.9, first_seen=t)
+    refused = [(rsu_key(r.c, "rsu1", "objects"), _with_field(ol, ("objects", 0, vel_y), 4.1e16)),
+               (vehicle_key(r.c, "av1", "state"), _with_field(state, ("pos_x_m",), -1e200)),
+               (rsu_key(r.c, "rsu1", "ev"), _with_field(alert, ("vel_x_mps",), 1e9))]
+    for k, payload in refused:
+        with pytest.raises(ProtocolError, match="less than or equal|greater than or equal"):
+            decode(payload)
+        r.bus.publish_bytes(k, payload)
+    assert r.bus.stats.rejected["invalid"] == 3
+    r.bus.publish(rsu_key(r.c, "rsu1", "objects"), ol)
+    assert r.svc.rejected["implausible_object"] == 1 and r.svc.rejected["implausible"] == 0
     assert r.svc.world.track_count == 2 and not r.svc.world.alerts and not r.svc.world.vehicles
     for _ in range(5):
         r.clock.advance(0.05)
