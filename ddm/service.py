@@ -79,6 +79,7 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.ranges import MAX_COUNT
 from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
 
@@ -234,11 +235,14 @@ class DdmService:
         return changed
 
     def _count_missed(self, key: str, seq: int) -> None:
-        """Sample-miss detection on the alert and ack streams: a gap in a publisher's ``seq``."""
+        """Sample-miss detection on the alert and ack streams: a gap in a publisher's ``seq``. The sum
+        saturates at ``MAX_COUNT``: a peer's seq jumps (each up to 2**53) must not make Health unpublishable
+        (found by fuzzing, issue 24)."""
         last = self._last_seq.get(key)
         self._last_seq[key] = seq
         if last is not None and seq > last + 1:
-            self.counters["missed_alert_samples" if "/rsu/" in key else "missed_ack_samples"] += seq - last - 1
+            name = "missed_alert_samples" if "/rsu/" in key else "missed_ack_samples"
+            self.counters[name] = min(MAX_COUNT, self.counters[name] + seq - last - 1)
 
     def _answer_state(self, _query: str) -> list[tuple[str, bytes]]:
         with self._lock:

@@ -202,3 +202,20 @@ def test_implausible_numbers_are_kept_from_the_fusion():
         r.clock.advance(0.05)
         r.svc.step()
     assert r.bus.stats.handler_errors == 0
+
+
+def test_seq_jumps_cannot_make_the_ddm_health_unpublishable():
+    """Found by fuzzing (issue 24): acks whose seq jump by 2**53 on two vehicles' keys summed past the
+    largest Count a Health may carry, and every health beat of the DDM raised."""
+    from protocol.messages import AckStatus, CommandAck
+    from protocol.ranges import MAX_COUNT
+
+    r = Rig()
+    for vid in ("av1", "av2"):
+        for seq in (0, 2**53):
+            r.bus.publish(vehicle_key(r.c, vid, "ack"), CommandAck(
+                src=vid, seq=seq, stamp=r.clock.now(), command_id=f"ddm-{vid}-1", vehicle_id=vid,
+                status=AckStatus.ACCEPTED))
+    health = r.svc.publish_health(r.clock.now())
+    assert health.drops["missed_ack_samples"] == MAX_COUNT
+    assert r.bus.stats.handler_errors == 0
