@@ -8,7 +8,10 @@ for its mode and returns steering and acceleration commands.
 Modes (``VehicleMode``): DRIVING keeps the centre of the current lane at cruise speed (and stops
 before the end of the corridor's road); MANOEUVRE follows a commanded path and speed profile and
 stops at its stop point; STOPPED is reached when a commanded stop is done; MINIMAL_RISK is the
-fail-safe stop in the current lane. A ``resume`` command returns to DRIVING in the current lane.
+fail-safe stop at the right edge of the road (``curb_offset_m``; in the current lane when the car's last
+picture shows that side occupied). While no DDM heartbeat is heard for ``link_timeout_s`` the car is
+*degraded* (``vehicle.failsafe``): speed capped, said in ``detail``. A ``resume`` command returns to
+DRIVING in the current lane.
 
 ``SimulatedVehicle`` closes the loop for the simulator, tests and the service: the bicycle plant
 (``vehicle/plant.py``), a simulated fix source and odometry feed a ``VehicleCore``.
@@ -16,6 +19,7 @@ fail-safe stop in the current lane. A ``resume`` command returns to DRIVING in t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
@@ -33,9 +37,15 @@ from vehicle.localisation import (
 )
 from vehicle.longitudinal import LongitudinalController, LongitudinalOutput
 from vehicle.plant import BicyclePlant, VehicleParams, VehicleStateVec
-from vehicle.reference import ReferencePath, lane_centre_waypoints
+from vehicle.reference import ReferencePath, lane_centre_waypoints, offset_change_waypoints
 
 ROAD_END_MARGIN_M = 10.0
+PICTURE_MAX_AGE_S = 2.0
+"""The car's picture (objects the RSUs reported) counts for the fail-safe's curb check this long."""
+MRM_LAT_ACCEL_MPS2 = 2.0
+MRM_MAX_CURVATURE_1PM = 0.08
+CURB_CHECK_BEHIND_M = 10.0
+"""An object from this far behind the car up to its stop point, on the curb side, occupies the curb."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +97,12 @@ class VehicleCore:
         self._lane_paths: dict[int, ReferencePath] = {}
         self._vy = 0.0
         self._accel = 0.0
+        self.picture: list[tuple[float, float, float, float]] = []
+        """(x, y, length, width) of the objects the RSUs last reported around the car (``on_picture``)."""
+        self.picture_s: float | None = None
+        self._detail_undegraded: str | None = None
+        self.mrm_where = ""
+        """Where the minimal-risk stop ends: at the curb, or in its lane when the curb side was occupied."""
 
     # ------------------------------------------------------------------ setup
     def lane_path(self, lane: int) -> ReferencePath:
@@ -128,8 +144,45 @@ class VehicleCore:
         return self.estimator.update(fix)
 
     def on_link(self, now_s: float) -> None:
-        """DDM health heard."""
+        """A valid, authenticated DDM heartbeat heard."""
         self.watchdog.link_seen(now_s)
+
+    def on_picture(self, now_s: float, objects: list[tuple[float, float, float, float]]) -> None:
+        """The objects (x, y, length, width) of an RSU's latest report: the car's picture of its
+        surroundings, for the fail-safe's curb check (the car itself is among them and is left out there)."""
+        self.picture, self.picture_s = list(objects), now_s
+
+    def curb_offset_m(self) -> float:
+        """Lateral offset d of the minimal-risk stop: the middle of the shoulder when the car fits on it
+        with ``curb_margin_m`` either side, else the curb side of the rightmost lane."""
+        w = self.config.params.width_m
+        margin = self.config.failsafe.curb_margin_m
+        shoulder = getattr(self.road, "shoulder_width_m", 0.0)
+        if shoulder >= w + 2 * margin:
+            return -shoulder / 2.0
+        return w / 2.0 + margin
+
+    def curb_side_occupied(self, now_s: float, s_now: float, d_now: float, d_curb: float, s_stop: float) -> bool:
+        """Whether the car's last picture shows an object between its side and the curb, from a little
+        behind it to its stop point (the car itself, the object nearest its own pose within 3 m, is left out)."""
+        if self.picture_s is None or now_s - self.picture_s > PICTURE_MAX_AGE_S:
+            return False
+        x, y, _ = self.estimator.pose
+        own = min(self.picture, key=lambda o: math.hypot(o[0] - x, o[1] - y), default=None)
+        if own is not None and math.hypot(own[0] - x, own[1] - y) > 3.0:
+            own = None
+        half_w = self.config.params.width_m / 2.0
+        if d_curb < d_now:  # the strip from the car's right side to where its right side will stop
+            lo, hi = d_curb - half_w, d_now - half_w
+        else:
+            lo, hi = d_now + half_w, d_curb + half_w
+        for obj in self.picture:
+            if obj is own:
+                continue
+            s, d = (float(v) for v in self.road.to_frenet(obj[0], obj[1]))
+            if s_now - CURB_CHECK_BEHIND_M <= s <= s_stop + obj[2] / 2 and d - obj[3] / 2 < hi and d + obj[3] / 2 > lo:
+                return True
+        return False
 
     def on_command(self, cmd: PathSwitchCommand, now_s: float) -> list[Decision]:
         if cmd.vehicle_id == self.vehicle_id:
@@ -200,7 +253,8 @@ class VehicleCore:
         decisions: list[Decision] = []
         reason = self.watchdog.check(now_s, self.mode == VehicleMode.MANOEUVRE, self.estimator.age_s(now_s))
         if reason is not None and self.mode != VehicleMode.MINIMAL_RISK:
-            decisions += self._minimal_risk(reason)
+            decisions += self._minimal_risk(reason, now_s)
+        self._degrade(self.watchdog.degraded)
         assert self.path is not None
         x, y, yaw = self.estimator.pose
         lat = self.lateral.step(self.path, x, y, yaw, speed_mps, yaw_rate_rps, dt_s, self._accel_model(dt_s))
@@ -214,6 +268,8 @@ class VehicleCore:
             ff = target * (ahead - target)  # v dv/ds over the next metre of the profile
         else:
             target = self.target_speed_mps
+        if self.watchdog.degraded is not None and self.mode != VehicleMode.MINIMAL_RISK:
+            target = min(target, self.config.failsafe.degraded_speed_mps)
         self.longitudinal.plan_decel_mps2 = self.plan_decel_mps2
         lon = self.longitudinal.step(speed_mps, target, dist, ff)
         decisions += self._progress(lat, speed_mps, dist)
@@ -238,24 +294,52 @@ class VehicleCore:
         elif self.mode == VehicleMode.DRIVING and dist is not None and stopped and dist < 2.0:
             self.detail = "stopped at the end of the road"
         elif self.mode == VehicleMode.MINIMAL_RISK and stopped:
-            self.detail = f"minimal-risk stop done: {self.watchdog.reason}"[:200]
+            self.detail = f"minimal-risk stop done {self.mrm_where}: {self.watchdog.reason}"[:250]
         return []
 
-    def _minimal_risk(self, reason: str) -> list[Decision]:
-        """Fail-safe: stop in the lane the car is in, at ``mrm_decel``; abort the active command."""
+    def _degrade(self, why: str | None) -> None:
+        """Say in ``detail`` (VehicleState) that the car is degraded, and stop saying it when it is not."""
+        if why is not None and self.mode != VehicleMode.MINIMAL_RISK:
+            if self._detail_undegraded is None:
+                self._detail_undegraded = self.detail
+            self.detail = f"{why}; {self._detail_undegraded}"[:250]
+        elif self._detail_undegraded is not None:
+            if self.mode != VehicleMode.MINIMAL_RISK and self.detail.startswith("degraded:"):
+                self.detail = self._detail_undegraded
+            self._detail_undegraded = None
+
+    def _minimal_risk(self, reason: str, now_s: float) -> list[Decision]:
+        """Fail-safe: stop at the right edge of the road (``curb_offset_m``) at up to ``mrm_decel``, or in
+        the current lane when the last picture shows the curb side occupied; abort the active command."""
         out = []
         if self.book.active is not None:
             out.append(self.book.abort(reason))
-        lane = self.current_lane()
-        path = self.lane_path(lane)
-        x, y, _ = self.estimator.pose
-        s_now = path.project(x, y).s_m
         decel = self.config.failsafe.mrm_decel_mps2
-        self.lane = lane
-        self.mode, self.detail = VehicleMode.MINIMAL_RISK, f"minimal-risk stop: {reason}"[:250]
+        x, y, _ = self.estimator.pose
+        s_now, d_now = (float(v) for v in self.road.to_frenet(x, y))
+        v = max(self.speed_mps, 0.0)
+        d_curb = self.curb_offset_m()
+        shift = abs(d_now - d_curb)
+        # the quintic's peak curvature 5.77 shift / L^2 keeps the lateral acceleration at the starting speed
+        # within MRM_LAT_ACCEL_MPS2 (and the curvature within MRM_MAX_CURVATURE_1PM at a crawl)
+        kappa = min(MRM_MAX_CURVATURE_1PM, MRM_LAT_ACCEL_MPS2 / max(v * v, 1e-6))
+        change_m = max(15.0, math.sqrt(5.77 * shift / kappa))
+        stop_len = max(v * v / (2.0 * decel), change_m + 5.0) + 1.0
+        in_lane = shift >= 0.3 and self.curb_side_occupied(now_s, s_now, d_now, d_curb, s_now + stop_len)
+        self.lane = self.current_lane()
+        where = "in its lane (the curb side is occupied)" if in_lane else "at the curb"
+        self.mrm_where = where
+        self.mode, self.detail = VehicleMode.MINIMAL_RISK, f"minimal-risk stop {where}: {reason}"[:250]
         self.target_speed_mps = 0.0
-        self.plan_decel_mps2 = decel
-        self._set_path(path, min(path.length_m, s_now + self.speed_mps ** 2 / (2.0 * decel) + 1.0))
+        if in_lane:
+            path = self.lane_path(self.lane)
+            self.plan_decel_mps2 = decel
+            self._set_path(path, min(path.length_m, path.project(x, y).s_m + v * v / (2.0 * decel) + 1.0))
+            return out
+        self.plan_decel_mps2 = min(decel, max(0.5, v * v / (2.0 * stop_len)))
+        self.target_speed_mps = v  # the braking curve to the stop point sets the speed, not a step to 0
+        path = ReferencePath(offset_change_waypoints(self.road, s_now, d_now, d_curb, change_m, stop_len + 20.0))
+        self._set_path(path, min(path.length_m - 10.0, path.project(x, y).s_m + stop_len))
         return out
 
 

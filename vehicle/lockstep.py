@@ -78,6 +78,8 @@ class Scenario:
     config: CoreConfig = field(default_factory=CoreConfig)
     ddm_health_period_s: float | None = 1.0
     """The DDM's health heartbeat the car hears (None: silent DDM)."""
+    ddm_silent_from_s: float | None = None
+    """The heartbeat stops at this time (the DDM goes silent); None: it never stops."""
     fix_outage: tuple[float, float] | None = None
     """(from, to) seconds without any fix."""
     stop_when_done: bool = True
@@ -149,7 +151,8 @@ def run_scenario(sc: Scenario, on_step: Callable[[SimulatedVehicle, float], None
     t_stop = None
     for k in range(n):
         now = k * sc.dt_s
-        if sc.ddm_health_period_s is not None and now + 1e-9 >= next_health:
+        if sc.ddm_health_period_s is not None and now + 1e-9 >= next_health \
+                and (sc.ddm_silent_from_s is None or now < sc.ddm_silent_from_s - 1e-9):
             sim.core.on_link(now)
             next_health += sc.ddm_health_period_s
         if sc.make_command is not None and not cmd_sent and now + 1e-9 >= sc.command_at_s:

@@ -168,3 +168,16 @@ def lane_change_waypoints(road, s_start_m: float, from_lane: int, to_lane: int, 
     d = d0 + (d1 - d0) * u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
     x, y, _ = road.pose_at(s, d)
     return np.column_stack([x, y])
+
+
+def offset_change_waypoints(road, s_start_m: float, d_from_m: float, d_to_m: float, change_length_m: float,
+                            total_length_m: float, step_m: float = 2.0) -> np.ndarray:
+    """From offset ``d_from_m`` to ``d_to_m`` (any offsets, e.g. onto the shoulder) on a ``Road``: the same
+    quintic as ``lane_change_waypoints`` over ``change_length_m``, then straight on to ``total_length_m``."""
+    s_end = min(s_start_m + total_length_m, road.length_m)
+    n = max(2, int(math.ceil((s_end - s_start_m) / step_m)) + 1)
+    s = np.linspace(s_start_m, s_end, n)
+    u = np.clip((s - s_start_m) / max(change_length_m, 1e-6), 0.0, 1.0)
+    d = d_from_m + (d_to_m - d_from_m) * u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
+    x, y, _ = road.pose_at(s, d)
+    return np.column_stack([x, y])

@@ -81,7 +81,7 @@ def test_rsu_track_localisation_with_more_latency():
 
 def test_failsafe_stop_when_the_ddm_goes_silent():
     sc = field_test_scenario(13.4)
-    sc = replace(sc, ddm_health_period_s=None)  # only the command itself is ever heard
+    sc = replace(sc, ddm_silent_from_s=sc.command_at_s - 0.5)  # silent from just before the command
     r = run_scenario(sc)
     c = r.record.columns()
     core = r.sim.core
@@ -91,24 +91,79 @@ def test_failsafe_stop_when_the_ddm_goes_silent():
     assert r.acks[1].reason.startswith("aborted: link lost")
     assert c["speed_mps"][-1] < 0.01  # stopped
     assert -c["accel_mps2"].min() <= 3.0  # controlled, not an emergency stop
-    # stopped in a lane (mid-change it picks the lane it is in), not between lanes
+    # stopped at the curb (issue 18): on the shoulder (2.5 m wide: its middle, d = -1.25 m), out of every lane
     y_end = c["y_m"][-1]
-    assert min(abs(y_end - 1.85), abs(y_end - 5.55)) < 0.3
+    assert abs(y_end - core.curb_offset_m()) < 0.3 and core.curb_offset_m() == pytest.approx(-1.25)
+    assert "at the curb" in core.detail
 
 
 def test_failsafe_stop_when_localisation_goes_stale():
-    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=14.0, fix_outage=(4.0, 99.0))
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=18.0, fix_outage=(4.0, 99.0))
     r = run_scenario(sc)
     core = r.sim.core
     assert core.mode == VehicleMode.MINIMAL_RISK and "localisation stale" in core.watchdog.reason
     assert 4.75 <= core.watchdog.triggered_at_s <= 5.05  # newest fix measured at ~3.8 s, stale after 1 s
     c = r.record.columns()
     assert c["speed_mps"][-1] < 0.01 and -c["accel_mps2"].min() <= 3.0
-    assert np.abs(c["lateral_error_m"]).max() < 0.3  # dead reckoning keeps it in lane while stopping
+    # dead reckoning steers it to the curb (2 lanes and a half to the right) within 0.5 m of the path
+    assert np.abs(c["lateral_error_m"]).max() < 0.5
+    assert abs(c["y_m"][-1] - core.curb_offset_m()) < 0.5
 
 
 def test_no_failsafe_in_normal_driving():
-    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=12.0, ddm_health_period_s=None)
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=12.0)  # the DDM's heartbeat at 1 Hz
     r = run_scenario(sc)
     assert r.sim.core.mode == VehicleMode.DRIVING and r.sim.core.watchdog.reason is None
     assert abs(r.record.columns()["speed_mps"][-1] - 13.4) < 0.2
+
+
+def test_cruising_without_a_ddm_heartbeat_degrades_then_stops_at_the_curb():
+    """Issue 18: the link watchdog runs while cruising too. 3.5 s without a DDM heartbeat: degraded (speed
+    capped at 8 m/s, said in the VehicleState detail); 10 s: minimal-risk stop at the curb."""
+    fs = FailsafeConfig()
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=25.0, ddm_silent_from_s=2.0)
+    seen: dict[str, float] = {}
+
+    def watch(sim, now):
+        core = sim.core
+        if core.detail.startswith("degraded:"):
+            seen.setdefault("degraded", now)
+        if core.mode == VehicleMode.MINIMAL_RISK:
+            seen.setdefault("mrm", now)
+            seen.setdefault("speed_at_mrm", sim.truth.vx_mps)
+
+    r = run_scenario(replace(sc, stop_when_done=False), on_step=watch)
+    core = r.sim.core
+    # the last beat was at t = 2 s (beats at 0, 1, 2 s; silent from 2 s, so the 2 s beat is not heard: 1 s)
+    assert seen["degraded"] == pytest.approx(1.0 + fs.link_timeout_s, abs=0.05)
+    assert seen["mrm"] == pytest.approx(1.0 + fs.link_lost_s, abs=0.05)
+    assert seen["speed_at_mrm"] <= fs.degraded_speed_mps + 0.3  # capped while degraded
+    assert core.mode == VehicleMode.MINIMAL_RISK and "while cruising" in core.watchdog.reason
+    c = r.record.columns()
+    assert c["speed_mps"][-1] < 0.01 and abs(c["y_m"][-1] - core.curb_offset_m()) < 0.3
+
+
+def test_degraded_ends_when_the_ddm_is_heard_again():
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=8.0, ddm_silent_from_s=0.5)
+    r = run_scenario(sc, on_step=lambda sim, now: sim.core.on_link(now) if abs(now - 6.0) < 1e-6 else None)
+    core = r.sim.core
+    assert core.mode == VehicleMode.DRIVING and core.watchdog.degraded is None
+    assert not core.detail.startswith("degraded")
+
+
+def test_minimal_risk_stop_stays_in_lane_when_the_picture_shows_the_curb_side_occupied():
+    """A car keeps pace in lane 0 beside the AV (lane 1): the fail-safe stop must not steer into it."""
+    sc = replace(field_test_scenario(13.4), make_command=None, duration_s=25.0, ddm_silent_from_s=2.0,
+                 stop_when_done=False)
+
+    def beside(sim, now):
+        st = sim.truth
+        sim.core.on_picture(now, [(st.x_m, st.y_m, 4.9, 1.9), (st.x_m + 2.0, 1.85, 4.5, 1.8)])
+
+    r = run_scenario(sc, on_step=beside)
+    core = r.sim.core
+    assert core.mode == VehicleMode.MINIMAL_RISK and "curb side is occupied" in core.detail
+    assert abs(r.record.columns()["y_m"][-1] - 5.55) < 0.3  # stopped in its own lane
+    # with the same car well ahead (beyond the stop point) the curb is free
+    r = run_scenario(sc, on_step=lambda sim, now: sim.core.on_picture(now, [(sim.truth.x_m + 200.0, 1.85, 4.5, 1.8)]))
+    assert "at the curb" in r.sim.core.detail and abs(r.record.columns()["y_m"][-1] - r.sim.core.curb_offset_m()) < 0.3

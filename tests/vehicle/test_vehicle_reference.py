@@ -44,9 +44,10 @@ def test_reference_refuses_bad_waypoints():
 
 
 def test_watchdog_triggers_latches_and_clears():
-    wd = Watchdog(FailsafeConfig(link_timeout_s=2.0, localisation_stale_s=1.0))
-    assert wd.check(0.0, in_manoeuvre=False, localisation_age_s=0.1) is None  # no link needed to cruise
-    assert "link lost" in wd.check(0.0, in_manoeuvre=True, localisation_age_s=0.1)  # never heard the DDM
+    wd = Watchdog(FailsafeConfig(link_timeout_s=2.0, link_lost_s=5.0, localisation_stale_s=1.0))
+    assert wd.check(0.0, in_manoeuvre=False, localisation_age_s=0.1) is None  # silence counts from here
+    assert wd.check(2.1, in_manoeuvre=False, localisation_age_s=0.1) is None and wd.degraded  # cruising: degraded
+    assert "while cruising" in wd.check(5.1, in_manoeuvre=False, localisation_age_s=0.1)  # never heard the DDM
     wd.clear()
     wd.link_seen(10.0)
     assert wd.check(11.9, True, 0.1) is None
@@ -59,6 +60,8 @@ def test_watchdog_triggers_latches_and_clears():
     assert wd.healthy(13.0, 1.5) is not None and wd.healthy(13.0, 0.2) is None
     with pytest.raises(ValueError):
         FailsafeConfig(link_timeout_s=0.0)
+    with pytest.raises(ValueError):
+        FailsafeConfig(link_timeout_s=4.0, link_lost_s=3.0)
 
 
 def test_project_ignores_a_hint_from_a_longer_path():
