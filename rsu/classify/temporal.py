@@ -129,6 +129,12 @@ class EvidenceConfig:
     steady_max_fraction: float = 0.12
     """... and covering at most this share of the band (median over its lit samples): a roof bar is a thin
     strip, while red or blue *paint* bright enough to pass the real-video colour test covers the body."""
+    strong_bar_flashes: int = 3
+    """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes,
+    each after a dark stretch, at most ``max_dark_s`` apart, central, bar-sized (at most
+    ``steady_max_fraction`` of the band) - is a strong flash pattern that confirms alone, like a lamp-bright
+    flash: a far EV whose body the classifier cannot yet judge still alerts. Paint does not flash, and
+    corner lamps (turn signals, hazards) are excluded as for every cue. 0: never."""
     body_threshold: float = 0.5
     """EV-body score that counts as confident (the body model's ``confident_threshold``, from its metadata)."""
     body_min_scores: int = 3
@@ -233,6 +239,32 @@ class TrackEvidence:
             cue = flash_pattern(runs["white"], [], cfg)
         return EvCue(cue) if cue else None
 
+    def _strong_bar_flash(self, now_s: float) -> bool:
+        """``strong_bar_flashes`` regular flashes of one light-bar colour in the window (see the config)."""
+        cfg = self.config
+        if cfg.strong_bar_flashes <= 0:
+            return False
+        t, series = self._series(now_s, cfg.flash_window_s, "bar")
+        if len(t) < 2 * cfg.strong_bar_flashes:
+            return False
+        frame_s = float(np.median(np.diff(t)))
+        for colour in ("red", "blue"):
+            x, centre = series[colour]
+            peak = float(x.max())
+            if not cfg.bar_on_fraction <= peak <= cfg.steady_max_fraction:
+                continue
+            on_level = max(cfg.bar_on_fraction, 0.5 * peak)
+            if not self._central(x, centre, on_level):
+                continue
+            runs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
+            if any(r.duration_s > cfg.max_on_s for r in runs):
+                continue
+            flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
+            if len(flashes) >= cfg.strong_bar_flashes and all(
+                    b.start_s - a.end_s <= cfg.max_dark_s for a, b in zip(flashes, flashes[1:], strict=False)):
+                return True
+        return False
+
     def _steady_bar(self, now_s: float) -> bool:
         cfg = self.config
         t, series = self._series(now_s, cfg.steady_window_s, "bar")
@@ -296,6 +328,8 @@ class TrackEvidence:
         if self.state in (EvState.NONE, EvState.CLEARED, EvState.CANDIDATE):
             if self.level >= cfg.confirm_level and flash is not None:
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
+            elif lamp_cue is not None and self._strong_bar_flash(now_s):
+                self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (EvCue.FLASH, *body)
             elif body and lamp_cue is not None:
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (lamp_cue, *body)
             elif self.level > cfg.candidate_level or lamp_cue is not None:

@@ -141,3 +141,25 @@ def test_bar_definition_measures_a_central_white_lamp():
     crop[60:70, 0:10] = 255  # a headlight at the corner, below the band
     bar, = measure_band(crop, 0.4, (BAR_COLOURED,))
     assert 0.03 < bar.white < 0.04 and bar.white_centre == 1.0 and bar.red == bar.blue == 0.0
+
+
+def _bar_run(bar_signal, duration_s=3.0):
+    ev, states = TrackEvidence(), []
+    for i in range(int(duration_s * FPS)):
+        t = i / FPS
+        states.append((t, ev.update(t, LampMeasurement(0.0, 0.0), bar=bar_signal(t))))
+    return ev, states
+
+
+def test_strong_regular_bar_flashing_confirms_without_a_body_score():
+    """A far EV whose body the classifier cannot judge yet: its blue bar flashing at 3 Hz confirms alone."""
+    blue = lambda t: LampMeasurement(0.0, BAR if (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
+    ev, states = _bar_run(blue)
+    assert first(states) is not None and first(states) <= 1.5 and ev.cues == (EvCue.FLASH,)
+    # ... but not blue paint flickering with the box (covers a third of the band), nor a corner lamp
+    paint = lambda t: LampMeasurement(0.0, 0.35 if (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
+    corner = lambda t: LampMeasurement(0.0, BAR if (t * 3.0) % 1.0 < 0.4 else 0.0, 1.0, 0.1)  # noqa: E731
+    assert first(_bar_run(paint)[1]) is None and first(_bar_run(corner)[1]) is None
+    # ... nor two flashes alone (the strong pattern needs three)
+    two = lambda t: LampMeasurement(0.0, BAR if t < 0.7 and (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
+    assert first(_bar_run(two)[1]) is None

@@ -10,7 +10,10 @@ same figures with the alert times; the annotated video of ``iea-rsu scan CLIP --
 which box each alert is on.
 
 The escort, Japanese-ambulance and NYC-police clips were used to set the light-bar colour test
-(:mod:`rsu.classify.lamps`): they are tuning clips for it. The others were not used to set anything.
+(:mod:`rsu.classify.lamps`): they are tuning clips for it. The Florence clip was traced frame by frame to
+find why it alerted late (a far ambulance whose blue bar flashed regularly while the body classifier could
+not judge it yet), which led to the strong light-bar flash rule (``EvidenceConfig.strong_bar_flashes``): it
+is a tuning clip since. The night, roadside and traffic clips were not used to set anything.
 """
 
 from __future__ import annotations
@@ -37,8 +40,6 @@ MAX_DELAY_S = 2.0
 KNOWN_MISSES = {
     "elevated_police_nyc_redbars.mp4": "the body classifier scores the sunlit police car from above at 0.0: no "
                                        "confident EV body, so its dim red bar never counts",
-    "handheld_ambulance_florence_blue.mp4": "alert at 7.3 s, 2.8 s after the ambulance is 40 px wide: the body "
-                                            "score is confident only once it is close",
 }
 """Issue 17 is open: these clips do not meet the requirement yet (measured 2026-11-25, bench/ev_real_bench.py)."""
 
