@@ -8,6 +8,10 @@ the AV's lane, so a DDM that knows the EV decides to yield.
 
     python bench/zenoh_corridor_stub.py --corridor-id ID --connect tcp/127.0.0.1:PORT [--duration-s S]
 
+With ``--credentials-dir DIR`` (a folder from ``iea deploy acl|mesh``) every RSU and the vehicle open
+their own session with their own credentials (``DIR/<id>.json5``), as separate services would behind
+an ACL router.
+
 Prints ``ready`` once its tokens and queryables are declared; stops at ``--duration-s`` or SIGTERM
 (SIGKILL it to test presence: its tokens go with its session).
 """
@@ -58,10 +62,13 @@ def _obj(corridor, oid: int, x: float, lane: int, v: float, ev: bool) -> Detecte
 
 
 class CorridorStub:
-    """RSUs + one AV on ``transport``; ``tick(t)`` publishes what is due at wall time ``t``."""
+    """RSUs + one AV on ``transport`` (or each on its own: ``by_node``); ``tick(t)`` publishes what is due
+    at wall time ``t``."""
 
-    def __init__(self, transport: Transport, corridor, corridor_id: str, vehicle_id: str = "av1") -> None:
+    def __init__(self, transport: Transport, corridor, corridor_id: str, vehicle_id: str = "av1",
+                 by_node: dict[str, Transport] | None = None) -> None:
         self.t, self.corridor, self.c, self.vid = transport, corridor, corridor_id, vehicle_id
+        self.by_node = by_node or {}
         self.rsus = [r.rsu_id for r in corridor.rsus]
         self.start = time.time()
         self.seq = 0
@@ -69,12 +76,15 @@ class CorridorStub:
         self._lock = threading.Lock()
         self.handles = []
         for r in self.rsus:
-            self.handles.append(presence.serve(transport, f"iea/{corridor_id}/rsu/{r}/*",
+            t = self.by_node.get(r, transport)
+            self.handles.append(presence.serve(t, f"iea/{corridor_id}/rsu/{r}/*",
                                                self._answer(f"iea/{corridor_id}/rsu/{r}/")))
-            self.handles.append(presence.announce(transport, corridor_id, "rsu", r))
+            self.handles.append(presence.announce(t, corridor_id, "rsu", r))
         prefix = f"iea/{corridor_id}/vehicle/{vehicle_id}/"
-        self.handles.append(presence.serve(transport, prefix + "*", self._answer(prefix)))
-        self.handles.append(presence.announce(transport, corridor_id, "vehicle", vehicle_id))
+        t = self.by_node.get(vehicle_id, transport)
+        for topic in ("state", "health"):  # concrete keys, as the vehicle service (and its ACL grant) has them
+            self.handles.append(presence.serve(t, prefix + topic, self._answer(prefix + topic)))
+        self.handles.append(presence.announce(t, corridor_id, "vehicle", vehicle_id))
 
     def _answer(self, prefix: str):
         """Each service answers with its own latest messages."""
@@ -84,7 +94,7 @@ class CorridorStub:
         return answer
 
     def _put(self, key: str, msg) -> None:
-        self.t.publish(key, msg)
+        self.by_node.get(key.split("/")[3], self.t).publish(key, msg)
         with self._lock:
             self.latest[key] = msg
 
@@ -125,12 +135,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corridor-id", required=True)
     ap.add_argument("--duration-s", type=float, default=60.0)
     ap.add_argument("--rate-hz", type=float, default=15.0)
+    ap.add_argument("--credentials-dir", default=None, help="each RSU and the vehicle joins with DIR/<id>.json5")
     ZenohSettings.add_arguments(ap)
     args = ap.parse_args(argv)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    transport = ZenohTransport(ZenohSettings.from_args(args))
-    stub = CorridorStub(transport, load_corridor(args.corridor), args.corridor_id)
+    corridor = load_corridor(args.corridor)
+    settings = ZenohSettings.from_args(args)
+    by_node: dict[str, Transport] = {}
+    if args.credentials_dir:
+        for node in [*(r.rsu_id for r in corridor.rsus), "av1"]:
+            by_node[node] = ZenohTransport(ZenohSettings(mode=settings.mode, connect=settings.connect,
+                                                         config_file=f"{args.credentials_dir}/{node}.json5"))
+        transport = by_node["av1"]
+    else:
+        transport = ZenohTransport(settings)
+    stub = CorridorStub(transport, corridor, args.corridor_id, by_node=by_node)
     stub.tick(time.time())
     print("ready", flush=True)
     end = time.monotonic() + args.duration_s
@@ -138,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     while not stop.is_set() and time.monotonic() < end:
         stop.wait(period)
         stub.tick(time.time())
-    transport.close()
+    for t in {id(t): t for t in [transport, *by_node.values()]}.values():
+        t.close()
     return 0
 
 

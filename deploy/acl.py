@@ -15,6 +15,11 @@ Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) eve
 Only the DDM may therefore send a ``PathSwitchCommand``; vehicles also verify its signature
 (protocol/security.py).
 
+Presence and state (issue 21): everyone may watch and query liveliness tokens and query under
+``iea/{c}/**``; a service may declare only its own token ``iea/{c}/alive/{role}/{user}`` and answer
+queries (``declare_queryable``, ``reply``) only on its own keys (those it may publish, and the DDM's
+``iea/{c}/ddm/state``): an RSU cannot pose as another in ``iea status`` or in a DDM's start-up catch-up.
+
     iea deploy acl [--corridor FILE] --out DIR [--mtls]
         router config, and per service either a user/password credentials file or (--mtls) a
         certificate from a private CA and a TLS client config
@@ -44,6 +49,22 @@ def service_publish_keys(corridor: Corridor) -> dict[str, list[str]]:
     return out
 
 
+def service_serve_keys(corridor: Corridor) -> dict[str, list[str]]:
+    """User name -> the key expressions it may answer queries on (its own keys)."""
+    out = service_publish_keys(corridor)
+    out["ddm"] = [*out["ddm"], f"iea/{corridor.corridor_id}/ddm/state"]
+    return out
+
+
+def service_token_keys(corridor: Corridor) -> dict[str, str]:
+    """User name -> its liveliness token key."""
+    c = corridor.corridor_id
+    out = {"ddm": f"iea/{c}/alive/ddm/ddm", "sim": f"iea/{c}/alive/sim/sim"}
+    out.update({r.rsu_id: f"iea/{c}/alive/rsu/{r.rsu_id}" for r in corridor.rsus})
+    out.update({v.vehicle_id: f"iea/{c}/alive/vehicle/{v.vehicle_id}" for v in corridor.vehicles})
+    return out
+
+
 def router_config(corridor: Corridor, dictionary_file: str | None, listen: list[str] | None = None,
                   tls: dict[str, Any] | None = None) -> dict[str, Any]:
     """A Zenoh router config (JSON-compatible dict) enforcing the table in the module docstring.
@@ -52,10 +73,14 @@ def router_config(corridor: Corridor, dictionary_file: str | None, listen: list[
     ``tls`` (mutual TLS), by the common name of their certificate (see ``deploy/certs.py``)."""
     c = corridor.corridor_id
     publish = service_publish_keys(corridor)
+    serve, tokens = service_serve_keys(corridor), service_token_keys(corridor)
     rules: list[dict[str, Any]] = [
-        {"id": "subscribe", "permission": "allow", "flows": ["ingress"], "messages": ["declare_subscriber"],
+        {"id": "subscribe", "permission": "allow", "flows": ["ingress"],
+         "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"],
          "key_exprs": [f"iea/{c}/**"]},
-        {"id": "deliver", "permission": "allow", "flows": ["egress"], "messages": ["put", "declare_subscriber"],
+        {"id": "deliver", "permission": "allow", "flows": ["egress"],
+         "messages": ["put", "declare_subscriber", "liveliness_token", "declare_liveliness_subscriber",
+                      "liveliness_query", "declare_queryable", "query", "reply"],
          "key_exprs": [f"iea/{c}/**"]},
     ]
     subjects: list[dict[str, Any]] = [{"id": "everyone"}]
@@ -63,9 +88,14 @@ def router_config(corridor: Corridor, dictionary_file: str | None, listen: list[
     for user, key_exprs in publish.items():
         rules.append({"id": f"publish-{user}", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
                       "key_exprs": key_exprs})
+        rules.append({"id": f"serve-{user}", "permission": "allow", "flows": ["ingress"],
+                      "messages": ["declare_queryable", "reply"], "key_exprs": serve[user]})
+        rules.append({"id": f"token-{user}", "permission": "allow", "flows": ["ingress"],
+                      "messages": ["liveliness_token"], "key_exprs": [tokens[user]]})
         who = {"cert_common_names": [user]} if tls and tls.get("enable_mtls") else {"usernames": [user]}
         subjects.append({"id": f"user-{user}", **who})
-        policies.append({"id": f"policy-{user}", "rules": [f"publish-{user}"], "subjects": [f"user-{user}"]})
+        policies.append({"id": f"policy-{user}", "rules": [f"publish-{user}", f"serve-{user}", f"token-{user}"],
+                         "subjects": [f"user-{user}"]})
     config: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": listen or ["tcp/0.0.0.0:7447"]},

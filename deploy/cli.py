@@ -139,6 +139,14 @@ def _deploy(argv: list[str]) -> int:
     acl.add_argument("--mtls", action="store_true",
                      help="mutual TLS instead of passwords: a private CA and a certificate per service")
     acl.add_argument("--pki-path", default=None, help="with --mtls: where services will find the files")
+    mesh = sub.add_parser("mesh", help="a router per corridor segment linked to a core router, ACL on each (issue 21)")
+    mesh.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
+    mesh.add_argument("--out", required=True, help="output directory (keep it out of git: it holds passwords)")
+    mesh.add_argument("--core-listen", action="append", default=None, help="core router endpoint (default tcp/0.0.0.0:7447)")
+    mesh.add_argument("--core-connect", action="append", default=None,
+                      help="where the segment routers reach the core (default: --core-listen on 127.0.0.1)")
+    mesh.add_argument("--segment-listen", action="append", required=True,
+                      help="one per segment router (repeat; the RSUs are split among them in corridor order)")
     comp = sub.add_parser("compose", help="docker-compose file: router, sim, RSUs, DDM and vehicles of a corridor")
     comp.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
     comp.add_argument("--rsus", type=int, default=None, help="number of RSUs to deploy (default: all of the corridor)")
@@ -155,6 +163,20 @@ def _deploy(argv: list[str]) -> int:
         return 1
     if args.action == "compose":
         return _write_compose(args, corridor)
+    if args.action == "mesh":
+        from deploy.mesh import write_mesh_bundle
+
+        try:
+            written = write_mesh_bundle(corridor, Path(args.out), args.core_listen or ["tcp/0.0.0.0:7447"],
+                                        args.segment_listen, args.core_connect)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        for name, path in written.items():
+            print(f"{name:<10} {path}")
+        print(f"start each router with `iea router --config ROUTER`; {written['mesh']} says which router each "
+              "service joins (`--connect` it with `--zenoh-config <its credentials file>`)")
+        return 0
     from deploy.acl import write_acl_bundle, write_mtls_bundle
 
     if args.mtls:

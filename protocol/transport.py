@@ -470,7 +470,7 @@ class ZenohTransport(Transport):
                 for key, payload in handler(expr):
                     if key_matches(expr, key):  # zenoh refuses replies outside the query's key expression
                         q = self.qos(key)
-                        query.reply(key, payload, priority=getattr(z.Priority, q.priority), express=True)
+                        query.reply(key, payload, express=True)
             except Exception:
                 log.exception("queryable %s failed", key_expr)
             finally:

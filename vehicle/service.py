@@ -111,15 +111,18 @@ class VehicleService:
             transport.subscribe(self.cmd_key, self._on_cmd, on_reject=self._on_reject),
             transport.subscribe(ddm_health_key(c), self._on_ddm_health, on_reject=self._on_reject),
         ]
-        if localisation in ("rsu", "both"):
-            self._subs.append(transport.subscribe(rsu_topic_expr(c, "objects"), self._on_rsu, on_reject=self._on_reject))
+        # the RSUs' object lists: the car's picture for the fail-safe's curb check, and fixes in "rsu"/"both"
+        self._subs.append(transport.subscribe(rsu_topic_expr(c, "objects"), self._on_rsu, on_reject=self._on_reject))
+        self.heartbeats_refused = Counter()
+        """DDM Health not counted as a heartbeat, by reason (``auth_<reason>``): a signed corridor counts
+        only a DDM Health signed by a trusted DDM key (issue 18)."""
         self.ddm_present: bool | None = None
         self.ddm_lost_s: float | None = None
         self._ddm_tokens = presence.PresenceBook()
         self._latest: dict[str, object] = {}  # key -> the last state / health published
         self._handles = [
-            presence.serve(transport, f"{self.state_key.rsplit('/', 1)[0]}/*",
-                           lambda _q: [(k, encode(m)) for k, m in list(self._latest.items())]),
+            *(presence.serve(transport, key, lambda _q, k=key: [(k, encode(m)) for m in [self._latest.get(k)] if m])
+              for key in (self.state_key, self.health_key)),
             presence.watch(transport, c, self._on_ddm_presence, role="ddm"),
             presence.announce(transport, c, "vehicle", vehicle_id),
         ]
@@ -210,7 +213,8 @@ class VehicleService:
         period = now_s - self._last_health_s
         period = period if period >= 0.5 * self.timing.health_period_s else math.inf  # none yet at the start
         core = self.sim.core
-        status = HealthStatus.DEGRADED if core.mode == VehicleMode.MINIMAL_RISK else HealthStatus.OK
+        degraded = core.mode == VehicleMode.MINIMAL_RISK or core.watchdog.degraded is not None
+        status = HealthStatus.DEGRADED if degraded else HealthStatus.OK
         rejected = {k[:64]: v for k, v in (self.rejected + Counter(self.transport.stats.rejected)).items()}
         mean_ms = self._ctrl_time_ns / max(1, self._ctrl_steps) / 1e6
         msg = Health(src=self.vehicle_id, seq=self._next_seq(self.health_key), stamp=now_s, role=Role.VEHICLE,
@@ -245,9 +249,27 @@ class VehicleService:
                             "x_m": st.x_m, "y_m": st.y_m,
                             "stop_point": list(msg.stop_point) if msg.stop_point else None})
             elif kind == "link":
-                core.on_link(now_s)
+                if self._authentic_heartbeat(msg, now_s):
+                    core.on_link(now_s)
             elif kind == "rsu":
-                self._rsu_fix(msg)
+                core.on_picture(now_s, [(o.pos_x_m, o.pos_y_m, o.length_m, o.width_m) for o in msg.objects],
+                                msg.rsu_id)
+                if self.localisation in ("rsu", "both"):
+                    self._rsu_fix(msg)
+
+    def _authentic_heartbeat(self, msg: Health, now_s: float) -> bool:
+        """Whether a DDM Health feeds the link watchdog: any in an unsigned corridor; in a signed one (the
+        trust list names DDM keys) only one signed by a trusted DDM key, in time, on the DDM's key."""
+        verifier = self.gate.verifier
+        if verifier is None:
+            return True
+        try:
+            verifier.check(ddm_health_key(self.corridor.corridor_id), msg, now_s)
+        except AuthError as exc:
+            self.heartbeats_refused[f"auth_{exc.reason}"] += 1
+            self.rejected[f"heartbeat_auth_{exc.reason}"] += 1
+            return False
+        return True
 
     def _rsu_fix(self, msg: ObjectList) -> None:
         """The RSU object nearest the predicted pose (within the gate) is this car."""

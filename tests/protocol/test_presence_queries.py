@@ -233,3 +233,41 @@ def test_late_ddm_ev_aware_at_once_over_zenoh(spawn, router, corridor_id):
     finally:
         ddm.close()
         t.close()
+
+
+def _acl_bundle(spawn, tmp_path, corridor_id: str, listen: str) -> Path:
+    from protocol.corridor import DEFAULT_CORRIDOR
+
+    corridor_file = tmp_path / "corridor.toml"  # the default corridor under this test's own id
+    corridor_file.write_text(DEFAULT_CORRIDOR.read_text().replace('id = "rellis"', f'id = "{corridor_id}"', 1))
+    gen = spawn("-m", "deploy", "deploy", "acl", "--corridor", str(corridor_file), "--out", str(tmp_path / "acl"),
+                "--listen", listen)
+    _, err = gen.communicate(timeout=30)
+    assert gen.returncode == 0, err
+    return tmp_path / "acl"
+
+
+def _acl_checks(join, c: str) -> None:
+    """rsu1 may declare its own token and answer on its own keys only; everyone may query."""
+    rsu1, watcher = join("rsu1"), join("rsu4")
+    try:
+        rsu1.declare_token(keys.alive_key(c, "rsu", "rsu1"))
+        rsu1.declare_token(keys.alive_key(c, "rsu", "rsu2"))  # posing as rsu2: the router refuses it
+        for r in ("rsu1", "rsu2"):
+            rsu1.declare_queryable(f"iea/{c}/rsu/{r}/*", lambda q, r=r: [(keys.rsu_state_key(c, r), b'{"by":"rsu1"}')])
+        time.sleep(0.5)
+        assert watcher.query_presence(keys.alive_expr(c)) == [keys.alive_key(c, "rsu", "rsu1")]
+        assert [k for k, _ in watcher.query_bytes(f"iea/{c}/rsu/*/state")] == [keys.rsu_state_key(c, "rsu1")]
+    finally:
+        rsu1.close()
+        watcher.close()
+
+
+@pytest.mark.timeout(90)
+def test_acl_router_admits_own_tokens_and_queryables_only(spawn, tmp_path, corridor_id):
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    acl = _acl_bundle(spawn, tmp_path, corridor_id, ep)
+    router = spawn("-m", "deploy", "router", "--config", str(acl / "router-acl.json5"), "--duration-s", "40")
+    _wait_line(router, "router ready", 20.0)
+    _acl_checks(lambda user: ZenohTransport(ZenohSettings(mode="client", connect=[ep],
+                                                          config_file=str(acl / f"{user}.json5"))), corridor_id)
