@@ -433,6 +433,9 @@ class Health(Envelope):
     """What the service holds now, by name (the DDM: fused ``tracks``, ``vehicles``, ``outstanding``
     commands, ``hazards``): for monitors, which should not parse ``detail``."""
     detail: Text = ""
+    auth: Signature | None = None
+    """A signed service's heartbeat (protocol/security.py): only a DDM Health signed by a trusted DDM key
+    keeps a vehicle's link watchdog fed in a signed corridor."""
 
 
 # ---------------------------------------------------------------- simulator only

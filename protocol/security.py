@@ -1,6 +1,7 @@
 """Signed messages (after IEEE 1609.2): only trusted keys may command a vehicle or raise an alert.
 
-A signer attaches a ``Signature`` to a ``PathSwitchCommand``, ``EvAlert`` or ``HazardAlert``: an
+A signer attaches a ``Signature`` to a ``PathSwitchCommand``, ``EvAlert``, ``HazardAlert`` or its own
+``Health`` (a heartbeat: a vehicle's link watchdog counts only a trusted DDM's, issue 18): an
 Ed25519 signature (RFC 8032, via the ``cryptography`` library) over
 
     b"iea-sig-v1\\0" + key + b"\\0" + canonical_encoding(message without its signature)
@@ -35,12 +36,18 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from protocol.clock import Clock, WallClock
 from protocol.codec import encode
 from protocol.keys import parse_key
-from protocol.messages import EvAlert, HazardAlert, PathSwitchCommand, Signature
+from protocol.messages import EvAlert, HazardAlert, Health, PathSwitchCommand, Signature
 from protocol.transport import MessageCallback, RejectCallback, Subscription, Transport
 
 log = logging.getLogger(__name__)
 
 SIGNED_TYPES = (PathSwitchCommand, EvAlert, HazardAlert)
+"""Kinds that must be signed in a signed corridor (unsigned ones are refused)."""
+HEARTBEAT_TYPES = (Health,)
+"""Kinds a signer signs and a verifier checks when they carry a signature; unsigned ones pass (vehicles
+publish unsigned Health); the vehicle itself requires a signed DDM heartbeat (vehicle/service.py)."""
+HEARTBEAT_VALID_FOR_S = 5.0
+"""Validity of a heartbeat's signature after its stamp: beats come at 1 Hz."""
 _DOMAIN = b"iea-sig-v1\x00"
 ALERT_VALID_FOR_S = 5.0
 """Validity of an alert's signature after its stamp: alerts repeat at 2 Hz and the DDM forgets one
@@ -123,10 +130,12 @@ class Signer:
             return self._sign(key, message, max(0.0, message.issued_at - skew_s), message.valid_until)
         if isinstance(message, EvAlert | HazardAlert):
             return self._sign(key, message, max(0.0, message.stamp - skew_s), message.stamp + valid_for_s)
+        if isinstance(message, Health):
+            return self._sign(key, message, max(0.0, message.stamp - skew_s), message.stamp + HEARTBEAT_VALID_FOR_S)
         raise TypeError(f"{type(message).__name__} is not a signed message kind")
 
     def _sign(self, key: str, message: Any, not_before: float, not_after: float) -> Any:
-        if not isinstance(message, SIGNED_TYPES):
+        if not isinstance(message, SIGNED_TYPES + HEARTBEAT_TYPES):
             raise TypeError(f"{type(message).__name__} is not a signed message kind")
         sig = self.private_key.sign(signed_bytes(key, message, not_before, not_after))
         return message.model_copy(update={"auth": Signature(self.key_id, not_before, not_after, sig)})
@@ -151,6 +160,10 @@ class TrustedKey:
         if isinstance(message, EvAlert | HazardAlert):
             return (self.role == "rsu" and parsed.domain == "rsu" and parsed.node == self.rsu_id
                     and message.rsu_id == self.rsu_id)
+        if isinstance(message, Health):  # a service's own heartbeat, on its own key
+            return ((self.role == "ddm" and parsed.domain == "ddm" and parsed.topic == "health")
+                    or (self.role == "rsu" and parsed.domain == "rsu" and parsed.node == self.rsu_id
+                        and parsed.topic == "health"))
         return False
 
 
@@ -288,7 +301,7 @@ class SecureTransport(Transport):
         return self.inner.subscribe_bytes(key_expr, callback)
 
     def publish(self, key: str, message: Any) -> None:
-        if self.signer is not None and isinstance(message, SIGNED_TYPES) and message.auth is None:
+        if self.signer is not None and isinstance(message, SIGNED_TYPES + HEARTBEAT_TYPES) and message.auth is None:
             message = self.signer.sign_message(key, message, self.alert_valid_for_s)
         self.inner.publish(key, message)
 
@@ -299,7 +312,8 @@ class SecureTransport(Transport):
         verifier = self.verifier
 
         def checked(key: str, message: Any) -> None:
-            if isinstance(message, SIGNED_TYPES) and (message.auth is not None or self.require_signed):
+            if (isinstance(message, SIGNED_TYPES) and (message.auth is not None or self.require_signed)) \
+                    or (isinstance(message, HEARTBEAT_TYPES) and message.auth is not None):
                 try:
                     verifier.check(key, message, self.clock.now())
                 except AuthError as exc:

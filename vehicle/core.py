@@ -97,9 +97,8 @@ class VehicleCore:
         self._lane_paths: dict[int, ReferencePath] = {}
         self._vy = 0.0
         self._accel = 0.0
-        self.picture: list[tuple[float, float, float, float]] = []
-        """(x, y, length, width) of the objects the RSUs last reported around the car (``on_picture``)."""
-        self.picture_s: float | None = None
+        self.pictures: dict[str, tuple[float, list[tuple[float, float, float, float]]]] = {}
+        """Per source (RSU): (time, [(x, y, length, width)]) of the objects it last reported (``on_picture``)."""
         self._detail_undegraded: str | None = None
         self.mrm_where = ""
         """Where the minimal-risk stop ends: at the curb, or in its lane when the curb side was occupied."""
@@ -147,10 +146,10 @@ class VehicleCore:
         """A valid, authenticated DDM heartbeat heard."""
         self.watchdog.link_seen(now_s)
 
-    def on_picture(self, now_s: float, objects: list[tuple[float, float, float, float]]) -> None:
-        """The objects (x, y, length, width) of an RSU's latest report: the car's picture of its
-        surroundings, for the fail-safe's curb check (the car itself is among them and is left out there)."""
-        self.picture, self.picture_s = list(objects), now_s
+    def on_picture(self, now_s: float, objects: list[tuple[float, float, float, float]], source: str = "") -> None:
+        """The objects (x, y, length, width) of one source's (an RSU's) latest report: the car's picture of
+        its surroundings, for the fail-safe's curb check (the car itself is among them and is left out)."""
+        self.pictures[source] = (now_s, list(objects))
 
     def curb_offset_m(self) -> float:
         """Lateral offset d of the minimal-risk stop: the middle of the shoulder when the car fits on it
@@ -165,20 +164,19 @@ class VehicleCore:
     def curb_side_occupied(self, now_s: float, s_now: float, d_now: float, d_curb: float, s_stop: float) -> bool:
         """Whether the car's last picture shows an object between its side and the curb, from a little
         behind it to its stop point (the car itself, the object nearest its own pose within 3 m, is left out)."""
-        if self.picture_s is None or now_s - self.picture_s > PICTURE_MAX_AGE_S:
-            return False
         x, y, _ = self.estimator.pose
-        own = min(self.picture, key=lambda o: math.hypot(o[0] - x, o[1] - y), default=None)
-        if own is not None and math.hypot(own[0] - x, own[1] - y) > 3.0:
-            own = None
+        picture = []
+        for t, objects in self.pictures.values():
+            if now_s - t > PICTURE_MAX_AGE_S:
+                continue
+            own = min(objects, key=lambda o: math.hypot(o[0] - x, o[1] - y), default=None)
+            picture += [o for o in objects if o is not own or math.hypot(o[0] - x, o[1] - y) > 3.0]
         half_w = self.config.params.width_m / 2.0
         if d_curb < d_now:  # the strip from the car's right side to where its right side will stop
             lo, hi = d_curb - half_w, d_now - half_w
         else:
             lo, hi = d_now + half_w, d_curb + half_w
-        for obj in self.picture:
-            if obj is own:
-                continue
+        for obj in picture:
             s, d = (float(v) for v in self.road.to_frenet(obj[0], obj[1]))
             if s_now - CURB_CHECK_BEHIND_M <= s <= s_stop + obj[2] / 2 and d - obj[3] / 2 < hi and d + obj[3] / 2 > lo:
                 return True

@@ -29,9 +29,13 @@ CMD_KEY = vehicle_key(C, "av1", "cmd")
 
 
 class Car:
-    """A VehicleService on LocalBus + SimClock with the DDM's health beating at 1 Hz."""
+    """A VehicleService on LocalBus + SimClock with the DDM's health beating at 1 Hz (signed by the DDM's key:
+    in a signed corridor only a signed DDM heartbeat feeds the car's link watchdog; ``beat_signer`` None:
+    unsigned beats)."""
 
-    def __init__(self, trust=TRUST, require_signed: bool | None = None, start_s: float = 1000.0):
+    def __init__(self, trust=TRUST, require_signed: bool | None = None, start_s: float = 1000.0,
+                 beat_signer=DDM):
+        self.beat_signer = beat_signer
         corridor = corridor_with(trust, C)
         self.road = corridor.road
         self.bus, self.clock = LocalBus(), SimClock(start_s)
@@ -46,7 +50,10 @@ class Car:
         for _ in range(int(round(seconds / 0.01))):
             now = self.clock.now()
             if int(round(now * 100)) % 100 == 0:
-                self.bus.publish(ddm_health_key(C), Health(src="ddm", stamp=now, role=Role.DDM))
+                beat = Health(src="ddm", stamp=now, role=Role.DDM)
+                if self.beat_signer is not None:
+                    beat = self.beat_signer.sign_message(ddm_health_key(C), beat)
+                self.bus.publish(ddm_health_key(C), beat)
             self.svc.step(now)
             t = self.svc.sim.truth
             self.track.append((t.x_m, t.y_m, t.yaw_rad, t.vx_mps))
@@ -201,3 +208,26 @@ def test_inbox_is_bounded():
     assert car.svc._inbox[-1][0] == "link"  # the heartbeat still gets in
     car.run(1.0)
     assert car.rejected()["auth_unsigned"] == MAX_INBOX and len(car.svc._inbox) == 0
+
+
+@pytest.mark.parametrize("signer, reason", [(None, "unsigned"), (ROGUE, "bad_signature"), (STRANGER, "unknown_key"),
+                                            (RSU, "out_of_scope")])
+def test_only_a_signed_ddm_heartbeat_feeds_the_link_watchdog(signer, reason):
+    """Issue 18: in a signed corridor an unsigned, forged, unknown or RSU-signed DDM Health is no heartbeat:
+    the cruising car goes degraded after 3.5 s (Health status degraded, speed capped) and stops at the curb
+    after 10 s; with the DDM's signed beats it cruises on."""
+    good = Car()
+    good.run(12.0)
+    assert good.mode == VehicleMode.DRIVING and good.health[-1].status.value == "ok"
+    bad = Car(beat_signer=signer)
+    bad.run(5.0)
+    assert bad.svc.sim.core.watchdog.degraded is not None and bad.health[-1].status.value == "degraded"
+    assert bad.rejected().get(f"heartbeat_auth_{reason}", 0) >= 4
+    bad.run(7.0)
+    assert bad.mode == VehicleMode.MINIMAL_RISK and "while cruising" in bad.svc.sim.core.watchdog.reason
+
+
+def test_unsigned_corridor_counts_any_ddm_health():
+    car = Car(trust=[], beat_signer=None)
+    car.run(12.0)
+    assert car.mode == VehicleMode.DRIVING and car.svc.sim.core.watchdog.degraded is None
