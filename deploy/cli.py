@@ -147,6 +147,9 @@ def _deploy(argv: list[str]) -> int:
                       help="where the segment routers reach the core (default: --core-listen on 127.0.0.1)")
     mesh.add_argument("--segment-listen", action="append", required=True,
                       help="one per segment router (repeat; the RSUs are split among them in corridor order)")
+    mesh.add_argument("--mtls", action="store_true", help="mutual TLS on every link (tls/ endpoints) instead of passwords")
+    mesh.add_argument("--pki-path", default=None, help="with --mtls: where routers and services will find the files")
+    mesh.add_argument("--no-pki", action="store_true", help="with --mtls: write the configs only, no keys")
     comp = sub.add_parser("compose", help="docker-compose file: router, sim, RSUs, DDM and vehicles of a corridor")
     comp.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
     comp.add_argument("--rsus", type=int, default=None, help="number of RSUs to deploy (default: all of the corridor)")
@@ -168,7 +171,8 @@ def _deploy(argv: list[str]) -> int:
 
         try:
             written = write_mesh_bundle(corridor, Path(args.out), args.core_listen or ["tcp/0.0.0.0:7447"],
-                                        args.segment_listen, args.core_connect)
+                                        args.segment_listen, args.core_connect, mtls=args.mtls,
+                                        pki_dir_in_services=args.pki_path, write_pki=not args.no_pki)
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1

@@ -2,6 +2,7 @@
 
     iea deploy mesh [--corridor FILE] --out DIR --core-listen tcp/0.0.0.0:7447 \\
         --segment-listen tcp/0.0.0.0:7448 [--segment-listen tcp/0.0.0.0:7449 ...] [--core-connect EP ...]
+        [--mtls [--pki-path DIR] [--no-pki]]
 
 The RSUs are split into contiguous groups in corridor order, one group per segment router (an RSU
 talks to the router of its own stretch of road); the DDM, the simulator and the vehicles join the core
@@ -9,8 +10,12 @@ talks to the router of its own stretch of road); the DDM, the simulator and the 
 Every router runs the same ACL (``deploy.acl.router_config``, deny by default) for the services that
 join it; the segment routers authenticate to the core as ``router-<segment>`` and may carry any key of
 the corridor there (routers are infrastructure: the service-level checks are made at the edge, where
-the service joined). The link's other direction is not password-authenticated (the segment opened
-it), so each router has a fixed Zenoh id and the segment routers admit the core's by that id. Writes ``router-core.json5``, ``router-<segment>.json5``, the password dictionary
+the service joined). With passwords the link's other direction is not authenticated (the segment
+opened it), so each router has a fixed Zenoh id and the segment routers admit the core's by that id;
+with ``--mtls`` (``tls/`` endpoints) every router and service has a certificate from one private CA and
+both ends of every link are authenticated by certificate common name (``router-core``, ``router-segN``,
+the service ids). ``--no-pki`` writes the configs only (no keys: for templates such as
+``deploy/zenoh/mesh/``). Writes ``router-core.json5``, ``router-<segment>.json5``, the password dictionary
 (``users.txt``, 0600), a credentials file per service and ``mesh.json`` (which router each service joins).
 
 ``mesh_layout`` is pure; ``write_mesh_bundle`` writes the files.
@@ -39,27 +44,26 @@ def mesh_layout(corridor: Corridor, n_segments: int) -> dict[str, str]:
     return out
 
 
-def _with_routers(cfg: dict[str, Any], corridor: Corridor, router_users: list[str],
-                  router_zids: list[str]) -> dict[str, Any]:
-    """Let the linked routers (by user name or Zenoh id) carry every message of the corridor, both ways."""
+def _with_routers(cfg: dict[str, Any], corridor: Corridor, **who: list[str]) -> dict[str, Any]:
+    """Let the linked routers (``usernames=``, ``zids=``, ``cert_common_names=``) carry every message of the
+    corridor, both ways."""
     ac = cfg["access_control"]
     ac["rules"].append({"id": "router-link", "permission": "allow", "flows": ["ingress", "egress"],
                         "messages": ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
                                      "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
                         "key_exprs": [f"iea/{corridor.corridor_id}/**"]})
     subjects = []
-    if router_users:
-        ac["subjects"].append({"id": "router-users", "usernames": router_users})
-        subjects.append("router-users")
-    if router_zids:
-        ac["subjects"].append({"id": "router-zids", "zids": router_zids})
-        subjects.append("router-zids")
+    for field, values in who.items():
+        if values:
+            ac["subjects"].append({"id": f"routers-{field}", field: values})
+            subjects.append(f"routers-{field}")
     ac["policies"].append({"id": "routers", "rules": ["router-link"], "subjects": subjects})
     return cfg
 
 
 def write_mesh_bundle(corridor: Corridor, out_dir: Path, core_listen: list[str], segment_listen: list[str],
-                      core_connect: list[str] | None = None, dictionary_path_in_router: str | None = None
+                      core_connect: list[str] | None = None, dictionary_path_in_router: str | None = None,
+                      *, mtls: bool = False, pki_dir_in_services: str | None = None, write_pki: bool = True
                       ) -> dict[str, Path]:
     """Core and segment router configs with the ACL, one dictionary, credentials per service and router.
     ``core_connect``: where segment routers reach the core (default: ``core_listen`` with 0.0.0.0 -> 127.0.0.1)."""
@@ -68,6 +72,9 @@ def write_mesh_bundle(corridor: Corridor, out_dir: Path, core_listen: list[str],
     layout = mesh_layout(corridor, len(segment_listen))
     out_dir.mkdir(parents=True, exist_ok=True)
     segments = [f"seg{i + 1}" for i in range(len(segment_listen))]
+    if mtls:
+        return _write_mtls_mesh(corridor, out_dir, core_listen, segment_listen, core_connect, layout, segments,
+                                pki_dir_in_services, write_pki)
     users = {u: secrets.token_urlsafe(18) for u in [*service_publish_keys(corridor), *(f"router-{s}" for s in segments)]}
     dictionary = out_dir / "users.txt"
     dictionary.write_text("".join(f"{u}:{p}\n" for u, p in users.items()), encoding="utf-8")
@@ -77,8 +84,8 @@ def write_mesh_bundle(corridor: Corridor, out_dir: Path, core_listen: list[str],
     written: dict[str, Path] = {"users": dictionary}
     # Zenoh ids are hex numbers: no leading zero, so the id the router reports is the one in its ACL
     zids = {name: f"{secrets.randbelow(15) + 1:x}{secrets.token_hex(8)[1:]}" for name in ["core", *segments]}
-    core = _with_routers(router_config(corridor, dict_path, core_listen), corridor, [f"router-{s}" for s in segments],
-                         [zids[s] for s in segments])
+    core = _with_routers(router_config(corridor, dict_path, core_listen), corridor,
+                         usernames=[f"router-{s}" for s in segments], zids=[zids[s] for s in segments])
     core["id"] = zids["core"]
     written["core"] = out_dir / "router-core.json5"
     written["core"].write_text(json.dumps(core, indent=2) + "\n", encoding="utf-8")
@@ -86,7 +93,7 @@ def write_mesh_bundle(corridor: Corridor, out_dir: Path, core_listen: list[str],
         cfg = router_config(corridor, dict_path, [listen])
         cfg["connect"] = {"endpoints": connect}
         cfg["transport"]["auth"]["usrpwd"].update({"user": f"router-{seg}", "password": users[f"router-{seg}"]})
-        cfg = _with_routers(cfg, corridor, [], [zids["core"]])
+        cfg = _with_routers(cfg, corridor, zids=[zids["core"]])
         cfg["id"] = zids[seg]
         written[seg] = out_dir / f"router-{seg}.json5"
         written[seg].write_text(json.dumps(cfg, indent=2) + "\n", encoding="utf-8")
@@ -97,9 +104,47 @@ def write_mesh_bundle(corridor: Corridor, out_dir: Path, core_listen: list[str],
                                    indent=2) + "\n", encoding="utf-8")
         cred.chmod(0o600)
         written[user] = cred
+    written["mesh"] = _write_layout(out_dir, connect, segments, segment_listen, layout)
+    return written
+
+
+def _write_layout(out_dir: Path, connect: list[str], segments: list[str], segment_listen: list[str],
+                  layout: dict[str, str]) -> Path:
     endpoints = {"core": connect, **{s: [ep.replace("0.0.0.0", "127.0.0.1")] for s, ep in
                                      zip(segments, segment_listen, strict=True)}}
     mesh = {"routers": endpoints, "services": {u: {"router": r, "connect": endpoints[r]} for u, r in layout.items()}}
-    written["mesh"] = out_dir / "mesh.json"
-    written["mesh"].write_text(json.dumps(mesh, indent=2) + "\n", encoding="utf-8")
+    path = out_dir / "mesh.json"
+    path.write_text(json.dumps(mesh, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def _write_mtls_mesh(corridor: Corridor, out_dir: Path, core_listen: list[str], segment_listen: list[str],
+                     core_connect: list[str] | None, layout: dict[str, str], segments: list[str],
+                     pki_dir_in_services: str | None, write_pki: bool) -> dict[str, Path]:
+    from deploy.acl import tls_link
+    from deploy.certs import make_pki
+
+    users = list(service_publish_keys(corridor))
+    routers = ["router-core", *(f"router-{s}" for s in segments)]
+    if write_pki:
+        make_pki([*routers, *users], out_dir)
+    where = pki_dir_in_services or str(out_dir.resolve())
+    connect = core_connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in core_listen]
+    written: dict[str, Path] = {}
+    core = router_config(corridor, None, core_listen, tls=tls_link(where, "router-core"))
+    core = _with_routers(core, corridor, cert_common_names=routers[1:])
+    written["core"] = out_dir / "router-core.json5"
+    written["core"].write_text(json.dumps(core, indent=2) + "\n", encoding="utf-8")
+    for seg, listen in zip(segments, segment_listen, strict=True):
+        cfg = router_config(corridor, None, [listen], tls=tls_link(where, f"router-{seg}"))
+        cfg["connect"] = {"endpoints": connect}
+        cfg = _with_routers(cfg, corridor, cert_common_names=["router-core"])
+        written[seg] = out_dir / f"router-{seg}.json5"
+        written[seg].write_text(json.dumps(cfg, indent=2) + "\n", encoding="utf-8")
+    for user in users:
+        client = out_dir / f"{user}.json5"  # as with passwords: one name per service whatever the auth
+        client.write_text(json.dumps({"transport": {"link": {"tls": tls_link(where, user)}}}, indent=2) + "\n",
+                          encoding="utf-8")
+        written[user] = client
+    written["mesh"] = _write_layout(out_dir, connect, segments, segment_listen, layout)
     return written

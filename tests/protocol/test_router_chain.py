@@ -21,15 +21,17 @@ from tests.protocol.test_presence_queries import ROOT, _acl_checks, _free_port, 
 
 
 @pytest.mark.timeout(150)
-def test_two_routers_in_a_chain_with_acl_on_both(spawn, tmp_path, corridor_id):
+@pytest.mark.parametrize("auth", ["password", "mtls"])
+def test_two_routers_in_a_chain_with_acl_on_both(spawn, tmp_path, corridor_id, auth):
     from protocol.corridor import DEFAULT_CORRIDOR
 
     corridor_file = tmp_path / "corridor.toml"
     corridor_file.write_text(DEFAULT_CORRIDOR.read_text().replace('id = "rellis"', f'id = "{corridor_id}"', 1))
-    core_ep, seg_ep = f"tcp/127.0.0.1:{_free_port()}", f"tcp/127.0.0.1:{_free_port()}"
+    proto = "tls" if auth == "mtls" else "tcp"
+    core_ep, seg_ep = f"{proto}/127.0.0.1:{_free_port()}", f"{proto}/127.0.0.1:{_free_port()}"
     out = tmp_path / "mesh"
     gen = spawn("-m", "deploy", "deploy", "mesh", "--corridor", str(corridor_file), "--out", str(out),
-                "--core-listen", core_ep, "--segment-listen", seg_ep)
+                "--core-listen", core_ep, "--segment-listen", seg_ep, *(["--mtls"] if auth == "mtls" else []))
     _, err = gen.communicate(timeout=30)
     assert gen.returncode == 0, err
     for name in ("core", "seg1"):
