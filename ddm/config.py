@@ -55,6 +55,9 @@ class DdmConfig:
     ev_object_hold_s: float = 2.0
     """An object reported ``ev_state=confirmed`` keeps its EV mark this long (RSUs confirm at
     different times; avoids flicker in the overlap)."""
+    ev_from_objects_alone: bool = False
+    """True: an object list's unsigned EV state marks a track as EV on its own (before issue 18; a forged
+    object list could then move a car). False: only on a track an EvAlert has named."""
     ev_alert_timeout_s: float = 5.0
     """An active EvAlert not refreshed for this long is forgotten (alerts repeat at 2 Hz: 10 missed;
     CARMA forgets after 15 s at highway speeds, our corridor is ~10 s of driving)."""

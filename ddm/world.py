@@ -14,9 +14,12 @@ Pure core (no I/O, no clock: every call takes ``now``, the DDM's time of recepti
 - Time alignment: every list is processed at its ``measurement_time``; tracks are predicted to it. A
   list older than a track's state (out of sequence) is moved forward to the track's time with its own
   velocity and its variance inflated. Lists older than ``max_measurement_age_s`` are dropped.
-- EVs: an object with ``obj_type=ev`` and ``ev_state=confirmed`` marks its track as EV for
-  ``ev_object_hold_s``; an active EvAlert marks the track it names (via the RSU's object id, else by
-  position) until cleared or not refreshed for ``ev_alert_timeout_s``; a cleared alert removes the
+- EVs (issue 18: only authenticated evidence moves a car): an active EvAlert (signed, in a signed
+  corridor: the DDM verifies alerts) marks the track it names (via the RSU's object id, else by
+  position) until cleared or not refreshed for ``ev_alert_timeout_s``. An object list's unsigned
+  ``obj_type=ev`` / ``ev_state=confirmed`` only holds the mark for ``ev_object_hold_s`` on a track an
+  EvAlert has named (``ev_named``), never makes an EV on its own (``DdmConfig.ev_from_objects_alone``
+  restores that, to measure the cost); a cleared alert removes the
   mark and suppresses the object-level mark on that track until a new alert; an alert cleared because
   the EV left that RSU's view (``clear_reason=out_of_view``) leaves the mark to time out, so the EV
   stays an EV while the next RSU gathers its own evidence.
@@ -120,6 +123,8 @@ class CorridorWorld:
         self._cap = 0
         self.alive = np.zeros(0, dtype=bool)
         self.ev_suppressed = np.zeros(0, dtype=bool)
+        self.ev_named = np.zeros(0, dtype=bool)
+        """An EvAlert has named the track: object lists' EV state may hold its mark."""
         for name in self._FLOAT:
             setattr(self, name, np.zeros(0))
         for name in self._INT:
@@ -151,6 +156,7 @@ class CorridorWorld:
         old = self._cap
         self.alive = np.concatenate([self.alive, np.zeros(new_cap - old, dtype=bool)])
         self.ev_suppressed = np.concatenate([self.ev_suppressed, np.zeros(new_cap - old, dtype=bool)])
+        self.ev_named = np.concatenate([self.ev_named, np.zeros(new_cap - old, dtype=bool)])
         for name in self._FLOAT:
             setattr(self, name, np.concatenate([getattr(self, name), np.zeros(new_cap - old)]))
         for name in self._INT:
@@ -381,6 +387,7 @@ class CorridorWorld:
     def _init_tracks(self, slots, zx, zy, zvx, zvy, rxx, ryy, t_meas: float, now: float) -> None:
         self.alive[slots] = True
         self.ev_suppressed[slots] = False
+        self.ev_named[slots] = False
         self.x[slots], self.y[slots], self.vx[slots], self.vy[slots] = zx, zy, zvx, zvy
         self.pxx[slots], self.pyy[slots] = rxx, ryy
         self.pxv[slots] = 0.0
@@ -436,6 +443,7 @@ class CorridorWorld:
                 self.ev_alert_until[slot] = 0.0
                 self.ev_obj_until[slot] = 0.0
                 self.ev_suppressed[slot] = True
+                self.ev_named[slot] = False
                 self._alert_of_slot.pop(slot, None)
             rec.track_id = None if slot is None else int(self.gid[slot])
             return rec.track_id
@@ -451,6 +459,7 @@ class CorridorWorld:
             self.length[slot], self.width[slot] = 5.5, 2.0
         self.ev_alert_until[slot] = now + cfg.ev_alert_timeout_s
         self.ev_suppressed[slot] = False
+        self.ev_named[slot] = True
         self._alert_of_slot[slot] = alert.alert_id
         rec.track_id = int(self.gid[slot])
         return rec.track_id
@@ -534,6 +543,7 @@ class CorridorWorld:
             self.first[keep] = min(self.first[keep], self.first[drop])
             self.ev_alert_until[keep] = max(self.ev_alert_until[keep], self.ev_alert_until[drop])
             self.ev_obj_until[keep] = max(self.ev_obj_until[keep], self.ev_obj_until[drop])
+            self.ev_named[keep] |= self.ev_named[drop]
             if drop in self._alert_of_slot:
                 aid = self._alert_of_slot.pop(drop)
                 self._alert_of_slot[keep] = aid
@@ -565,7 +575,10 @@ class CorridorWorld:
 
     # ------------------------------------------------------------------ reading
     def is_ev_mask(self, slots: np.ndarray, now: float) -> np.ndarray:
-        return (self.ev_alert_until[slots] > now) | ((self.ev_obj_until[slots] > now) & ~self.ev_suppressed[slots])
+        by_objects = (self.ev_obj_until[slots] > now) & ~self.ev_suppressed[slots]
+        if not self.config.ev_from_objects_alone:
+            by_objects &= self.ev_named[slots]
+        return (self.ev_alert_until[slots] > now) | by_objects
 
     def _tracks(self, slots: np.ndarray, now: float) -> list[Track]:
         """Track records for ``slots`` predicted to ``now`` (columns gathered once, vectorised)."""

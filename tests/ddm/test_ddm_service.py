@@ -77,10 +77,11 @@ def test_unsafe_gap_slows_in_lane_then_changes_when_gap_opens():
     r.add("av1", 20.0, 1, 13.4)
     r.add("car2", 12.0, 0, 22.0)  # beside/behind the AV in lane 0, much faster
     r.add("ev", -80.0, 1, 18.0, ev=True)  # 100 m behind, closing 4.6 m/s: time to pass ~22 s
-    r.run(1.0)
+    r.ev_alert_on = True
+    r.run(1.0, alert_every_s=0.5)
     assert r.manoeuvres() == ["slow_in_lane"]
     assert "unsafe gap in lane 0" in r.commands[0].reason
-    r.run(5.0)
+    r.run(5.0, alert_every_s=0.5)
     assert r.manoeuvres() == ["slow_in_lane", "pull_over"]
     po = r.commands[-1]
     assert "gap opened" in po.reason and po.supersedes == r.commands[0].command_id

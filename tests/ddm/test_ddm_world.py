@@ -130,10 +130,30 @@ def test_ev_alert_marks_track_and_clear_unmarks_it():
     assert w2.ev_tracks(1.0 + DdmConfig().ev_alert_timeout_s + 0.1) == []
 
 
-def test_object_level_confirmed_ev_marks_track():
+def test_object_level_ev_state_alone_marks_no_track():
+    """Issue 18: an object list's (unsigned) EV state never makes an EV on its own; ev_from_objects_alone
+    restores the old behaviour (to measure the cost)."""
     w = CorridorWorld(DdmConfig())
     w.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
-    assert len(w.ev_tracks(1.0)) == 1
+    assert w.ev_tracks(1.0) == []
+    old = CorridorWorld(DdmConfig(ev_from_objects_alone=True))
+    old.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
+    assert len(old.ev_tracks(1.0)) == 1
+
+
+def test_object_level_ev_state_holds_the_mark_of_a_track_an_alert_named():
+    cfg = DdmConfig()
+    w = CorridorWorld(cfg)
+    w.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
+    lat, lon = COR.to_latlon(30.0, lane_y(1))
+    tid = w.ingest_ev_alert(EvAlert(src="rsu1", stamp=1.0, alert_id="rsu1-ev-5", state=AlertState.ACTIVE,
+                                    rsu_id="rsu1", object_id=5, pos_x_m=30.0, pos_y_m=lane_y(1), lat_deg=lat,
+                                    lon_deg=lon, vel_x_mps=20.0, speed_mps=20.0, confidence=0.9, first_seen=1.0), 1.0)
+    assert [t.track_id for t in w.ev_tracks(1.0)] == [tid]
+    # after the alert has timed out, the object lists' EV state keeps the named track an EV
+    t = 1.0 + cfg.ev_alert_timeout_s + 0.1
+    w.ingest_objects(object_list("rsu1", 2, t, [det(COR, 5, 30.0 + 20.0 * (t - 1.0), lane_y(1), 20.0, ev=True)]), t)
+    assert [x.track_id for x in w.ev_tracks(t)] == [tid]
 
 
 def test_vehicle_state_is_bound_to_its_track():
