@@ -46,6 +46,10 @@ class LampMeasurement:
     blue_centre: float = 1.0
     white: float = 0.0
     white_centre: float = 1.0
+    red_core: float = 1.0
+    """Share of the red lamp pixels whose channel reaches ``LampColours.core_min_value`` (1.0 when none is lit
+    or the definition has no core): a lit lamp clips the sensor, paint does not."""
+    blue_core: float = 1.0
 
     @property
     def coloured(self) -> float:
@@ -67,11 +71,13 @@ class LampColours:
     """``chroma`` only: a white lamp pixel has every channel at least this (0: white not measured)."""
     white_max_chroma: int = 40
     """... and its channels at most this far apart."""
+    core_min_value: int = 0
+    """``chroma`` only: a red (blue) pixel whose channel reaches this is a lamp's *core* (0: not measured)."""
 
 
 LAMP_BRIGHT = LampColours()
 """A lamp that saturates the sensor (tuned on simulator seeds 1-2, where sunlit red paint reaches V 239)."""
-BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50, white_min_value=245)
+BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50, white_min_value=245, core_min_value=220)
 """A red or blue light bar in compressed real video, lit or dim, and white lamps (every channel >= 245, within
 40 of each other: a lit white strobe clips the sensor) (module docstring)."""
 
@@ -117,8 +123,13 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
             red, blue = red & keep, blue & keep
             white = None if white is None else white & keep
         w_frac, w_centre = (0.0, 1.0) if white is None else (float(np.count_nonzero(white)) / n, _centre_share(white))
-        out.append(LampMeasurement(float(np.count_nonzero(red)) / n, float(np.count_nonzero(blue)) / n,
-                                   _centre_share(red), _centre_share(blue), w_frac, w_centre))
+        n_red, n_blue = np.count_nonzero(red), np.count_nonzero(blue)
+        red_core = blue_core = 1.0
+        if c.kind == "chroma" and c.core_min_value > 0:
+            red_core = float(np.count_nonzero(red & (r >= c.core_min_value))) / n_red if n_red else 1.0
+            blue_core = float(np.count_nonzero(blue & (b >= c.core_min_value))) / n_blue if n_blue else 1.0
+        out.append(LampMeasurement(float(n_red) / n, float(n_blue) / n, _centre_share(red), _centre_share(blue),
+                                   w_frac, w_centre, red_core, blue_core))
     return tuple(out)
 
 

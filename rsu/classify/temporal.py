@@ -35,7 +35,8 @@ classifies tracks, not frames). Three cues are combined:
    Real LED bars often read as *steady* at video frame rates (lit on every frame, or dipping for single
    frames at ~80 % duty), so a third lamp cue, the **steady bar**, is accepted *only* with a confident
    body: a red or blue lamp in the middle of the band, covering at most ``steady_max_fraction`` of it
-   (a bar, not paint), lit on at least ``steady_min_share`` of the samples of the last ``steady_window_s``.
+   (a bar, not paint), lit on at least ``steady_min_share`` of the samples of the last ``steady_window_s``,
+   with a lamp's clipped core in at least ``steady_min_core`` of its pixels (lit, not sunlit paint).
    White lamps (strobes) are measured in the light-bar definition too; they give a flash cue (two complete
    flashes), which, like every light-bar cue, counts only with a confident body; a steady white never counts
    (sky, a white roof, headlight glare).
@@ -126,6 +127,13 @@ class EvidenceConfig:
     steady_window_s: float = 0.6
     steady_min_share: float = 0.6
     """A steady bar: lit on at least this share of the samples of the last ``steady_window_s`` (>= 3 samples)."""
+    steady_min_core: float = 0.05
+    """... and with at least this share of its pixels a lamp's core (the channel >= 220, median over its lit
+    samples): a lit lamp clips the sensor somewhere, paint does not. Measured: real bars 0.45-0.7 (escort and
+    Japanese-ambulance clips), 0.09-0.30 (the roadside ambulance's red bar at 20-40 m: it is a tuning clip
+    for this threshold since); the simulator's sunlit red truck cab 0 (the brightest sim paint, R 185, peaks
+    at 219 in sunlight), which the body classifier trained on real photos scored ~0.55 (ev_bench seeds
+    301/302, tuning seeds since: 3 false alerts before this test, 0 after)."""
     steady_max_fraction: float = 0.12
     """... and covering at most this share of the band (median over its lit samples): a roof bar is a thin
     strip, while red or blue *paint* bright enough to pass the real-video colour test covers the body."""
@@ -143,8 +151,10 @@ class EvidenceConfig:
 
 
 COLOURS = {"bright": ("red", "blue"), "bar": ("red", "blue", "white")}
+CORE = ("bar_red_core", "bar_blue_core")
+"""The light-bar signals that also keep the lamp-core share of their pixels."""
 """The lamp colours each measurement kind keeps (white only in the light-bar definition)."""
-SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre"))
+SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre")) + CORE
 """Per-frame signals a track keeps: lamp-bright red and blue, light-bar red, blue and white, and their centre shares."""
 
 
@@ -270,11 +280,14 @@ class TrackEvidence:
         t, series = self._series(now_s, cfg.steady_window_s, "bar")
         if len(t) < 3:
             return False
+        keep = np.fromiter(self._t, float) >= now_s - cfg.steady_window_s
         for colour, (x, centre) in series.items():
             if colour == "white":
                 continue  # steady white is sky, a white roof or headlight glare, never a bar on its own
             lit = x >= cfg.bar_on_fraction
+            core = np.fromiter(self._signals[f"bar_{colour}_core"], float)[keep]
             if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
+                    and float(np.median(core[lit])) >= cfg.steady_min_core
                     and self._central(x, centre, cfg.bar_on_fraction)):
                 return True
         return False
@@ -303,6 +316,8 @@ class TrackEvidence:
             for c in COLOURS[kind]:
                 self._signals[f"{kind}_{c}"].append(getattr(m, c))
                 self._signals[f"{kind}_{c}_centre"].append(getattr(m, f"{c}_centre"))
+        for c in ("red", "blue"):
+            self._signals[f"bar_{c}_core"].append(getattr(bar, f"{c}_core"))
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
             self._t.popleft()
             for d in self._signals.values():

@@ -163,3 +163,20 @@ def test_strong_regular_bar_flashing_confirms_without_a_body_score():
     # ... nor two flashes alone (the strong pattern needs three)
     two = lambda t: LampMeasurement(0.0, BAR if t < 0.7 and (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
     assert first(_bar_run(two)[1]) is None
+
+
+def test_sunlit_paint_without_a_lamp_core_is_no_steady_bar_even_with_a_confident_body():
+    """The simulator's red truck cab: bar-sized, central, steady, but no pixel clips like a lit lamp."""
+    paint = lambda t: LampMeasurement(BAR, 0.0, red_core=0.0)  # noqa: E731
+    lit = lambda t: LampMeasurement(BAR, 0.0, red_core=0.5)  # noqa: E731
+    ev, states = TrackEvidence(), {}
+    for name, sig in (("paint", paint), ("lit", lit)):
+        ev, last, out = TrackEvidence(), None, []
+        for i in range(int(3.0 * FPS)):
+            t = i / FPS
+            b = None
+            if last is None or t - last >= 0.25 - 1e-9:
+                b, last = 0.95, t
+            out.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b, bar=sig(t))))
+        states[name] = first(out)
+    assert states["paint"] is None and states["lit"] is not None
