@@ -297,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="short flood, fewer repeats (development)")
     ap.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
     ap.add_argument("--flood-s", type=float, default=None, help="seconds of flood per mode (default 8, quick 3)")
-    ap.add_argument("--actors", type=int, default=100, help="actors per flooded world snapshot (size)")
+    ap.add_argument("--actors", type=int, default=200, help="actors per flooded world snapshot (size: 200 is ~20 kB)")
     ap.add_argument("--snapshot-hz", type=float, default=1000.0, help="flooded world snapshots per second")
     ap.add_argument("--objects-hz", type=float, default=3000.0, help="flooded object lists per second")
     ap.add_argument("--repeats", type=int, default=None, help="kills and restarts measured (default 5, quick 2)")

@@ -1,0 +1,237 @@
+"""Zenoh transport (eclipse-zenoh 1.x) behind the ``protocol.transport.Transport`` interface.
+
+``ZenohSettings`` says how a service joins (peer on loopback by default, client of routers with
+``--connect``); ``ZenohTransport`` maps the interface onto a session: publishers declared once per key
+with their kind's QoS (``protocol.qos``), subscribers (bulk kinds through a ring channel drained by a
+worker thread), liveliness tokens and subscribers, queryables and ``session.get``. Importable as
+``protocol.transport.ZenohTransport`` too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.keys import key_matches
+from protocol.qos import QosClass, is_bulk_expr, qos_for_key
+from protocol.transport import BytesCallback, PresenceCallback, QueryHandler, Subscription, Transport
+
+log = logging.getLogger("protocol.transport")
+
+ENV_MODE = "IEA_ZENOH_MODE"
+ENV_CONNECT = "IEA_ZENOH_CONNECT"
+ENV_LISTEN = "IEA_ZENOH_LISTEN"
+ENV_CONFIG = "IEA_ZENOH_CONFIG"
+
+
+@dataclass
+class ZenohSettings:
+    """How a service joins Zenoh. Precedence: CLI flags > environment > config file > defaults."""
+
+    mode: str = "peer"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    config_file: str | None = None
+    multicast_interface: str = "lo"
+    """Scouting stays on loopback unless told otherwise (peer mode, no router needed)."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("peer", "client", "router"):
+            raise ValueError(f"zenoh mode must be peer, client or router, got {self.mode!r}")
+        for ep in [*self.connect, *self.listen]:
+            if "/" not in ep:
+                raise ValueError(f"zenoh endpoint {ep!r} must look like tcp/127.0.0.1:7447")
+        if self.mode == "client" and not self.connect:
+            raise ValueError("zenoh client mode needs --connect tcp/HOST:PORT (a router to join)")
+
+    @staticmethod
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        g = parser.add_argument_group("transport (Zenoh)")
+        g.add_argument("--connect", action="append", metavar="ENDPOINT", default=None,
+                       help="join a Zenoh router, e.g. tcp/127.0.0.1:7447 (repeatable; implies --mode client "
+                            f"unless --mode is given). Env: {ENV_CONNECT} (comma-separated)")
+        g.add_argument("--listen", action="append", metavar="ENDPOINT", default=None,
+                       help=f"also listen on this endpoint (repeatable). Env: {ENV_LISTEN}")
+        g.add_argument("--mode", choices=["peer", "client"], default=None,
+                       help=f"Zenoh session mode (default: peer on loopback, client with --connect). Env: {ENV_MODE}")
+        g.add_argument("--zenoh-config", metavar="FILE", default=None,
+                       help=f"a Zenoh JSON5 config file applied before the flags. Env: {ENV_CONFIG}")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace, env: dict[str, str] | None = None) -> ZenohSettings:
+        env = dict(os.environ) if env is None else env
+        split = lambda v: [x.strip() for x in v.split(",") if x.strip()]  # noqa: E731
+        connect = args.connect if args.connect else split(env.get(ENV_CONNECT, ""))
+        listen = args.listen if args.listen else split(env.get(ENV_LISTEN, ""))
+        mode = args.mode or env.get(ENV_MODE) or ("client" if connect else "peer")
+        config_file = args.zenoh_config or env.get(ENV_CONFIG) or None
+        if config_file and not os.path.isfile(config_file):
+            raise ValueError(f"zenoh config file {config_file!r} does not exist")
+        return cls(mode=mode, connect=connect, listen=listen, config_file=config_file)
+
+    def to_config(self) -> Any:
+        import zenoh
+
+        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        conf.insert_json5("mode", json.dumps(self.mode))
+        if self.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+        if self.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+        elif self.mode == "peer" and not self.config_file:
+            conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+        if self.mode == "peer" and not self.config_file and self.multicast_interface:
+            conf.insert_json5("scouting/multicast/interface", json.dumps(self.multicast_interface))
+        return conf
+
+
+class ZenohTransport(Transport):
+    """eclipse-zenoh 1.x session. Publishers are declared once per key with their kind's QoS
+    (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
+
+    def __init__(self, settings: ZenohSettings | None = None, *,
+                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16) -> None:
+        super().__init__()
+        import zenoh
+
+        self._zenoh = zenoh
+        self.settings = settings or ZenohSettings()
+        self.qos = qos
+        self.bulk_queue = bulk_queue
+        """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
+        self.session = zenoh.open(self.settings.to_config())
+        self._publishers: dict[str, Any] = {}
+        self._subs: list[Any] = []
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def publish_bytes(self, key: str, payload: bytes) -> None:
+        pub = self._publishers.get(key)
+        if pub is None:
+            with self._lock:
+                pub = self._publishers.get(key)
+                if pub is None:
+                    q = self.qos(key)
+                    pub = self.session.declare_publisher(
+                        key,
+                        congestion_control=getattr(self._zenoh.CongestionControl, q.congestion),
+                        priority=getattr(self._zenoh.Priority, q.priority),
+                        express=q.express,
+                    )
+                    self._publishers[key] = pub
+        pub.put(payload)
+
+    def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
+        def on_sample(sample: Any) -> None:
+            try:
+                callback(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception:  # never raise into zenoh's thread
+                log.exception("subscriber callback on %s failed", key_expr)
+
+        if self.bulk_queue > 0 and is_bulk_expr(key_expr):
+            return self._subscribe_bulk(key_expr, callback)
+        return self._declared(self.session.declare_subscriber(key_expr, on_sample))
+
+    def _subscribe_bulk(self, key_expr: str, callback: BytesCallback) -> Subscription:
+        """A ring channel (zenoh drops the oldest sample when full, without the GIL) drained by a worker."""
+        sub = self.session.declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
+        # a decode in the worker holds the GIL; let the network thread's callbacks in every millisecond
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+
+        def drain() -> None:
+            while True:
+                try:
+                    sample = sub.handler.recv()
+                except Exception:  # undeclared, or the session closed
+                    return
+                try:
+                    callback(str(sample.key_expr), sample.payload.to_bytes())
+                except Exception:
+                    log.exception("bulk subscriber callback on %s failed", key_expr)
+
+        threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True).start()
+        return self._declared(sub)
+
+    def _declared(self, entity: Any) -> Subscription:
+        """Keep ``entity`` (subscriber, token, queryable) until closed here or with the session."""
+        with self._lock:
+            self._subs.append(entity)
+
+        def close() -> None:
+            with self._lock:
+                if entity in self._subs:
+                    self._subs.remove(entity)
+            try:
+                entity.undeclare()
+            except Exception:  # session may already be closed
+                pass
+
+        return Subscription(close)
+
+    def declare_token(self, key: str) -> Subscription:
+        return self._declared(self.session.liveliness().declare_token(key))
+
+    def subscribe_presence(self, key_expr: str, callback: PresenceCallback, *, history: bool = True) -> Subscription:
+        put = self._zenoh.SampleKind.PUT
+
+        def on_sample(sample: Any) -> None:
+            try:
+                callback(str(sample.key_expr), sample.kind == put)
+            except Exception:  # never raise into zenoh's thread
+                log.exception("presence callback on %s failed", key_expr)
+
+        return self._declared(self.session.liveliness().declare_subscriber(key_expr, on_sample, history=history))
+
+    def query_presence(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
+        return sorted({str(r.ok.key_expr) for r in replies if r.ok is not None})
+
+    def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
+        def on_query(query: Any) -> None:
+            try:
+                expr = str(query.key_expr)
+                for key, payload in handler(expr):
+                    if key_matches(expr, key):  # zenoh refuses replies outside the query's key expression
+                        query.reply(key, payload, express=True)  # (a reply's priority is the query's)
+            except Exception:
+                log.exception("queryable %s failed", key_expr)
+            finally:
+                query.drop()  # finalise: the querier stops waiting for this queryable
+
+        return self._declared(self.session.declare_queryable(key_expr, on_query))
+
+    def query_bytes(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+        z = self._zenoh
+        out = []
+        replies = self.session.get(key_expr, target=z.QueryTarget.ALL, consolidation=z.ConsolidationMode.NONE,
+                                   timeout=timeout_s, priority=z.Priority.INTERACTIVE_HIGH, express=True)
+        for reply in replies:  # ends when every matching queryable has answered, or at the timeout
+            sample = reply.ok
+            if sample is not None:
+                out.append((str(sample.key_expr), sample.payload.to_bytes()))
+        return out
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for sub in list(self._subs):
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        self._subs.clear()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:
+                pass
+        self._publishers.clear()
+        self.session.close()
