@@ -6,7 +6,7 @@
     iea calibrate RSU ...       commission a camera: its pose from surveyed points, error table, check image
     iea keys new KEY_ID ...     create an Ed25519 signing key and print its trust-list entry
     iea rsu|ddm|vehicle|sim ... run a service (same as iea-rsu, iea-ddm, iea-vehicle, iea-sim)
-    iea deploy compose|acl ...  generate docker-compose.yml / router ACL and credentials for a corridor
+    iea deploy compose|acl|keys generate docker-compose.yml / router ACL and credentials / signing keys
     iea health ROLE [ID]        wait for a service's Health (the containers' health check)
     iea status [--corridor-id]  every service of a running corridor as one table (tokens, health, state)
     iea demo                    run the main scenario end to end (what `make demo` runs)
@@ -150,12 +150,21 @@ def _deploy(argv: list[str]) -> int:
     mesh.add_argument("--mtls", action="store_true", help="mutual TLS on every link (tls/ endpoints) instead of passwords")
     mesh.add_argument("--pki-path", default=None, help="with --mtls: where routers and services will find the files")
     mesh.add_argument("--no-pki", action="store_true", help="with --mtls: write the configs only, no keys")
+    keys = sub.add_parser("keys", help="a signing key per service (DDM, each RSU) and the corridor file trusting them")
+    keys.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
+    keys.add_argument("--out", required=True, help="output directory (keep it out of git: it holds private keys)")
+    keys.add_argument("--force", action="store_true", help="replace an existing bundle (redeploy every service)")
     comp = sub.add_parser("compose", help="docker-compose file: router, sim, RSUs, DDM and vehicles of a corridor")
     comp.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
     comp.add_argument("--rsus", type=int, default=None, help="number of RSUs to deploy (default: all of the corridor)")
     comp.add_argument("--scenario", default="rellis_ev_yield", help="scenario the simulator runs")
     comp.add_argument("--no-acl", action="store_true", help="open router, no credentials (closed lab network only)")
     comp.add_argument("--acl-dir", default="./secrets/acl", help="host folder of `iea deploy acl --out` (default ./secrets/acl)")
+    comp.add_argument("--unsigned", action="store_true",
+                      help="no signatures: vehicles accept any command the router lets through (default: signed, "
+                           "with the `iea deploy keys --out secrets/keys` bundle)")
+    comp.add_argument("--keys-dir", default="./secrets/keys", help="host folder of `iea deploy keys --out` "
+                      "(default ./secrets/keys)")
     comp.add_argument("--zenoh-image", default=None, help="router image (default: eclipse/zenoh pinned to the binding)")
     comp.add_argument("--out", default="-", help="output file (default: standard output)")
     args = ap.parse_args(argv)
@@ -166,6 +175,21 @@ def _deploy(argv: list[str]) -> int:
         return 1
     if args.action == "compose":
         return _write_compose(args, corridor)
+    if args.action == "keys":
+        from datetime import date
+
+        from deploy.signing import write_key_bundle
+
+        try:
+            target, paths = write_key_bundle(args.corridor, Path(args.out), key_id_suffix=date.today().strftime("%Y%m%d"),
+                                             overwrite=args.force)
+        except (FileExistsError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        for name, path in paths.items():
+            print(f"{name:<10} {path}")
+        print(f"corridor   {target}  (trusts these keys: run every service on it; `iea deploy compose` mounts it)")
+        return 0
     if args.action == "mesh":
         from deploy.mesh import write_mesh_bundle
 
@@ -212,7 +236,8 @@ def _write_compose(args: argparse.Namespace, corridor) -> int:
             return 1
         doc = compose_services(corridor, rsus=args.rsus, scenario=args.scenario, acl=not args.no_acl,
                                acl_dir=args.acl_dir, zenoh_image=args.zenoh_image or ZENOH_IMAGE,
-                               corridor_file=corridor_file, av_start=av)
+                               corridor_file=corridor_file, av_start=av, signed=not args.unsigned,
+                               keys_dir=args.keys_dir)
     except (ValueError, ScenarioError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

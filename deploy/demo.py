@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import subprocess
 import sys
 import threading
@@ -224,25 +223,12 @@ class RunMonitor:
 
 
 def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]:
-    """Throwaway keys (DDM + one per RSU) in ``run_dir/keys`` and a corridor file trusting them."""
+    """Throwaway keys (DDM + one per RSU) and the corridor file trusting them, in ``run_dir/keys``."""
+    from deploy.signing import write_key_bundle
     from protocol.corridor import DEFAULT_CORRIDOR
-    from protocol.security import new_key_pair
 
-    key_dir = run_dir / "keys"
-    key_dir.mkdir(parents=True, exist_ok=True)
-    entries, paths = [], {}
-    for name, extra in [("ddm", 'role = "ddm"\nvehicles = ["*"]'),
-                        *[(r.rsu_id, f'role = "rsu"\nrsu_id = "{r.rsu_id}"') for r in corridor.rsus]]:
-        pem, public = new_key_pair()
-        path = key_dir / f"{name}-demo.pem"
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "wb") as f:
-            f.write(pem)
-        paths[name] = path
-        entries.append(f'[[trust]]\nkey_id = "{name}-demo"\n{extra}\npublic_key = "{public}"\n')
-    corridor_file = run_dir / "corridor.toml"
-    corridor_file.write_text(DEFAULT_CORRIDOR.read_text() + "\n# throwaway demo keys (iea demo)\n" + "\n".join(entries))
-    return corridor_file, paths
+    return write_key_bundle(DEFAULT_CORRIDOR, run_dir / "keys", key_id_suffix="demo", overwrite=True,
+                            note="throwaway keys of this run")
 
 
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,

@@ -7,6 +7,10 @@ of the corridor (``--source sim``) and the simulator, every service in client mo
 compose file), and clients reconnect by themselves when the router comes back. Runs until Ctrl-C (or
 ``--duration-s``), printing a status line now and then; Ctrl-C stops the services, then the router.
 The run folder (``runs/up-<time>/``) holds ``logs/<service>.log``, the vehicle's run and ``metrics.json``.
+
+Signed by default (issue 18): the DDM and every RSU sign with their own key and every service runs on a
+corridor file trusting only those keys: an ``iea deploy keys`` bundle (``--keys DIR``), else throwaway
+keys written to the run folder (``keys/``). ``--unsigned`` runs without signatures.
 """
 
 from __future__ import annotations
@@ -45,14 +49,31 @@ class Up:
                  scenario: str = "rellis_ev_yield", duration_s: float | None = None, port: int = 7447,
                  run_dir: Path | None = None, detector: str = "project", rsu_ids: list[str] | None = None,
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
-                 vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False) -> None:
-        from protocol.corridor import load_corridor
+                 vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
+                 signed: bool = True, keys_dir: str | None = None) -> None:
+        """``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
+        of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
+        from deploy.signing import key_args, load_key_bundle, write_key_bundle
+        from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
 
         self.corridor = load_corridor(corridor_file)
+        self.run_dir = Path(run_dir or ROOT / "runs" / f"up-{time.strftime('%Y%m%d-%H%M%S')}")
+        self.signed = signed
+        keys: dict[str, list[str]] = {}
+        if signed:
+            if keys_dir is not None:
+                corridor_path, paths = load_key_bundle(keys_dir, self.corridor)
+            else:
+                corridor_path, paths = write_key_bundle(corridor_file or DEFAULT_CORRIDOR, self.run_dir / "keys",
+                                                        key_id_suffix="up", overwrite=True,
+                                                        note="throwaway keys of this run")
+            corridor_file = str(corridor_path)
+            self.corridor = load_corridor(corridor_file)
+            keys = key_args(paths)
+        self.corridor_file = corridor_file
         self.corridor_id = corridor_id or f"{self.corridor.corridor_id}-{uuid.uuid4().hex[:6]}"
         self.port = port or free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.run_dir = Path(run_dir or ROOT / "runs" / f"up-{time.strftime('%Y%m%d-%H%M%S')}")
         self.group = ServiceGroup(self.run_dir)
         self.peer = peer
         """Peer mode on loopback, no router (the `iea demo` topology): for comparisons."""
@@ -61,7 +82,7 @@ class Up:
             zenoh = ["--corridor", corridor_file, *zenoh]
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
-                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed)
+                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         for s in self.specs:
@@ -175,6 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="scenario time the simulator runs (default: the scenario's duration)")
     ap.add_argument("--status-every-s", type=float, default=2.0, help="print a status line this often (0: never)")
     ap.add_argument("--runs", default=str(ROOT / "runs"), help="where run folders go")
+    ap.add_argument("--keys", default=None, metavar="DIR",
+                    help="sign with this `iea deploy keys --out DIR` bundle (default: throwaway keys in the run folder)")
+    ap.add_argument("--unsigned", action="store_true",
+                    help="no signatures: vehicles accept any command the router lets through (closed lab only)")
     return ap
 
 
@@ -194,9 +219,16 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         rsu_ids = [r.rsu_id for r in corridor.rsus[:args.rsus]]
     run_dir = Path(args.runs) / f"up-{time.strftime('%Y%m%d-%H%M%S')}"
-    up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
-            duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
-            rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim)
+    try:
+        up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
+                duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
+                rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
+                signed=not args.unsigned, keys_dir=args.keys)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"iea up: {exc}", file=sys.stderr)
+        return 2
+    print("[up] " + (f"signed: every service signs with its own key; trust list in {up.corridor_file}" if up.signed
+                     else "UNSIGNED (--unsigned): vehicles accept any command the router lets through"), flush=True)
     print(f"[up] corridor {up.corridor_id}: router {up.endpoint}, services "
           f"{', '.join(s.name for s in up.specs)}; logs in {up.run_dir / 'logs'}", flush=True)
     code = 0

@@ -60,7 +60,16 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
         args = parsers[cmd[0]]().parse_args(cmd[1:])  # the service's own CLI accepts it
         assert args.connect == [ROUTER_ENDPOINT] and args.mode == "client"
         assert args.zenoh_config == f"/etc/iea/acl/{name}.json5"  # ACL credentials of that service
-        assert args.corridor == "/opt/iea/deploy/corridors/rellis.toml"
+        # signed by default (issue 18): the `iea deploy keys` corridor file trusting the keys, and each signing
+        # service its own private key, nobody else's
+        assert args.corridor == "/etc/iea/corridor.toml"
+        assert "./secrets/keys/corridor.toml:/etc/iea/corridor.toml:ro" in svc["volumes"]
+        keys_mounted = [v for v in svc["volumes"] if v.endswith(".pem:ro") or ".pem:" in v]
+        if name == "ddm" or name in rsu_ids:
+            assert args.key == f"/etc/iea/keys/{name}.pem"
+            assert keys_mounted == [f"./secrets/keys/{name}.pem:/etc/iea/keys/{name}.pem:ro"]
+        else:
+            assert keys_mounted == [] and getattr(args, "key", None) is None
         if cmd[0] == "rsu":  # camera source from the environment, the simulator's view by default
             assert args.rsu == name and args.source == f"${{{name.upper()}_SOURCE:-sim}}"
     # the vehicle starts where the scenario puts the AV
@@ -76,6 +85,14 @@ def test_rsus_option_and_open_deployment():
         compose_services(load_corridor(), rsus=9)
     text = _generate("--rsus", "3", "--no-acl")
     assert "rsu3:" in text and "rsu4:" not in text and "router.json5" in text
+
+
+def test_unsigned_takes_an_explicit_flag():
+    doc = compose_services(load_corridor(), signed=False)
+    for svc in doc["services"].values():
+        assert "--key" not in svc.get("command", []) and "/etc/iea/corridor.toml" not in svc.get("command", [])
+    assert "--key" in _generate()  # the default is signed
+    assert "--key" not in _generate("--unsigned")
 
 
 def test_compose_files_satisfy_both_compose_schemas():
