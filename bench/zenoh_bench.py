@@ -12,6 +12,7 @@ Every figure is measured over real Zenoh on loopback, services in client mode ar
    bulk kinds received through a ring off the network thread; ``noprio``, every kind sent the same way
    (``qos.FLAT``: DATA, DROP, express) and decoded on the network thread (the transport before issue
    21); ``flat_ring``, one QoS for all but the receiving ring kept (which of the two parts does what).
+   And once without a flood (``idle``, per-kind QoS): the floor this machine gives the same measurement.
 2. stale: a scripted corridor (``bench/zenoh_corridor_stub.py``: 4 RSUs and an AV, each with its token)
    runs beside a real ``DdmService``; the stub is SIGKILLed and the time until the DDM marks the RSUs
    lost (liveliness token) is taken, ``--repeats`` times.
@@ -108,7 +109,7 @@ def big_snapshot(n_actors: int) -> WorldSnapshot:
 
 
 def _table(mode: str):
-    return qos.qos_for_key if mode == "prio" else (lambda _k: qos.FLAT)
+    return qos.qos_for_key if mode in ("prio", "idle") else (lambda _k: qos.FLAT)
 
 
 def flood_child(args: argparse.Namespace) -> int:
@@ -189,8 +190,9 @@ def run_flood(endpoint: str, mode: str, duration_s: float, args: argparse.Namesp
               "--qos", mode]
     sink = subprocess.Popen([PY, __file__, "_sink", *common], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     _wait_line(sink, "ready", 30.0)
+    rates = ("0", "0") if mode == "idle" else (str(args.snapshot_hz), str(args.objects_hz))
     flood = subprocess.Popen([PY, __file__, "_flood", *common, "--actors", str(args.actors), "--snapshot-hz",
-                              str(args.snapshot_hz), "--objects-hz", str(args.objects_hz)],
+                              rates[0], "--objects-hz", rates[1]],
                              cwd=ROOT, stdout=subprocess.PIPE, text=True)
     cmds = subprocess.Popen([PY, __file__, "_cmd", *common], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     _wait_line(flood, "ready", 30.0)
@@ -305,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--connect", default=None)
     ap.add_argument("--duration-s", type=float, default=5.0)
     ap.add_argument("--settle-s", type=float, default=1.0)
-    ap.add_argument("--qos", choices=["prio", "noprio", "flat_ring"], default="prio")
+    ap.add_argument("--qos", choices=["prio", "noprio", "flat_ring", "idle"], default="prio")
     args = ap.parse_args(argv)
     if args.role == "_flood":
         return flood_child(args)
@@ -320,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     router = start_router(port)
     figures: dict = {"flood_s": flood_s, "repeats": repeats, "cores": os.cpu_count()}
     try:
-        for mode in ("prio", "noprio", "flat_ring"):
+        for mode in ("idle", "prio", "noprio", "flat_ring"):
             _log(f"flood ({mode}) for {flood_s:g} s ...")
             r = run_flood(endpoint, mode, flood_s, args)
             _log(f"  commands {r['commands_received']}/{r['commands_sent']}, p50 {r['cmd_latency_p50_ms']} ms, "
@@ -345,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
         stop(router)
     targets = {"cmd_latency_p99_ms_flood_prio": 5.0, "stale_detect_s": 0.5, "restart_ev_aware_s": 0.2}
     figures["targets_met"] = {k: (figures.get(k) is not None and figures[k] <= v) for k, v in targets.items()}
-    for k in ("cmd_latency_p99_ms_flood_prio", "cmd_latency_p99_ms_flood_noprio", "stale_detect_s",
+    for k in ("cmd_latency_p99_ms_flood_idle", "cmd_latency_p99_ms_flood_prio", "cmd_latency_p99_ms_flood_noprio",
+              "cmd_latency_p99_ms_flood_flat_ring", "stale_detect_s",
               "restart_ev_aware_s", "restart_ev_aware_s_streams_only"):
         print(f"{k:<36} {figures.get(k)}")
     if args.json:

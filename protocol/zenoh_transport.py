@@ -15,6 +15,7 @@ import logging
 import os
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -155,6 +156,7 @@ class ZenohTransport(Transport):
                     callback(str(sample.key_expr), sample.payload.to_bytes())
                 except Exception:
                     log.exception("bulk subscriber callback on %s failed", key_expr)
+                time.sleep(0)  # hand the GIL over between samples: a waiting command callback runs now
 
         threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True).start()
         return self._declared(sub)
