@@ -81,6 +81,13 @@ class DdmConfig:
     ev_closing_assumed_mps: float = 6.0
     """For timing the stop, an EV closes at least this fast (one that just switched its lights on is
     still accelerating: RELLIS EV 19 m/s vs AV 13.4 m/s)."""
+    pull_over_hold_speed: bool = True
+    """A pull-over keeps its speed until its lane change is done, then brakes to the stop (issue 18: an AV that
+    brakes while still in the lane of an EV closing from behind brings the EV onto it sooner); False: brake
+    from the start (before issue 18)."""
+    urgent_within_s: float = 8.0
+    """With the EV's time to pass below this, a held-speed pull-over steers at ``urgent_lat_accel_mps2``
+    without the ``lane_change_min_s`` floor."""
     stop_margin_s: float = 1.0
     """A pull-over aims to be stopped this long before the EV's time to pass (braking harder than
     comfort, up to ``max_decel_mps2``, when the EV is close)."""

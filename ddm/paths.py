@@ -126,6 +126,41 @@ def min_stop_distance_m(delta_d_m: float, v0_mps: float, road_curvature_1pm: flo
     return max(lc + 5.0, v0 * v0 / (2.0 * cfg.max_decel_mps2))
 
 
+def plan_stop_holding_speed(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+                            d_target: float, cfg: DdmConfig, *, stop_within_s: float | None = None,
+                            max_stop_dist_m: float | None = None) -> PlannedPath | None:
+    """Move to offset d_target at the current speed, then stop there (issue 18): the speed profile holds
+    ``speed_mps`` over the lane change and brakes after it at the comfort deceleration (raised up to
+    ``max_decel_mps2`` to stop within ``max_stop_dist_m``). With the EV's time to pass below
+    ``urgent_within_s`` the change steers at ``urgent_lat_accel_mps2`` (peak curvature 5.77 dd / L^2) without
+    the ``lane_change_min_s`` floor. None when the room ahead is too short for that (``plan_stop`` then)."""
+    v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
+    kroad = frame.road.curvature_at(s0)
+    dd = d_target - d0
+    urgent = stop_within_s is not None and math.isfinite(stop_within_s) and stop_within_s < cfg.urgent_within_s
+    if urgent:
+        kappa = curvature_allowed(v0, kroad, cfg, cfg.urgent_lat_accel_mps2)
+        lc = max(cfg.lane_change_min_m, math.sqrt(QUINTIC_PEAK * abs(dd) / kappa) if dd else 0.0)
+    else:
+        lc = braking_lane_change_length(dd, v0, 0.0, kroad, cfg)
+    decel = cfg.comfort_decel_mps2
+    brake = max(5.0, v0 * v0 / (2.0 * decel))
+    if max_stop_dist_m is not None and max_stop_dist_m > 0 and lc + brake > max_stop_dist_m:
+        room = max_stop_dist_m - lc
+        if room <= 5.0 or v0 * v0 / (2.0 * room) > cfg.max_decel_mps2:
+            return None
+        brake = room
+    stop_dist = lc + brake
+    decel = v0 * v0 / (2.0 * brake)
+    s = _sample(s0, stop_dist + cfg.path_tail_m, cfg)
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
+    v = np.where(rel <= lc, v0, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * (rel - lc))))
+    v[rel >= stop_dist - 1e-6] = 0.0
+    sx, sy, _ = frame.road.pose_at(s0 + stop_dist, d_target)
+    return _build(frame, s, d, v, 0.0, (float(sx), float(sy)), d_target, lc, stop_dist, decel)
+
+
 def plan_stop(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
               d_target: float, cfg: DdmConfig, *, stop_within_s: float | None = None,
               max_stop_dist_m: float | None = None) -> PlannedPath:

@@ -54,6 +54,7 @@ from ddm.paths import (
     plan_lane_change,
     plan_resume,
     plan_stop,
+    plan_stop_holding_speed,
     stop_offset_m,
 )
 from ddm.world import Track
@@ -453,6 +454,11 @@ def plan(decision: Decision, frame: RoadFrame, cfg: DdmConfig, vehicle_width_m: 
             ttp_assumed = decision.ev_gap_m / cfg.ev_closing_assumed_mps
             ttp = ttp_assumed if ttp is None or not math.isfinite(ttp) else min(ttp, ttp_assumed)
         within_s = ttp - cfg.stop_margin_s if ttp is not None and math.isfinite(ttp) else None
+        if cfg.pull_over_hold_speed:
+            held = plan_stop_holding_speed(frame, s0, d0, h, v, d_stop, cfg, stop_within_s=within_s,
+                                           max_stop_dist_m=decision.stop_within_m)
+            if held is not None:
+                return held
         return plan_stop(frame, s0, d0, h, v, d_stop, cfg, stop_within_s=within_s,
                          max_stop_dist_m=decision.stop_within_m)
     lane = decision.target_lane if decision.target_lane is not None else max(int(frame.lane_of(d0)), 0)

@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
 from vehicle.commands import CommandBook, CommandLimits, Decision
 from vehicle.failsafe import FailsafeConfig, Watchdog
@@ -205,8 +207,9 @@ class VehicleCore:
         self.plan_decel_mps2 = self.longitudinal.plan_decel_mps2
         if path.stop_s_m is not None and path.speeds is not None and path.stop_s_m > 1.0:
             # brake to the stop as the command planned it (the DDM may brake harder than our default
-            # to stop before the EV arrives), never beyond the comfort cap
-            planned = float(path.speeds[0]) ** 2 / (2.0 * path.stop_s_m)
+            # to stop before the EV arrives, or hold its speed over the lane change and brake after it),
+            # never beyond the comfort cap
+            planned = planned_braking_mps2(path)
             self.plan_decel_mps2 = min(max(planned, self.plan_decel_mps2), self.longitudinal.comfort_decel_mps2)
         self._set_path(path, path.stop_s_m)
         return []
@@ -339,6 +342,16 @@ class VehicleCore:
         path = ReferencePath(offset_change_waypoints(self.road, s_now, d_now, d_curb, change_m, stop_len + 20.0))
         self._set_path(path, min(path.length_m - 10.0, path.project(x, y).s_m + stop_len))
         return out
+
+
+def planned_braking_mps2(path: ReferencePath) -> float:
+    """The steepest braking of a path's speed profile before its stop point (max of -v dv/ds), so the
+    braking curve to the stop starts where the profile brakes, not at the profile's average deceleration."""
+    assert path.speeds is not None and path.stop_s_m is not None
+    k = max(2, int(np.searchsorted(path.s, path.stop_s_m - 0.5)))
+    v2, ds = path.speeds[:k] ** 2, np.diff(path.s[:k])
+    steepest = float(np.max((v2[:-1] - v2[1:]) / (2.0 * np.maximum(ds, 1e-6)), initial=0.0))
+    return max(steepest, float(path.speeds[0]) ** 2 / (2.0 * path.stop_s_m))
 
 
 class SimulatedVehicle:

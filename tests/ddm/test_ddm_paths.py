@@ -113,3 +113,24 @@ def test_road_frame_matches_the_corridor_road():
         assert fs[k] == pytest.approx(rs, abs=0.05) and fd[k] == pytest.approx(rd, abs=0.05)
     assert np.allclose(fs, s, atol=0.05) and np.allclose(fd, d, atol=0.05)
     assert math.isclose(float(frame.heading_at(10.0)), 0.3, abs_tol=1e-6)
+
+
+def test_pull_over_holding_speed_clears_the_lane_before_it_brakes():
+    """Issue 18: the held-speed pull-over keeps 13.4 m/s over its lane change and brakes only after it; with
+    the EV close (time to pass < urgent_within_s) the change is shorter (urgent lateral acceleration)."""
+    from ddm.paths import plan_stop_holding_speed
+
+    d0, d1 = 5.55, 1.25
+    calm = plan_stop_holding_speed(FRAME, 100.0, d0, 0.0, 13.4, d1, CFG, stop_within_s=20.0)
+    urgent = plan_stop_holding_speed(FRAME, 100.0, d0, 0.0, 13.4, d1, CFG, stop_within_s=3.0)
+    for p in (calm, urgent):
+        s = np.array([FRAME.road.to_frenet(x, y)[0] for x, y in p.waypoints]) - 100.0
+        v = np.array(p.speeds_mps)
+        in_change = s <= p.lane_change_length_m - 0.5
+        assert np.all(v[in_change] == pytest.approx(13.4))  # no braking while still changing lanes
+        assert v[-1] == 0.0 and p.decel_mps2 <= CFG.max_decel_mps2
+    assert urgent.lane_change_length_m < calm.lane_change_length_m
+    # peak lateral acceleration of the urgent change within urgent_lat_accel_mps2 (5.77 dd / L^2 x v^2)
+    assert 5.77 * (d0 - d1) / urgent.lane_change_length_m ** 2 * 13.4 ** 2 <= CFG.urgent_lat_accel_mps2 + 1e-6
+    # no room for it behind a car ahead: None (plan_stop brakes from the start instead)
+    assert plan_stop_holding_speed(FRAME, 100.0, d0, 0.0, 13.4, d1, CFG, stop_within_s=3.0, max_stop_dist_m=30.0) is None
