@@ -23,8 +23,8 @@ rendering and processing pixels, DDM, vehicle on one simulated clock; ``--lockst
 the algorithms alone cost: no processing time, no scheduling, no load. ``--corridor-faults`` adds
 the fault table on that runner (about 40 s of CPU per case).
 
-    python bench/e2e_bench.py [--runs 5] [--lockstep-runs 3] [--peer] [--no-process-faults]
-                              [--corridor-faults] [--quick] [--json]
+    python bench/e2e_bench.py [--runs 10] [--lockstep-runs 3] [--peer] [--no-process-faults]
+                              [--corridor-faults] [--evidence-cost N] [--quick] [--json]
 
 Wall time: ~25 s per process run (10 by default), ~40 s per lockstep run (2 loaded cores), ~60 s for the process
 faults. The machine's load shows in the process figures (every service shares its cores): run it on an
@@ -100,11 +100,12 @@ def add_hops(m: dict[str, Any], ev: dict[str, float], decisions: list[tuple[floa
                                       if resp is not None and "manoeuvre_start" in ev else None)
 
 
-def one_lockstep_run(seed: int, duration_s: float) -> dict[str, Any]:
+def one_lockstep_run(seed: int, duration_s: float, ddm_config: Any = None) -> dict[str, Any]:
     """The same scenario on the whole corridor in lockstep (simulated time: no processing delays)."""
+    from ddm.config import DdmConfig
     from deploy.lockstep import CorridorLockstep, LockstepConfig
 
-    runner = CorridorLockstep(LockstepConfig(seed=seed, duration_s=duration_s))
+    runner = CorridorLockstep(LockstepConfig(seed=seed, duration_s=duration_s, ddm_config=ddm_config or DdmConfig()))
     decisions = DecisionRecorder(runner.clock.now)
     ddm_log = logging.getLogger("ddm")
     ddm_log.addHandler(decisions)
@@ -196,6 +197,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lockstep-runs", type=int, default=3, help="lockstep corridor runs (seeds 1..N; default 3; 0: none)")
     ap.add_argument("--corridor-faults", action="store_true",
                     help="also the fault table on the lockstep corridor (~40 s per case)")
+    ap.add_argument("--evidence-cost", type=int, default=0, metavar="N",
+                    help="also N lockstep seeds with the DDM marking EVs from object lists alone (the rule before "
+                         "issue 18): the cost of acting on signed EvAlerts only, as lights on -> manoeuvre")
     ap.add_argument("--peer", action="store_true", help="peer mode on loopback (the demo) instead of a router")
     ap.add_argument("--no-process-faults", action="store_true", help="skip the process-level faults (~60 s)")
     ap.add_argument("--quick", action="store_true", help="1 process run, 1 lockstep run, no process faults")
@@ -243,6 +247,27 @@ def main(argv: list[str] | None = None) -> int:
             ls_runs.append(m)
             print(run_line(seed, m, time.monotonic() - t), flush=True)
         ls_dists = print_distribution("lockstep corridor, simulated time (no processing time)", ls_runs)
+
+    cost = None
+    if args.evidence_cost > 0:
+        from ddm.config import DdmConfig
+
+        print(f"\nevidence cost: lockstep seeds 1..{args.evidence_cost}, EVs from signed alerts only vs object lists "
+              "alone", flush=True)
+        pairs = []
+        for seed in range(1, args.evidence_cost + 1):
+            new = one_lockstep_run(seed, args.duration_s)["latency_s"].get("lights_on_to_manoeuvre_s")
+            old = one_lockstep_run(seed, args.duration_s, DdmConfig(ev_from_objects_alone=True))["latency_s"].get(
+                "lights_on_to_manoeuvre_s")
+            pairs.append((seed, new, old))
+            print(f"  seed {seed}: lights on -> manoeuvre {new} s (signed alerts only), {old} s (object lists alone)",
+                  flush=True)
+        diffs = [n - o for _, n, o in pairs if n is not None and o is not None]
+        cost = {"seeds": len(pairs), "lights_on_to_manoeuvre_alerts_only_s": [n for _, n, _ in pairs],
+                "lights_on_to_manoeuvre_objects_alone_s": [o for _, _, o in pairs],
+                "median_cost_s": round(float(np.median(diffs)), 3) if diffs else None,
+                "max_cost_s": round(max(diffs), 3) if diffs else None}
+        print(f" cost of signed evidence only: median {cost['median_cost_s']} s, max {cost['max_cost_s']} s")
 
     print("\n fault table")
     t = time.monotonic()
@@ -306,6 +331,7 @@ def main(argv: list[str] | None = None) -> int:
             "lockstep_lights_on_to_response_p99_s": lq("lights_on_to_response_s", "p99"),
             "lockstep_alert_to_command_at_vehicle_median_s": lq("alert_to_command_at_vehicle_s", "median"),
             "lockstep_runs_yield_ok": yielded(ls_runs),
+            "evidence_cost": cost,
             "faults_passed": passed, "faults_total": len(faults), "faults_beyond_bound": len(beyond),
             "faults_failed": len(faults) - passed - len(beyond),
             "faults": [{"condition": f.name, "verdict": f.verdict, "passed": f.passed, "outcome": f.outcome,
