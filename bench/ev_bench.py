@@ -94,16 +94,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from protocol.messages import AlertState  # noqa: E402
-from rsu.classify.body import load_body_classifier  # noqa: E402
-from rsu.classify.classifiers import load_classifier  # noqa: E402
-from rsu.classify.ev import EvAlertManager, SingleVehicleGate, TrackEvClassifier  # noqa: E402
+from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
+from rsu.classify.ev import EvAlertManager  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig  # noqa: E402
-from rsu.detect import MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
-from rsu.localize import Localizer  # noqa: E402
-from rsu.service import RsuPipeline  # noqa: E402
-from rsu.track import FrameworkTracker, iou_matrix  # noqa: E402
+from rsu.track import iou_matrix  # noqa: E402
 from sim.camera_source import SimCamera  # noqa: E402
 from sim.lamps import signal_on, style_signal  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
@@ -113,22 +109,20 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
-if not YOLOX.is_file():
-    YOLOX = Path("/work/shared/data/real/yolox_nano/yolox_nano.onnx")
 HELD_OUT_SEEDS = (1142, 1527)
 """Drawn at random once (2026-11-25, second session of issue 17) and frozen; 1-4, 101/102 and 301/302 are tuning
 seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
-def make_detector(kind: str):
-    """``project``: the project's detector (what the RSUs of the demo and the lockstep corridor run),
-    every vehicle one class; ``onnx``: the COCO YOLOX-nano; ``motion``: MOG2."""
-    if kind == "project":
-        return vehicle_detector(intra_op_threads=1)
-    if kind == "onnx":
-        return OnnxDetector(YOLOX, score_threshold=0.25, intra_op_threads=1)
-    return MotionDetector()
+def pipeline_config(detector: str, *, ev_body: str = "default", box_gate: bool = False, crop_classifier: str = "none",
+                    classifier_kwargs: dict | None = None) -> PipelineConfig:
+    """``detector``: ``project``: the project's detector (what the RSUs of the demo and the lockstep corridor
+    run), every vehicle one class; ``onnx``: the COCO YOLOX-nano (score threshold 0.25); ``motion``: MOG2."""
+    model = {"project": PROJECT, "onnx": str(YOLOX), "motion": MOTION}[detector]
+    return PipelineConfig(detector=model, score_threshold=0.25 if detector == "onnx" else 0.3, threads=1,
+                          ev_body=ev_body, ev_box_gate=box_gate, ev_crop_classifier=crop_classifier,
+                          classifier_tuning=dict(classifier_kwargs or {}))
 
 
 def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | None, min_visible_s: float,
@@ -143,17 +137,13 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
     rsus = []
     for r in corridor.rsus:
         cam = SimCamera(corridor, r.rsu_id, seed=seed)
-        det = make_detector(detector)
-        if detector == "motion":  # an RSU that has been running: MOG2 learnt the road from its own frames
+        config = pipeline_config(detector, ev_body=ev_body, box_gate=box_gate, crop_classifier=crop_classifier,
+                                 classifier_kwargs=classifier_kwargs)
+        pipe = build_pipeline(config, corridor, r.rsu_id)
+        if pipe.learns_the_road:  # an RSU that has been running: MOG2 learnt the road from its own frames
             for _rid, image in warmup_frames(sc, {r.rsu_id: cam}):
-                det.detect(image)
-        kw = dict(classifier_kwargs or {})
-        if box_gate:
-            kw["box_gate"] = SingleVehicleGate(r.camera, corridor.road)
-        if crop_classifier != "none":
-            kw["crop_score"] = load_classifier(crop_classifier)
-        clf = TrackEvClassifier(body=load_body_classifier(ev_body), **kw)
-        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), Localizer(corridor, r), clf)
+                pipe.learn_road(image)
+        clf = pipe.classifier
         rsus.append((r.rsu_id, cam, pipe, clf, EvAlertManager()))
     zone = {r.rsu_id: (r.position, r.max_range_m) for r in corridor.rsus}
     lights_on_at = sc.ev.lights_on_at_s if sc.ev is not None else None

@@ -56,15 +56,16 @@ from dataclasses import dataclass, replace  # noqa: E402
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort  # noqa: E402
 from models.evaluate_detector import ZONE_M  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
+from rsu.build import MOTION, PROJECT, PipelineConfig, build_detector, build_pipeline, build_tracker  # noqa: E402
 from rsu.classify.body import DEFAULT_BODY_MODEL, EvBodyClassifier  # noqa: E402
-from rsu.classify.ev import TrackEvClassifier  # noqa: E402
 from rsu.classify.evaluation import ms_per_crop  # noqa: E402
-from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, OnnxDetector, vehicle_detector  # noqa: E402
+from rsu.detect import PROJECT_MODEL, Detector  # noqa: E402
 from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import Frame as RsuFrame  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.localize import GroundProjector, Localizer  # noqa: E402
-from rsu.track import FrameworkTracker, SortTracker, iou_matrix  # noqa: E402
+from rsu.service import RsuPipeline  # noqa: E402
+from rsu.track import SortTracker, iou_matrix  # noqa: E402
 from sim.camera_source import Frame, SimCamera  # noqa: E402
 from sim.render import MIN_VISIBLE_FRACTION  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
@@ -141,11 +142,10 @@ def detector_fps(detector: Detector, images: list[np.ndarray]) -> float:
     return len(images) / (time.perf_counter() - t0)
 
 
-def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector, tracker: SortTracker,
-                 localizer: Localizer, classifier: Callable | None = None) -> dict[str, float]:
-    """Per-stage and end-to-end fps over (image, timestamp_s) frames; the source's own time counts
-    towards end-to-end (it is the ``source`` stage). With a ``classifier`` (the RSU's EV hook,
-    ``(frame, tracks) -> ...``), it runs after SORT and its time is the ``classify`` stage."""
+def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], pipeline: RsuPipeline) -> dict[str, float]:
+    """Per-stage and end-to-end fps of an RSU's pipeline (``RsuPipeline.process``: detect -> SORT -> EV classifier,
+    when it has one -> localise) over (image, timestamp_s) frames; the source's own time counts towards
+    end-to-end (it is the ``source`` stage)."""
     stage_s = {"source": 0.0, "detect": 0.0, "track": 0.0, "classify": 0.0, "localize": 0.0}
     n = 0
     it = iter(frames)
@@ -157,21 +157,10 @@ def pipeline_fps(frames: Iterable[tuple[np.ndarray, float]], detector: Detector,
             image, stamp = next(it)
         except StopIteration:
             break
-        t1 = time.perf_counter()
-        det = detector.detect(image)
-        t2 = time.perf_counter()
-        tracks = tracker.update(det.boxes, det.scores, det.classes)
-        t3 = time.perf_counter()
-        if classifier is not None:
-            classifier(RsuFrame(image, stamp, n, "bench"), tracks)
-        t3c = time.perf_counter()
-        localizer.update(tracks, stamp, det.boxes)
-        t4 = time.perf_counter()
-        stage_s["source"] += t1 - t0
-        stage_s["detect"] += t2 - t1
-        stage_s["track"] += t3 - t2
-        stage_s["classify"] += t3c - t3
-        stage_s["localize"] += t4 - t3c
+        stage_s["source"] += time.perf_counter() - t0
+        result = pipeline.process(RsuFrame(image, stamp, n, "bench"))
+        for k in ("detect", "track", "classify", "localize"):
+            stage_s[k] += result.stage_s[k]
         n += 1
     total = time.perf_counter() - t_start
     cpu = time.process_time() - cpu_start
@@ -190,14 +179,13 @@ def body_crop_ms(body: EvBodyClassifier, n: int, seed: int = 0) -> float:
     return ms_per_crop(body, crops, n)
 
 
-def ev_classifier_cost(frames: list, make_detector: Callable[[], Detector], corridor, rsu_id: str,
-                       body: EvBodyClassifier) -> dict[str, float]:
+def ev_classifier_cost(frames: list, config: PipelineConfig, corridor, rsu_id: str) -> dict[str, float]:
     """Processed fps (CPU time, one core) of detect -> SORT -> EV classifier -> localise on the dense clip,
     with the lamp evidence alone and with the EV-body classifier fused in (issue 17), and the drop."""
     out: dict[str, float] = {}
-    for name, clf in (("lamps", TrackEvClassifier()), ("lamps_and_body", TrackEvClassifier(body=body))):
-        r = pipeline_fps(((f.image, f.timestamp_s) for f in frames), make_detector(), SortTracker(),
-                         Localizer(corridor, rsu_id), clf)
+    for name, body in (("lamps", None), ("lamps_and_body", "default")):
+        pipeline = build_pipeline(replace(config, ev_classifier=True, ev_body=body), corridor, rsu_id)
+        r = pipeline_fps(((f.image, f.timestamp_s) for f in frames), pipeline)
         out[f"fps_{name}"] = r["end_to_end_fps_cpu"]
         out[f"classify_fps_{name}"] = r["classify_fps"]
     out["ev_body_fps_drop"] = 1.0 - out["fps_lamps_and_body"] / out["fps_lamps"]
@@ -276,19 +264,15 @@ def render_sim_clip(scenario: str, rsu_id: str, seed: int, duration_s: float, zo
     return SimClip(f"{scenario}/s{seed}/{rsu_id}", rsu_id, frames, truths)
 
 
-def project_detector(threads: int = 1) -> OnnxDetector:
-    """The project's detector as the RSU runs it in Framework B (every vehicle one class)."""
-    return vehicle_detector(PROJECT_MODEL, intra_op_threads=threads, name="project")
-
-
-def sim_detectors() -> dict[str, Callable[[], Detector]]:
-    dets: dict[str, Callable[[], Detector]] = {}
+def sim_detectors() -> dict[str, PipelineConfig]:
+    """The RSU pipelines measured on simulator renders (no EV classifier), one per detector that is here."""
+    configs: dict[str, PipelineConfig] = {}
     if PROJECT_MODEL.is_file():
-        dets["project"] = project_detector
-    dets["motion"] = lambda: MotionDetector()
+        configs["project"] = PipelineConfig(detector=PROJECT, ev_classifier=False)
+    configs["motion"] = PipelineConfig(detector=MOTION, ev_classifier=False)
     if YOLOX.is_file():
-        dets["yolox_nano"] = lambda: OnnxDetector(YOLOX, intra_op_threads=1)
-    return dets
+        configs["yolox_nano"] = PipelineConfig(detector=str(YOLOX), ev_classifier=False)
+    return configs
 
 
 def beyond_zone(hyp_boxes: np.ndarray, counted_boxes: np.ndarray, camera, margin_m: float = 10.0) -> np.ndarray:
@@ -308,7 +292,7 @@ def beyond_zone(hyp_boxes: np.ndarray, counted_boxes: np.ndarray, camera, margin
     return far
 
 
-def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corridor) -> dict[str, float]:
+def sim_mot(clips: list[SimClip], config: PipelineConfig, corridor) -> dict[str, float]:
     """MOTA/IDF1 (``rsu.evaluate.MotEvaluator``, IoU 0.5, ignore boxes as distractors) of detector ->
     ``FrameworkTracker('B')`` (the RSU defaults: max_age 1, min_hits 3, IoU 0.3) over the clips, and
     the localisation error of what the pipeline publishes (``Localizer.update``, both methods: world
@@ -319,7 +303,7 @@ def sim_mot(clips: list[SimClip], make_detector: Callable[[], Detector], corrido
     out_of_zone = 0
     for n_clip, clip in enumerate(clips):
         id_offset = 1_000_000 * n_clip  # one evaluator for all clips: ids of different clips must not meet
-        detector, tracker = make_detector(), FrameworkTracker("B")
+        detector, tracker = build_detector(config), build_tracker(config)
         localizers = {m: Localizer(corridor, clip.rsu_id, method=m) for m in loc_err}
         camera = corridor.rsu(clip.rsu_id).camera
         for frame, truth in zip(clip.frames, clip.truths, strict=True):
@@ -408,9 +392,8 @@ def main(argv: list[str] | None = None) -> int:
           f"labelled vehicles per frame; rendered in {time.perf_counter() - t0:.0f} s, not timed): "
           "source -> detect -> SORT -> localise, one core")
     e2e, e2e_wall, stages = {}, {}, {}
-    for name, make in sim_detectors().items():
-        r = pipeline_fps(((f.image, f.timestamp_s) for f in clip.frames), make(), SortTracker(),
-                         Localizer(corridor, rsu_id))
+    for name, config in sim_detectors().items():
+        r = pipeline_fps(((f.image, f.timestamp_s) for f in clip.frames), build_pipeline(config, corridor, rsu_id))
         stages[name], e2e[name], e2e_wall[name] = r, r["end_to_end_fps_cpu"], r["end_to_end_fps"]
         print(f"  {name:10s}: wall-clock stages: detect {r['detect_fps']:6.1f}  track {r['track_fps']:7.1f}  "
               f"localise {r['localize_fps']:7.1f} fps; end-to-end {r['end_to_end_fps_cpu']:6.1f} fps of CPU time "
@@ -427,8 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     if DEFAULT_BODY_MODEL.is_file():
         body = EvBodyClassifier(DEFAULT_BODY_MODEL, threads=1)
         figures["crop_ms"] = body_crop_ms(body, 30 if quick else 300)
-        main_make = sim_detectors().get("project") or next(iter(sim_detectors().values()))
-        cost = ev_classifier_cost(clip.frames, main_make, corridor, rsu_id, body)
+        main_config = sim_detectors().get("project") or next(iter(sim_detectors().values()))
+        cost = ev_classifier_cost(clip.frames, main_config, corridor, rsu_id)
         figures["ev_classifier_cost"] = cost
         figures["ev_body_fps_drop"] = cost["ev_body_fps_drop"]
         print(f"EV-body classifier ({DEFAULT_BODY_MODEL.name}): {figures['crop_ms']:.2f} ms per crop (median, one "
@@ -449,8 +432,8 @@ def main(argv: list[str] | None = None) -> int:
           f"not scored; {n_gt} counted boxes: >= 30 % visible, within {ZONE_M:g} m of the camera; "
           f"rendered in {time.perf_counter() - t0:.0f} s)")
     mot_by = {}
-    for name, make in sim_detectors().items():
-        r = sim_mot(clips, make, corridor)
+    for name, config in sim_detectors().items():
+        r = sim_mot(clips, config, corridor)
         mot_by[name] = r
         print(f"  {name:10s}: MOTA {r['mota']:.3f}  IDF1 {r['idf1']:.3f}  (FN {r['fn']}, FP {r['fp']}, IDSW "
               f"{r['idsw']}, GT {r['gt']}); localisation of its tracks at 55-65 m: median "
@@ -478,24 +461,25 @@ def main(argv: list[str] | None = None) -> int:
     if not args.video.is_file():
         print(f"real video: {args.video} absent, skipped")
     else:
-        detectors: dict[str, Callable[[], Detector]] = {"motion": lambda: MotionDetector(min_area_px=400)}
+        detectors = {"motion": PipelineConfig(detector=MOTION, motion_min_area_px=400, ev_classifier=False)}
         if YOLOX.is_file():
-            detectors = {"yolox_nano": lambda: OnnxDetector(YOLOX, intra_op_threads=1), **detectors}
+            detectors = {"yolox_nano": PipelineConfig(detector=str(YOLOX), ev_classifier=False), **detectors}
         n_frames = 10 if quick else 150
         native = read_frames(args.video, n_frames, None)
         upscaled = [cv2.resize(im, SIZE_720P, interpolation=cv2.INTER_LINEAR) for im in native]
         h, w = native[0].shape[:2]
         print(f"detectors on {args.video.name}: {n_frames} frames at {w}x{h} and upscaled to 1280x720")
         det_fps = {}
-        for name, make in detectors.items():
-            det_fps[name] = {f"{w}x{h}": detector_fps(make(), native), "1280x720": detector_fps(make(), upscaled)}
+        for name, config in detectors.items():
+            det_fps[name] = {f"{w}x{h}": detector_fps(build_detector(config), native),
+                             "1280x720": detector_fps(build_detector(config), upscaled)}
             print(f"  {name:10s}: {det_fps[name][f'{w}x{h}']:7.1f} fps at {w}x{h}, "
                   f"{det_fps[name]['1280x720']:7.1f} fps at 1280x720")
         figures["detector_fps_real_video"] = det_fps
         real_e2e = {}
-        for name, make in detectors.items():
-            r = pipeline_fps(_video_frames_720p(args.video, n_frames), make(), SortTracker(),
-                             Localizer(corridor, corridor.rsus[0]))
+        for name, config in detectors.items():
+            r = pipeline_fps(_video_frames_720p(args.video, n_frames),
+                             build_pipeline(config, corridor, corridor.rsus[0].rsu_id))
             real_e2e[name] = r["end_to_end_fps"]
         figures["fps_end_to_end_real_video"] = real_e2e
         print("  end-to-end (decode + upscale -> detect -> SORT -> localise): "

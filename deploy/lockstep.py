@@ -43,14 +43,9 @@ from protocol.clock import SimClock
 from protocol.corridor import Corridor
 from protocol.messages import VehicleState
 from protocol.transport import DsrcLink, LocalBus, Transport
-from rsu.classify.body import load_body_classifier
-from rsu.classify.ev import TrackEvClassifier
-from rsu.detect import PROJECT_MODEL, MotionDetector, vehicle_detector
+from rsu.build import PipelineConfig, build_pipeline
 from rsu.frames import Frame
-from rsu.hazard import HazardDetector
-from rsu.localize import Localizer
-from rsu.service import RsuPipeline, RsuService
-from rsu.track import FrameworkTracker
+from rsu.service import RsuService
 from sim.camera_source import SimCamera
 from sim.scenario import Scenario, load_scenario
 from sim.service import SimService
@@ -144,22 +139,11 @@ class CorridorLockstep:
         self.stats = {"frames": 0, "render_s": 0.0, "rsu_s": 0.0, "wall_s": 0.0}
 
     # ------------------------------------------------------------------ components
-    def _make_detector(self):
-        det = self.config.detector
-        if det == "motion":
-            return MotionDetector()
-        return vehicle_detector(PROJECT_MODEL if det == "project" else det, intra_op_threads=1)
-
     def _add_rsu(self, rsu_id: str) -> None:
-        r = self.corridor.rsu(rsu_id)
         cam = SimCamera(self.corridor, rsu_id, seed=self.scenario.seed)
-        det = self._make_detector()
-        loc = Localizer(self.corridor, r)
-        hazards = None
-        if self.config.hazards:
-            hazards = HazardDetector(self.corridor.road, loc.mapper.to_ground, camera=r.camera)
-        clf = TrackEvClassifier(body=load_body_classifier("default"))  # as iea-rsu runs it (--ev-body default)
-        pipe = RsuPipeline(det, FrameworkTracker("B", 1, 3, 0.3), loc, clf, hazards=hazards)
+        # as iea-rsu runs it: one thread, the EV-body classifier (--ev-body default)
+        config = PipelineConfig(detector=self.config.detector, threads=1, hazards=self.config.hazards)
+        pipe = build_pipeline(config, self.corridor, rsu_id)
         annotate = None
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)
@@ -173,17 +157,12 @@ class CorridorLockstep:
     def _warm_up(self) -> None:
         """The RSUs have been running: their background models learn from the cameras' own frames of the
         road before the scenario (``sim.warmup``), never from a render with the actors removed."""
-        learners = {rid: svc.pipeline for rid, svc in self.rsus.items()
-                    if isinstance(svc.pipeline.detector, MotionDetector) or svc.pipeline.hazards is not None}
+        learners = {rid: svc.pipeline for rid, svc in self.rsus.items() if svc.pipeline.learns_the_road}
         if not learners:
             return
         cams = {rid: self._cameras[rid] for rid in learners}
         for rid, image in warmup_frames(self.scenario, cams, self.config.warmup_s):
-            pipe = learners[rid]
-            if isinstance(pipe.detector, MotionDetector):
-                pipe.detector.detect(image)
-            if pipe.hazards is not None:
-                pipe.hazards.learn_background(image)
+            learners[rid].learn_road(image)
 
     def kill_rsu(self, rsu_id: str) -> None:
         """The RSU process dies: it stops publishing (no goodbye message)."""

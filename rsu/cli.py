@@ -3,28 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import signal
 import sys
-from pathlib import Path
 
 import cv2
 
-from protocol.corridor import CorridorError, load_corridor
+from protocol.corridor import CorridorError
 from protocol.logsetup import add_log_level_argument, configure_logging
-from protocol.security import TrustList, load_signer
-from protocol.transport import ZenohSettings, ZenohTransport
-from rsu.classify.body import load_body_classifier
-from rsu.classify.classifiers import load_classifier
-from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
+from protocol.transport import ZenohSettings
+from rsu.build import PipelineConfig, ServiceOptions, run_rsu
 from rsu.classify.evaluation import CLASSIFIERS
-from rsu.detect import MotionDetector, vehicle_detector
-from rsu.frames import ImageFolderSource, SourceError, SourceStalled, VideoSource
-from rsu.hazard import HazardDetector
-from rsu.localize import INTERPOLATIONS, Localizer
-from rsu.service import RsuPipeline, RsuService
-from rsu.sim_source import SimSource
-from rsu.track import FrameworkTracker
+from rsu.frames import SourceError, SourceStalled
+from rsu.localize import INTERPOLATIONS
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -49,14 +38,16 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-stall-s", type=float, default=None, help="exit (code 3) after a stall this long")
     ap.add_argument("--queue-size", type=int, default=2, help="frames buffered from a live source (older dropped)")
     ap.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
-    ap.add_argument("--detector", choices=["onnx", "motion"], default="motion",
-                    help="onnx: YOLOX-layout model (--model); motion: MOG2 background subtraction")
+    ap.add_argument("--detector", choices=["onnx", "project", "motion"], default="motion",
+                    help="onnx: YOLOX-layout model (--model); project: the project's detector "
+                         "(models/iea_det_tiny.onnx); motion: MOG2 background subtraction")
     ap.add_argument("--model", default=None, help="ONNX model for --detector onnx")
     ap.add_argument("--score-threshold", type=float, default=0.3)
     ap.add_argument("--providers", default=None,
                     help="onnxruntime providers, comma-separated, or 'auto' (default CPUExecutionProvider)")
     ap.add_argument("--threads", type=int, default=None,
-                    help="CPU threads for the detector (onnxruntime intra-op) and OpenCV (default: all cores); "
+                    help="CPU threads for the detector (onnxruntime intra-op) and OpenCV (default: all cores; the EV "
+                         "classifiers: one); "
                          "use 1 when several RSUs share one machine (iea demo / iea up do)")
     ap.add_argument("--framework", choices=["A", "B"], default="B",
                     help="B: one class, track every vehicle (thesis 2.3); A: a tracker per class (thesis 2.2)")
@@ -215,6 +206,22 @@ def scan_main(argv: list[str]) -> int:
     return 0
 
 
+def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
+    """The pipeline the options ask for (ValueError naming the option that is wrong)."""
+    if args.detector == "onnx" and not args.model:
+        raise ValueError("--detector onnx needs --model PATH")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    providers = args.providers if args.providers in (None, "auto") else tuple(args.providers.split(","))
+    return PipelineConfig(
+        detector=args.model if args.detector == "onnx" else args.detector, score_threshold=args.score_threshold,
+        providers=providers, threads=args.threads, framework=args.framework, max_age=args.max_age,
+        min_hits=args.min_hits, iou_threshold=args.iou_threshold, localization=args.localization,
+        interpolation=args.interpolation, ev_classifier=args.ev_classifier == "lamps", ev_body=args.ev_body,
+        ev_crop_classifier=args.ev_crop_classifier, ev_box_gate=args.ev_box_gate,
+        hazards=args.hazards == "static", hazard_background=args.hazard_background)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "eval-classifier":
@@ -224,74 +231,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(parser, args)
-    log = logging.getLogger("iea-rsu")
-    if args.threads is not None:
-        if args.threads < 1:
-            print(f"iea-rsu: --threads must be >= 1, got {args.threads}", file=sys.stderr)
-            return 2
-        cv2.setNumThreads(args.threads)
     try:
-        corridor = load_corridor(args.corridor)
-        rsu = corridor.rsu(args.rsu)
-    except (CorridorError, KeyError) as exc:
+        options = ServiceOptions(
+            rsu_id=args.rsu, source=args.source, corridor_file=args.corridor, corridor_id=args.corridor_id,
+            sim_seed=args.sim_seed, fps=args.fps, realtime=args.realtime, read_timeout_s=args.read_timeout_s,
+            max_stall_s=args.max_stall_s, queue_size=args.queue_size, max_frames=args.max_frames,
+            annotate=args.annotate, key=args.key, key_id=args.key_id, zenoh=ZenohSettings.from_args(args))
+        return run_rsu(options, pipeline_config(args))
+    except (CorridorError, KeyError, ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:
         print(f"iea-rsu: {exc}", file=sys.stderr)
         return 2
-    try:
-        if args.detector == "onnx":
-            if not args.model:
-                print("iea-rsu: --detector onnx needs --model PATH", file=sys.stderr)
-                return 2
-            providers = args.providers if args.providers in (None, "auto") else args.providers.split(",")
-            detector = vehicle_detector(args.model, framework=args.framework, score_threshold=args.score_threshold,
-                                        providers=providers, intra_op_threads=args.threads)
-        else:
-            detector = MotionDetector()
-        tracker = FrameworkTracker(args.framework, args.max_age, args.min_hits, args.iou_threshold)
-        signer = load_signer(args.key, args.key_id, TrustList.from_corridor(corridor)) if args.key else None
-        localizer = Localizer(corridor, rsu, method=args.localization, interpolation=args.interpolation)
-        classifier = None
-        if args.ev_classifier == "lamps":
-            crop_score = None if args.ev_crop_classifier == "none" else load_classifier(args.ev_crop_classifier)
-            gate = SingleVehicleGate(rsu.camera, corridor.road) if args.ev_box_gate else None
-            body = load_body_classifier(args.ev_body)
-            classifier = TrackEvClassifier(crop_score=crop_score, body=body, box_gate=gate)
-        hazards = (HazardDetector(corridor.road, localizer.mapper.to_ground, camera=rsu.camera)
-                   if args.hazards == "static" else None)
-        if hazards is not None and args.hazard_background:
-            empty = cv2.imread(args.hazard_background, cv2.IMREAD_COLOR)
-            if empty is None or empty.shape[:2] != (rsu.camera.height_px, rsu.camera.width_px):
-                raise ValueError(f"--hazard-background {args.hazard_background!r}: not a "
-                                 f"{rsu.camera.width_px}x{rsu.camera.height_px} image")
-            hazards.prime(empty)
-        if args.source == "sim":
-            source = None  # needs the transport: opened below
-        elif Path(args.source).is_dir():
-            source = ImageFolderSource(args.source, args.fps or rsu.camera.fps, source_id=args.rsu)
-        else:
-            source = VideoSource(args.source, source_id=args.rsu, read_timeout_s=args.read_timeout_s,
-                                 queue_size=args.queue_size, realtime=args.realtime)
-        settings = ZenohSettings.from_args(args)
-    except (ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:
-        print(f"iea-rsu: {exc}", file=sys.stderr)
-        return 2
-    transport = ZenohTransport(settings)
-    if source is None:
-        source = SimSource(corridor, args.rsu, transport, corridor_id=args.corridor_id, seed=args.sim_seed)
-    pipeline = RsuPipeline(detector, tracker, localizer, classifier, hazards=hazards)
-    service = RsuService(corridor, args.rsu, source, pipeline, transport, corridor_id=args.corridor_id,
-                         annotate_path=args.annotate, max_frames=args.max_frames, read_timeout_s=args.read_timeout_s,
-                         max_stall_s=args.max_stall_s, signer=signer)
-    signal.signal(signal.SIGTERM, lambda *_: service.stop())
-    signal.signal(signal.SIGINT, lambda *_: service.stop())
-    log.info("RSU %s: %s -> %s on %s", args.rsu, source.source_id, getattr(detector, "name", "detector"),
-             service.objects_key)
-    try:
-        return service.run()
-    finally:
-        source.close()
-        transport.close()
-        log.info("RSU %s stopped after %d frames (drops %s, stalls %d)", args.rsu, service.frames,
-                 getattr(source, "drops", 0), service.stalls)
 
 
 if __name__ == "__main__":

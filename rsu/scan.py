@@ -32,13 +32,12 @@ import cv2
 import numpy as np
 
 from protocol.messages import AlertState, EvState, LightState
-from rsu.classify.body import load_body_classifier
+from rsu.build import PipelineConfig, build_pipeline
 from rsu.classify.ev import EvAlertManager, TrackEvClassifier
-from rsu.detect import MotionDetector, OnnxDetector
 from rsu.frames import VideoSource
 from rsu.localize import LocalizedObject
-from rsu.service import FrameResult, RsuPipeline
-from rsu.track import FrameworkTracker, TrackSet
+from rsu.service import FrameResult
+from rsu.track import TrackSet
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 DEFAULT_DETECTOR = REAL_DATA / "yolox_nano" / "yolox_nano.onnx"
@@ -156,13 +155,6 @@ class ImageOnlyLocalizer:
         return out
 
 
-def make_detector(model: str | Path, threads: int | None = 1):
-    """``motion`` (MOG2 background subtraction: a fixed camera, no model) or a YOLOX-layout ONNX file."""
-    if str(model) == "motion":
-        return MotionDetector()
-    return OnnxDetector(model, intra_op_threads=threads)
-
-
 def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
                max_s: float | None = None, annotate_path: str | Path | None = None, threads: int | None = 1,
                progress: Callable[[float, int, int], None] | None = None) -> ScanResult:
@@ -177,10 +169,9 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video {str(path)!r} not found")
-    detector = make_detector(detector_model, threads)
-    body_clf = load_body_classifier(body, threads=threads)
-    clf = TrackEvClassifier(body=body_clf)  # its crop grows as the body model was trained (metadata)
-    pipeline = RsuPipeline(detector, FrameworkTracker("B", 3, 3, 0.3), ImageOnlyLocalizer(), clf)
+    config = PipelineConfig(detector=str(detector_model), threads=threads, max_age=3, ev_body=body)
+    pipeline = build_pipeline(config, localizer=ImageOnlyLocalizer())
+    detector, clf = pipeline.detector, pipeline.classifier
     manager = EvAlertManager()
     decisions: dict[int, TrackDecision] = {}
     first_seen: dict[int, float] = {}
@@ -218,7 +209,7 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
         raise ValueError(f"{path}: no frame could be decoded (not a video, or an unsupported codec)")
     tracks = sorted(decisions.values(), key=lambda d: (d.confirmed_s is None, d.confirmed_s or d.first_seen_s))
     return ScanResult(str(path), frames, last_t, time.perf_counter() - t0, getattr(detector, "name", "detector"),
-                      None if body_clf is None else str(body), tracks, alerts)
+                      None if clf.body is None else str(body), tracks, alerts)
 
 
 def _record(now: float, result: FrameResult, clf: TrackEvClassifier, first_seen: dict[int, float],

@@ -65,7 +65,7 @@ from protocol.messages import (
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent, EvAlertManager
-from rsu.detect import EV, Detector
+from rsu.detect import EV, Detector, MotionDetector
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardDetector, HazardEvent
 from rsu.localize import LocalizedObject, Localizer
@@ -97,6 +97,20 @@ class RsuPipeline:
         self.classifier = classifier
         self.ev_threshold = ev_threshold
         self.hazards = hazards
+
+    @property
+    def learns_the_road(self) -> bool:
+        """Does a model of the road learn from the frames (a motion detector's background, the hazard
+        detector's backgrounds)?"""
+        return isinstance(self.detector, MotionDetector) or self.hazards is not None
+
+    def learn_road(self, image: np.ndarray) -> None:
+        """A frame from before the watch starts (``sim.warmup``: an RSU that has been running): the road models
+        learn it; nothing is tracked or reported."""
+        if isinstance(self.detector, MotionDetector):
+            self.detector.detect(image)
+        if self.hazards is not None:
+            self.hazards.learn_background(image)
 
     def process(self, frame: Frame) -> FrameResult:
         stage_s: dict[str, float] = {}

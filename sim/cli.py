@@ -4,16 +4,15 @@
     iea-sim render rellis_ev_yield --t 12.0 --out runs/frames
     iea-sim export-dataset --out datasets/sim --frames 2000 [--scenario NAME ...] [--seed 0]
     iea-sim list
+Every command takes --log-level (default: $IEA_LOG_LEVEL, else INFO).
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
-import signal
 import sys
-from pathlib import Path
 
+from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.transport import ZenohSettings
 
 
@@ -37,80 +36,8 @@ def _add_run(sub) -> None:
     ZenohSettings.add_arguments(p)
 
 
-def _cmd_run(args) -> int:
-    from protocol.corridor import load_corridor
-    from protocol.transport import ZenohTransport
-    from sim.scenario import load_scenario
-    from sim.service import Recording, SimService
-
-    if args.wait_for_av is not None and not args.wait_for_av >= 0:
-        raise ValueError(f"--wait-for-av wants seconds >= 0, got {args.wait_for_av}")
-    corridor = load_corridor(args.corridor) if args.corridor else None
-    sc = load_scenario(args.scenario, corridor).with_overrides(seed=args.seed, lighting=args.lighting)
-    recs = []
-    for item in args.record:
-        rsu, sep, path = item.partition(":")
-        if not sep or not path:
-            raise ValueError(f"--record wants RSU:FILE.mp4, got {item!r}")
-        sc.corridor.rsu(rsu)
-        recs.append(Recording(rsu, path))
-    transport = ZenohTransport(ZenohSettings.from_args(args))
-    try:
-        svc = SimService(sc, transport, corridor_id=args.corridor_id, speed=args.speed, duration_s=args.duration,
-                         recordings=recs)
-        signal.signal(signal.SIGTERM, lambda *_: svc.stop())
-        signal.signal(signal.SIGINT, lambda *_: svc.stop())
-        n = svc.run(wait_for_av_s=args.wait_for_av)
-        logging.getLogger("iea.sim").info("published %d snapshots", n)
-    finally:
-        transport.close()
-    return 0
-
-
-def _cmd_render(args) -> int:
-    import cv2
-
-    from sim.render import Renderer
-    from sim.scenario import load_scenario
-    from sim.world import World
-
-    sc = load_scenario(args.scenario).with_overrides(seed=args.seed, lighting=args.lighting)
-    world = World(sc)
-    world.run_until(args.t)
-    snap = world.snapshot()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for rsu in sc.corridor.rsus:
-        if args.rsu and rsu.rsu_id not in args.rsu:
-            continue
-        r = Renderer(rsu.camera, sc.corridor.road, seed=world.seed)
-        img = r.render(snap)
-        if args.boxes:
-            for lb in r.labels(snap):
-                x1, y1, x2, y2 = (int(round(v)) for v in lb.bbox_px)
-                cv2.rectangle(img, (x1, y1), (x2, y2), (0, 255, 255) if lb.class_id else (0, 255, 0), 1)
-        path = out / f"{sc.name}_{rsu.rsu_id}_t{args.t:06.2f}.png"
-        cv2.imwrite(str(path), img)
-        print(path)
-    return 0
-
-
-def _cmd_export(args) -> int:
-    from sim.dataset import ExportConfig, export_dataset
-
-    kw = {}
-    if args.scenario:
-        kw["scenarios"] = args.scenario
-    cfg = ExportConfig(out=args.out, frames=args.frames, seed=args.seed, stride_s=args.stride_s,
-                       val_every=args.val_every, vary_lighting=not args.no_vary_lighting, rsus=args.rsu or [], **kw)
-    counts = export_dataset(cfg, progress=not args.quiet)
-    print(" ".join(f"{k}={v}" for k, v in counts.items()))
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="iea-sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("-v", "--verbose", action="store_true")
     sub = ap.add_subparsers(dest="cmd", required=True)
     _add_run(sub)
     p = sub.add_parser("render", help="render one PNG per RSU camera at a sim time")
@@ -133,21 +60,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-vary-lighting", action="store_true", help="keep each scenario's lighting")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     sub.add_parser("list", help="list the scenarios")
+    for p in sub.choices.values():
+        add_log_level_argument(p)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    configure_logging(parser, args)
+    from sim.dataset import ExportConfig, export_dataset, render_views
+    from sim.scenario import list_scenarios
+    from sim.service import run_scenario
+
     try:
         if args.cmd == "run":
-            return _cmd_run(args)
+            return run_scenario(args.scenario, ZenohSettings.from_args(args), corridor_file=args.corridor,
+                                corridor_id=args.corridor_id, record=args.record, speed=args.speed,
+                                duration_s=args.duration, seed=args.seed, lighting=args.lighting,
+                                wait_for_av_s=args.wait_for_av)
         if args.cmd == "render":
-            return _cmd_render(args)
+            for path in render_views(args.scenario, args.t, args.out, rsus=args.rsu, seed=args.seed,
+                                     lighting=args.lighting, boxes=args.boxes):
+                print(path)
+            return 0
         if args.cmd == "export-dataset":
-            return _cmd_export(args)
-        from sim.scenario import list_scenarios
-
+            kw = {"scenarios": args.scenario} if args.scenario else {}
+            cfg = ExportConfig(out=args.out, frames=args.frames, seed=args.seed, stride_s=args.stride_s,
+                               val_every=args.val_every, vary_lighting=not args.no_vary_lighting, rsus=args.rsu or [],
+                               **kw)
+            counts = export_dataset(cfg, progress=not args.quiet)
+            print(" ".join(f"{k}={v}" for k, v in counts.items()))
+            return 0
         print("\n".join(list_scenarios()))
         return 0
     except (ValueError, KeyError) as exc:  # ScenarioError, CorridorError, ExportError are ValueErrors

@@ -190,3 +190,38 @@ class SimService:
         for _rsu, _r, writer, _last in self._recorders:
             writer.release()
         self._recorders = []
+
+
+def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corridor_id: str | None = None,
+                 record: list[str] = (), speed: float = 1.0, duration_s: float | None = None, seed: int | None = None,
+                 lighting: str | None = None, wait_for_av_s: float | None = None) -> int:
+    """``iea-sim run``: scenario ``scenario`` (a name or a .toml path) in real time over Zenoh (``zenoh``:
+    ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. Raises ValueError
+    (ScenarioError, CorridorError) and KeyError (an unknown RSU) before anything is published."""
+    import signal
+
+    from protocol.corridor import load_corridor
+    from protocol.transport import ZenohTransport
+    from sim.scenario import load_scenario
+
+    if wait_for_av_s is not None and not wait_for_av_s >= 0:
+        raise ValueError(f"--wait-for-av wants seconds >= 0, got {wait_for_av_s}")
+    corridor = load_corridor(corridor_file) if corridor_file else None
+    sc = load_scenario(scenario, corridor).with_overrides(seed=seed, lighting=lighting)
+    recs = []
+    for item in record:
+        rsu, sep, path = item.partition(":")
+        if not sep or not path:
+            raise ValueError(f"--record wants RSU:FILE.mp4, got {item!r}")
+        sc.corridor.rsu(rsu)
+        recs.append(Recording(rsu, path))
+    transport = ZenohTransport(zenoh)
+    try:
+        svc = SimService(sc, transport, corridor_id=corridor_id, speed=speed, duration_s=duration_s, recordings=recs)
+        signal.signal(signal.SIGTERM, lambda *_: svc.stop())
+        signal.signal(signal.SIGINT, lambda *_: svc.stop())
+        n = svc.run(wait_for_av_s=wait_for_av_s)
+        log.info("published %d snapshots", n)
+    finally:
+        transport.close()
+    return 0

@@ -10,12 +10,11 @@ from protocol.corridor import load_corridor
 from protocol.keys import rsu_key
 from protocol.messages import AlertState, EvAlert, EvState, ObjectList, ObjectType
 from protocol.transport import LocalBus
-from rsu.classify.ev import TrackEvClassifier
+from rsu.build import PipelineConfig, build_classifier, build_tracker
 from rsu.detect import Detections
 from rsu.frames import ArraySource
 from rsu.localize import Localizer
 from rsu.service import RsuPipeline, RsuService
-from rsu.track import FrameworkTracker
 
 CORRIDOR = load_corridor()
 FPS = 15.0
@@ -69,8 +68,8 @@ def test_service_publishes_ev_alert_active_refresh_and_cleared():
     lists: list[ObjectList] = []
     bus.subscribe(rsu_key("tev", "rsu1", "ev"), lambda k, m: alerts.append(m))
     bus.subscribe(rsu_key("tev", "rsu1", "objects"), lambda k, m: lists.append(m))
-    pipe = RsuPipeline(BoxDetector(), FrameworkTracker("B", 1, 3, 0.3), Localizer(CORRIDOR, "rsu1"),
-                       TrackEvClassifier())
+    config = PipelineConfig(ev_body=None)  # the RSU's tracker and lamp evidence, without the body classifier
+    pipe = RsuPipeline(BoxDetector(), build_tracker(config), Localizer(CORRIDOR, "rsu1"), build_classifier(config))
     svc = RsuService(CORRIDOR, "rsu1", ClockedSource(frames(GONE_AT + 30), clock), pipe, bus, clock,
                      corridor_id="tev")
     assert svc.run() == 0

@@ -190,9 +190,9 @@ def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
     from protocol.keys import rsu_key
     from protocol.messages import HazardAlert
     from protocol.transport import LocalBus
+    from rsu.build import PipelineConfig, build_tracker
     from rsu.frames import ArraySource
     from rsu.service import RsuPipeline, RsuService
-    from rsu.track import FrameworkTracker
 
     corridor, rsu, base, loc = scene
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
@@ -212,7 +212,7 @@ def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
     bus.subscribe(rsu_key("rellis", RSU, "hazard"), lambda _k, m: got.append(m))
     hazards = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(**FAST), camera=rsu.camera)
     hazards.prime(base)
-    pipe = RsuPipeline(_NoDetector(), FrameworkTracker("B", 1, 3, 0.3), Localizer(corridor, rsu), hazards=hazards)
+    pipe = RsuPipeline(_NoDetector(), build_tracker(PipelineConfig()), Localizer(corridor, rsu), hazards=hazards)
     svc = RsuService(corridor, RSU, Source(images, 15.0, "cam"), pipe, bus, clock)
     assert svc.run() == 0
     states = [m.state.value for m in got]

@@ -44,9 +44,8 @@ def test_service_on_real_video_with_yolox_writes_annotated_video(tmp_path):
     from protocol.corridor import load_corridor
     from protocol.keys import rsu_key
     from protocol.transport import LocalBus
-    from rsu.localize import Localizer
-    from rsu.service import RsuPipeline, RsuService
-    from rsu.track import FrameworkTracker
+    from rsu.build import PipelineConfig, build_pipeline
+    from rsu.service import RsuService
 
     path = REAL / "traffic_videos" / "ambdet_video_3.mp4"
     if not (path.is_file() and YOLOX.is_file()):
@@ -56,8 +55,7 @@ def test_service_on_real_video_with_yolox_writes_annotated_video(tmp_path):
     lists = []
     bus.subscribe(rsu_key("treal", "rsu1", "objects"), lambda k, m: lists.append(m))
     out = tmp_path / "annotated.mp4"
-    pipeline = RsuPipeline(OnnxDetector(YOLOX, intra_op_threads=1), FrameworkTracker("B", max_age=3),
-                           Localizer(corridor, "rsu1"))
+    pipeline = build_pipeline(PipelineConfig(detector=str(YOLOX), max_age=3, ev_classifier=False), corridor, "rsu1")
     with VideoSource(path) as src:
         svc = RsuService(corridor, "rsu1", src, pipeline, bus, WallClock(), corridor_id="treal",
                          annotate_path=str(out), max_frames=40)

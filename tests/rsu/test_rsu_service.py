@@ -18,15 +18,15 @@ from protocol.corridor import load_corridor
 from protocol.keys import all_rsus_expr, rsu_key
 from protocol.messages import Health, HealthStatus, ObjectList, ObjectType
 from protocol.transport import LocalBus, ZenohTransport
-from rsu.detect import MotionDetector
+from rsu.build import MOTION, PipelineConfig, build_detector, build_pipeline, build_tracker
 from rsu.frames import ArraySource, Frame, SourceStalled
 from rsu.localize import Localizer
 from rsu.service import RsuPipeline, RsuService
-from rsu.track import FrameworkTracker
 
 ROOT = Path(__file__).resolve().parents[2]
 CORRIDOR = load_corridor()
 FPS = 15.0
+MOTION_RSU = PipelineConfig(detector=MOTION, motion_min_area_px=1500, max_age=3, ev_classifier=False)
 
 
 def _scene(n_frames=60, empty_frames=15, size=(1280, 720)):
@@ -65,8 +65,7 @@ class _ClockedSource(ArraySource):
 
 
 def _service(bus, clock, source, **kw):
-    pipeline = RsuPipeline(MotionDetector(min_area_px=1500), FrameworkTracker("B", max_age=3, min_hits=3),
-                           Localizer(CORRIDOR, "rsu1"))
+    pipeline = build_pipeline(MOTION_RSU, CORRIDOR, "rsu1")
     return RsuService(CORRIDOR, "rsu1", source, pipeline, bus, clock, corridor_id="tlocal", **kw)
 
 
@@ -163,8 +162,8 @@ def test_classifier_hook_marks_ev_tracks():
         # the left car (smaller x) is the EV with flashing lights
         return {int(t): (0.9 if b[0] < 640 else 0.1, None) for t, b in zip(tracks.track_ids, tracks.boxes, strict=True)}
 
-    pipeline = RsuPipeline(MotionDetector(min_area_px=1500), FrameworkTracker("B", max_age=3, min_hits=3),
-                           Localizer(CORRIDOR, "rsu1"), classifier=classifier)
+    pipeline = RsuPipeline(build_detector(MOTION_RSU), build_tracker(MOTION_RSU), Localizer(CORRIDOR, "rsu1"),
+                           classifier=classifier)
     svc = RsuService(CORRIDOR, "rsu1", _ClockedSource(_scene(45), clock), pipeline, bus, clock, corridor_id="tlocal")
     assert svc.run() == 0
     assert calls == list(range(45))
