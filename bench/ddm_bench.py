@@ -124,7 +124,8 @@ def vehicle_state(t: float, x: float, y: float, v: float, vehicle_id: str = "av1
 def throughput(cor: Corridor, frames, t0: float) -> dict:
     bus = LocalBus()
     clock = SimClock(t0)
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0))
+    # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
+    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
     n_obj = 0
     step_times = []
     frame_times = []
@@ -156,7 +157,8 @@ def paced(cor: Corridor, frames, t0: float) -> dict:
     """Real time at 10 Hz: the clock follows the wall clock; lag = how late each frame is handled."""
     bus = LocalBus()
     clock = SettableClock(t0)
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0))
+    # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
+    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
     wall0 = time.perf_counter()
     lags = []
     next_step = 0.0
@@ -185,7 +187,8 @@ def latency(cor: Corridor, frames, cars, t0: float, n_rounds: int) -> dict:
     x, y, speed, lane, length, ids = cars
     bus = LocalBus()
     clock = SimClock(t0)
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0))
+    # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
+    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
     for f, items in enumerate(frames[:10]):
         clock.advance(max(0.0, t0 + 0.1 * f - clock.now()))
         for key, payload, _ in items:

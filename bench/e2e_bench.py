@@ -55,7 +55,7 @@ from deploy.faults import MEASURED_ALERT_DELAY_S, FaultOutcome, dropout_faults, 
 from deploy.up import Up  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
-RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed past)")
+RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed)")
 """A decision that responds to the EV: a command, or keeping speed past a slower car to pull over after it."""
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 TARGET_MEDIAN_S = 0.6

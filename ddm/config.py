@@ -81,6 +81,9 @@ class DdmConfig:
     ev_closing_assumed_mps: float = 6.0
     """For timing the stop, an EV closes at least this fast (one that just switched its lights on is
     still accelerating: RELLIS EV 19 m/s vs AV 13.4 m/s)."""
+    let_faster_pass: bool = True
+    """No safe gap in lane 0 because a faster car is coming by there: keep speed and let it pass, then pull
+    over (issue 18); False: slow in lane for the gap (before issue 18)."""
     pull_over_hold_speed: bool = True
     """A pull-over keeps its speed until its lane change is done, then brakes to the stop (issue 18: an AV that
     brakes while still in the lane of an EV closing from behind brings the EV onto it sooner); False: brake

@@ -18,6 +18,8 @@ EV has passed):
   cycle; PULL_OVER once the gap opens while there is still time. Because of a slower car: no command,
   the AV keeps its speed past it (slowing would keep it beside that car and in the EV's way) and pulls
   over as soon as the gap behind the AV is safe.
+- ... no safe gap in lane 0 because of a slower car there: keep speed past it; of a faster one: keep speed and
+  let it pass (``let_faster_pass``, issue 18: slowing in the EV's lane brings the EV on sooner); then pull over.
 - ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late); if
   the EV then stops closing (it is held up behind the AV) and lane 0 has a gap, PULL_OVER after all.
 - ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
@@ -389,6 +391,12 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
             return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
                             **common)
+        if (cfg.let_faster_pass and gap.blocker_speed_mps is not None
+                and gap.blocker_speed_mps > v_e + cfg.min_closing_mps):
+            # issue 18 (e2e seed 6): slowing in the EV's lane for a faster car in lane 0 brings the EV onto
+            # the AV sooner; at its speed the faster car is by soon: keep speed, then pull over behind it
+            return Decision("none", f"{why}; keep speed: let the faster vehicle in lane 0 pass, then pull over: "
+                            f"{describe(t)}", **common)
         return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e}: {describe(t)}",
                         target_lane=lane_e, slow_because="gap", **common)
 

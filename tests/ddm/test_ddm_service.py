@@ -71,9 +71,25 @@ def test_alert_cleared_resumes():
     assert r.manoeuvres() == ["pull_over", "resume"]  # the objects still say nothing: no new yield
 
 
-def test_unsafe_gap_slows_in_lane_then_changes_when_gap_opens():
+def test_faster_car_in_lane_0_is_let_by_at_speed_then_pull_over():
+    """Issue 18 (e2e seed 6): no slowing in the EV's lane for a faster car in lane 0: keep speed, let it by."""
     cover = {"rsu1": (-150.0, 60.0), "rsu2": (40.0, 160.0), "rsu3": (140.0, 260.0), "rsu4": (240.0, 400.0)}
     r = Rig(coverage=cover)
+    r.add("av1", 20.0, 1, 13.4)
+    r.add("car2", 12.0, 0, 22.0)  # beside/behind the AV in lane 0, much faster
+    r.add("ev", -80.0, 1, 18.0, ev=True)
+    r.ev_alert_on = True
+    r.run(1.0, alert_every_s=0.5)
+    assert r.manoeuvres() == []  # no slow_in_lane
+    r.run(5.0, alert_every_s=0.5)
+    assert r.manoeuvres() == ["pull_over"] and "pull over" in r.commands[0].reason
+    assert r.cars["car2"].x - r.cars["av1"].x > 15.0  # the lane change started with the other car well ahead
+
+
+def test_unsafe_gap_slows_in_lane_then_changes_when_gap_opens():
+    """The rule before issue 18 (let_faster_pass off): slow in lane for the gap, change when it opens."""
+    cover = {"rsu1": (-150.0, 60.0), "rsu2": (40.0, 160.0), "rsu3": (140.0, 260.0), "rsu4": (240.0, 400.0)}
+    r = Rig(coverage=cover, config=DdmConfig(startup_listen_s=0.5, let_faster_pass=False))
     r.add("av1", 20.0, 1, 13.4)
     r.add("car2", 12.0, 0, 22.0)  # beside/behind the AV in lane 0, much faster
     r.add("ev", -80.0, 1, 18.0, ev=True)  # 100 m behind, closing 4.6 m/s: time to pass ~22 s
