@@ -26,10 +26,6 @@ from protocol.transport import BytesCallback, PresenceCallback, QueryHandler, Su
 
 log = logging.getLogger("protocol.transport")
 
-BULK_WORKER_NICE = 10
-"""Niceness of the thread that decodes bulk samples (snapshots, object lists): under CPU contention the
-network thread delivering a command is scheduled first (measured in bench/zenoh_bench.py)."""
-
 ENV_MODE = "IEA_ZENOH_MODE"
 ENV_CONNECT = "IEA_ZENOH_CONNECT"
 ENV_LISTEN = "IEA_ZENOH_LISTEN"
@@ -151,10 +147,6 @@ class ZenohTransport(Transport):
         sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
 
         def drain() -> None:
-            try:  # bulk work at a lower OS priority too (Linux: per thread), as on the wire
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BULK_WORKER_NICE)
-            except (OSError, AttributeError):  # not Linux, or not allowed: the ring alone
-                pass
             while True:
                 try:
                     sample = sub.handler.recv()
