@@ -178,7 +178,7 @@ def sink_child(args: argparse.Namespace) -> int:
     t.subscribe(keys.sim_world_key(c), lambda _k, _m: got.__setitem__("snapshots", got["snapshots"] + 1))
     t.subscribe(keys.rsu_key(c, "rsu1", "objects"), lambda _k, _m: got.__setitem__("objects", got["objects"] + 1))
     print("ready", flush=True)
-    time.sleep(args.duration_s + args.settle_s + 1.5)
+    time.sleep(args.duration_s + args.settle_s + 6.0)  # outlives the command sender (started after it, imports included)
     t.close()
     print(json.dumps({"latency_ms": lat_ms, "received": got, "commands": len(seqs)}), flush=True)
     return 0
