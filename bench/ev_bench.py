@@ -95,7 +95,6 @@ if str(ROOT) not in sys.path:
 
 from protocol.messages import AlertState  # noqa: E402
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
-from rsu.classify.ev import EvAlertManager  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
@@ -143,8 +142,7 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
         if pipe.learns_the_road:  # an RSU that has been running: MOG2 learnt the road from its own frames
             for _rid, image in warmup_frames(sc, {r.rsu_id: cam}):
                 pipe.learn_road(image)
-        clf = pipe.classifier
-        rsus.append((r.rsu_id, cam, pipe, clf, EvAlertManager()))
+        rsus.append((r.rsu_id, cam, pipe, pipe.classifier))
     zone = {r.rsu_id: (r.position, r.max_range_m) for r in corridor.rsus}
     lights_on_at = sc.ev.lights_on_at_s if sc.ev is not None else None
     ev_visible = defaultdict(float)           # (rsu, actor) -> seconds visible with lights on
@@ -163,14 +161,14 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
         world.step(dt)
         k += 1
         snap = world.snapshot()
-        for rsu_id, cam, pipe, clf, alerts in rsus:
+        for rsu_id, cam, pipe, clf in rsus:
             if keep_fraction < 1.0 and skip_rng.random() >= keep_fraction:
                 continue  # this RSU is still busy with an earlier frame: it never sees this one
             f = cam.render(snap)
             frame = Frame(f.image, f.timestamp_s, f.frame_number, rsu_id)
             t0 = time.perf_counter()
             result = pipe.process(frame)
-            events = alerts.update(frame.timestamp_s, result.objects, clf.evidence)
+            events = result.alerts
             t_pipe += time.perf_counter() - t0
             frames += 1
             need_labels = bool(events) or k % label_stride == 0

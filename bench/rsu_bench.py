@@ -64,7 +64,7 @@ from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import Frame as RsuFrame  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.localize import GroundProjector, Localizer  # noqa: E402
-from rsu.service import RsuPipeline  # noqa: E402
+from rsu.pipeline import RsuPipeline  # noqa: E402
 from rsu.track import SortTracker, iou_matrix  # noqa: E402
 from sim.camera_source import Frame, SimCamera  # noqa: E402
 from sim.render import MIN_VISIBLE_FRACTION  # noqa: E402

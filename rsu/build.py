@@ -27,7 +27,8 @@ from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, vehicle_detector
 from rsu.frames import FrameSource, ImageFolderSource, VideoSource
 from rsu.hazard import HazardDetector
 from rsu.localize import INTERPOLATIONS, METHODS, Localizer
-from rsu.service import RsuPipeline, RsuService
+from rsu.pipeline import RsuPipeline
+from rsu.service import RsuService
 from rsu.sim_source import SimSource
 from rsu.track import FrameworkTracker
 

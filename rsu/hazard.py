@@ -166,6 +166,9 @@ class HazardEvent:
     confidence: float
     first_seen_s: float
     bbox_px: tuple[float, float, float, float]
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    """Set by the pipeline (``rsu.pipeline.RsuPipeline``), from the corridor's origin."""
 
 
 @dataclass

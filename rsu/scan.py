@@ -1,8 +1,8 @@
 """``iea-rsu scan``: run a recorded clip through the RSU's EV recognition and say what it decided (issue 17).
 
 An operator checks a camera with it: which vehicles were recognised as emergency vehicles, when, and on
-which cues. :func:`scan_video` wires the pipeline as :class:`rsu.service.RsuService` does (detector ->
-SORT, Framework B -> :class:`~rsu.classify.ev.TrackEvClassifier` with the EV-body classifier ->
+which cues. :func:`scan_video` builds the RSU's pipeline (``rsu.build``: detector -> SORT, Framework B ->
+:class:`~rsu.classify.ev.TrackEvClassifier` with the EV-body classifier -> the pipeline's
 :class:`~rsu.classify.ev.EvAlertManager`), with no transport and no clock: frame times are the video's own.
 A recorded clip has no calibration in the corridor file, so the corridor localiser is replaced by
 :class:`ImageOnlyLocalizer`, which reports every track: the corridor's would drop the tracks it cannot put
@@ -33,10 +33,10 @@ import numpy as np
 
 from protocol.messages import AlertState, EvState, LightState
 from rsu.build import PipelineConfig, build_pipeline
-from rsu.classify.ev import EvAlertManager, TrackEvClassifier
+from rsu.classify.ev import TrackEvClassifier
 from rsu.frames import VideoSource
 from rsu.localize import LocalizedObject
-from rsu.service import FrameResult
+from rsu.pipeline import FrameResult
 from rsu.track import TrackSet
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -172,7 +172,6 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
     config = PipelineConfig(detector=str(detector_model), threads=threads, max_age=3, ev_body=body)
     pipeline = build_pipeline(config, localizer=ImageOnlyLocalizer())
     detector, clf = pipeline.detector, pipeline.classifier
-    manager = EvAlertManager()
     decisions: dict[int, TrackDecision] = {}
     first_seen: dict[int, float] = {}
     alerts: list[AlertRecord] = []
@@ -187,8 +186,8 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                 if max_s is not None and now > max_s:
                     break
                 result = pipeline.process(frame)
-                _record(now, result, clf, first_seen, decisions)
-                for e in manager.update(now, result.objects, clf.evidence):
+                _record(now, result, first_seen, decisions)
+                for e in result.alerts:
                     if e.state == AlertState.ACTIVE and e.track_id in active:
                         continue  # a 2 Hz refresh of an alert already raised
                     (active.add if e.state == AlertState.ACTIVE else active.discard)(e.track_id)
@@ -212,7 +211,7 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                       None if clf.body is None else str(body), tracks, alerts)
 
 
-def _record(now: float, result: FrameResult, clf: TrackEvClassifier, first_seen: dict[int, float],
+def _record(now: float, result: FrameResult, first_seen: dict[int, float],
             decisions: dict[int, TrackDecision]) -> None:
     """Update the decision of every track of this frame that is (or was) candidate or confirmed."""
     for obj in result.objects:
@@ -223,7 +222,7 @@ def _record(now: float, result: FrameResult, clf: TrackEvClassifier, first_seen:
             continue
         if d is None:
             d = decisions[tid] = TrackDecision(tid, EvState.CANDIDATE.value, first_seen[tid])
-        info = clf.evidence(tid)
+        info = _track_info(result, tid)
         ev = info.evidence if info is not None else None
         if obj.ev_state == EvState.CONFIRMED:
             d.state = EvState.CONFIRMED.value
@@ -238,6 +237,12 @@ def _record(now: float, result: FrameResult, clf: TrackEvClassifier, first_seen:
             d.handed_over_from = tuple(info.handed_over_from)
         d.last_seen_s = now
         d.last_box = tuple(float(v) for v in obj.bbox_px)
+
+
+def _track_info(result: FrameResult, track_id: int):
+    """The evidence record behind this frame's verdict on a track (None: no verdict, or none kept)."""
+    verdict = result.verdicts.get(track_id)
+    return verdict.track if verdict is not None else None
 
 
 def _open_writer(path: str | Path, fps: float | None, shape: tuple[int, ...]) -> cv2.VideoWriter:
@@ -256,7 +261,7 @@ def draw_scan(image: np.ndarray, result: FrameResult, clf: TrackEvClassifier, no
     states = {int(o.object_id): o.ev_state for o in result.objects}
     for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
         tid = int(tid)
-        info = clf.evidence(tid)
+        info = _track_info(result, tid)
         ev = info.evidence if info is not None else None
         state = states.get(tid) or (ev.state if ev is not None else EvState.NONE)
         colour = RED if state == EvState.CONFIRMED else GREEN

@@ -1,25 +1,16 @@
-"""RSU service (thesis 3.2-3.3, Framework B): frame source -> detector -> SORT -> (classifier) -> localiser
--> ``ObjectList`` every frame and ``Health`` at 1 Hz over a ``Transport``.
+"""RSU service (thesis 3.2-3.3, Framework B): frame source -> :class:`rsu.pipeline.RsuPipeline` (detector -> SORT
+-> classifier -> localiser -> EV alerts, hazards) -> ``ObjectList`` every frame, ``EvAlert`` / ``HazardAlert``
+when due and ``Health`` at 1 Hz over a ``Transport``.
 
-:class:`RsuPipeline` is the per-frame wiring of the pure cores (no I/O, no clock); :class:`RsuService`
-is the imperative shell: it pulls frames, times every stage, publishes, writes the optional annotated
+:class:`RsuService` is the imperative shell: it pulls frames, times every stage, publishes, writes the optional annotated
 video (boxes over the corridor's lanes, road edges, coverage limit and 10 m grid drawn through the
 camera: ``rsu.overlay.CalibrationOverlay``) and reports health. Frames never queue without bound: live
 sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
-Classifier hook: any callable ``(frame, tracks) -> {track_id: (ev_score, light_state | None[, ev_state])}``
-(:class:`rsu.classify.ev.TrackEvClassifier` plugs in here). With an ``ev_state`` an object is published
-as ``obj_type = ev`` while its state is ``confirmed``; without one, when ``ev_score >= ev_threshold``.
-
-EV alerts: when the hook also has ``evidence(track_id)`` (the track classifier), the service runs an
-:class:`rsu.classify.ev.EvAlertManager` on the frame times and publishes ``EvAlert`` on
-``iea/{c}/rsu/{rsu}/ev``: ``active`` when a track is confirmed, refreshed at 2 Hz, ``cleared`` when
-its lights go off or it has left the view for ``leave_after_s``. ``alert_id = f"{rsu_id}-ev-{track_id}"``.
-
-Hazards (issue 10): with a :class:`rsu.hazard.HazardDetector` (``RsuPipeline(hazards=...)``), static objects
-in a lane are published as ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``: ``appear``, ``persist`` at 1 Hz,
-``clear``; ``hazard_id = f"{rsu_id}-hz-{n}"``.
+EV alerts (the pipeline's alert events, when it has a classifier) are published as ``EvAlert`` on
+``iea/{c}/rsu/{rsu}/ev``, ``alert_id = f"{rsu_id}-ev-{track_id}"``; hazards (when it has a hazard detector) as
+``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``, ``hazard_id = f"{rsu_id}-hz-{n}"``.
 
 Signing (issue 9): with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
 Ed25519 signature (``protocol.security.SecureTransport`` wraps the transport).
@@ -36,8 +27,6 @@ import json
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -49,7 +38,6 @@ from protocol.corridor import Corridor
 from protocol.keys import rsu_key, rsu_state_key
 from protocol.messages import (
     AlertState,
-    DetectedObject,
     EvAlert,
     EvEvidence,
     EvState,
@@ -59,113 +47,17 @@ from protocol.messages import (
     HealthStatus,
     LightState,
     ObjectList,
-    ObjectType,
     Role,
 )
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
-from rsu.classify.ev import AlertEvent, EvAlertManager
-from rsu.detect import EV, Detector, MotionDetector
+from rsu.classify.ev import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
-from rsu.hazard import HazardDetector, HazardEvent
-from rsu.localize import LocalizedObject, Localizer
+from rsu.hazard import HazardEvent
 from rsu.overlay import CalibrationOverlay
-from rsu.track import FrameworkTracker, TrackSet
+from rsu.pipeline import STAGES, FrameResult, RsuPipeline, annotate
 
 log = logging.getLogger(__name__)
-
-Classifier = Callable[[Frame, TrackSet], dict[int, tuple]]
-STAGES = ("detect", "track", "classify", "localize", "hazard", "publish")
-
-
-@dataclass
-class FrameResult:
-    objects: list[DetectedObject]
-    tracks: TrackSet
-    localized: list[LocalizedObject]
-    stage_s: dict[str, float] = field(default_factory=dict)
-    hazards: list[HazardEvent] = field(default_factory=list)
-
-
-class RsuPipeline:
-    """Detector -> tracker -> classifier hook -> localiser for one camera; ``process(frame)`` per frame."""
-
-    def __init__(self, detector: Detector, tracker: FrameworkTracker, localizer: Localizer,
-                 classifier: Classifier | None = None, ev_threshold: float = 0.5,
-                 hazards: HazardDetector | None = None) -> None:
-        self.detector, self.tracker, self.localizer = detector, tracker, localizer
-        self.classifier = classifier
-        self.ev_threshold = ev_threshold
-        self.hazards = hazards
-
-    @property
-    def learns_the_road(self) -> bool:
-        """Does a model of the road learn from the frames (a motion detector's background, the hazard
-        detector's backgrounds)?"""
-        return isinstance(self.detector, MotionDetector) or self.hazards is not None
-
-    def learn_road(self, image: np.ndarray) -> None:
-        """A frame from before the watch starts (``sim.warmup``: an RSU that has been running): the road models
-        learn it; nothing is tracked or reported."""
-        if isinstance(self.detector, MotionDetector):
-            self.detector.detect(image)
-        if self.hazards is not None:
-            self.hazards.learn_background(image)
-
-    def process(self, frame: Frame) -> FrameResult:
-        stage_s: dict[str, float] = {}
-        t0 = time.perf_counter()
-        det = self.detector.detect(frame.image)
-        t1 = time.perf_counter()
-        tracks = self.tracker.update(det.boxes, det.scores, det.classes)
-        t2 = time.perf_counter()
-        ev = self.classifier(frame, tracks) if self.classifier is not None else {}
-        t3 = time.perf_counter()
-        localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
-        objects = [self._to_message(o, ev.get(o.track_id)) for o in localized]
-        t4 = time.perf_counter()
-        hazards = (self.hazards.update(frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,
-                                       {o.track_id: o.speed_mps for o in localized})
-                   if self.hazards is not None else [])
-        t5 = time.perf_counter()
-        stage_s.update(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3, hazard=t5 - t4)
-        return FrameResult(objects, tracks, localized, stage_s, hazards)
-
-    def _to_message(self, o: LocalizedObject, ev: tuple | None) -> DetectedObject:
-        ev_score = float(np.clip(ev[0], 0.0, 1.0)) if ev else 0.0
-        ev_state = EvState(ev[2]) if ev and len(ev) > 2 and ev[2] is not None else None
-        if ev_state is not None:
-            is_ev = ev_state == EvState.CONFIRMED
-        else:
-            is_ev = o.class_id == EV or ev_score >= self.ev_threshold
-        return DetectedObject(
-            object_id=o.track_id, pos_x_m=o.x_m, pos_y_m=o.y_m, lat_deg=o.lat_deg, lon_deg=o.lon_deg,
-            bbox_px=o.bbox_px, obj_type=ObjectType.EV if is_ev else ObjectType.VEHICLE,
-            obj_type_cfd=float(np.clip(o.score, 0.0, 1.0)), ev_score=ev_score,
-            ev_state=ev_state if ev_state is not None else (EvState.CONFIRMED if is_ev else EvState.NONE),
-            light_state=(ev[1] if ev and ev[1] is not None else LightState.UNKNOWN),
-            vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps, heading_rad=o.heading_rad,
-            pos_cov_m2=(max(o.pos_cov_m2[0], 0.0), o.pos_cov_m2[1], max(o.pos_cov_m2[2], 0.0)),
-            lane=o.lane, age_s=max(o.age_s, 0.0), hits=max(o.hits, 0),
-        )
-
-
-def annotate(image: np.ndarray, result: FrameResult) -> np.ndarray:
-    """Boxes, track ids and labels drawn on a copy of the frame (thesis Fig. 2.2 / 3.7)."""
-    out = image.copy()
-    by_id = {o.object_id: o for o in result.objects}
-    for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
-        obj = by_id.get(int(tid))
-        is_ev = obj is not None and obj.obj_type == ObjectType.EV
-        colour = (0, 0, 255) if is_ev else (0, 200, 0)
-        x1, y1, x2, y2 = (int(round(v)) for v in box)
-        cv2.rectangle(out, (x1, y1), (x2, y2), colour, 2)
-        label = f"{int(tid)} {'EV' if is_ev else 'veh'}"
-        if obj is not None:
-            label += f" {obj.speed_mps:.1f}m/s" + (f" L{obj.lane}" if obj.lane is not None else "")
-        cv2.putText(out, label, (x1, max(12, y1 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
-    return out
-
 
 class RsuService:
     """Runs one RSU until its source ends (or ``max_frames``/``stop()``); returns an exit code from ``run``."""
@@ -187,9 +79,6 @@ class RsuService:
         self.ev_key = rsu_key(cid, rsu_id, "ev")
         self.hazard_key = rsu_key(cid, rsu_id, "hazard")
         self.hazards_published = Counter()
-        evidence = getattr(pipeline.classifier, "evidence", None)
-        self._info_of = evidence if callable(evidence) else None
-        self.alerts = EvAlertManager() if self._info_of is not None else None
         self.alerts_published = Counter()
         self.annotate_path = annotate_path
         self.max_frames = max_frames
@@ -309,9 +198,8 @@ class RsuService:
                 if o.ev_state != EvState.NONE or o.light_state == LightState.FLASHING:
                     log.debug("frame %d t %.3f: track %d ev %s lights %s score %.2f", frame.frame_number,
                               frame.timestamp_s, o.object_id, o.ev_state, o.light_state, o.ev_score)
-        if self.alerts is not None:
-            for event in self.alerts.update(frame.timestamp_s, result.objects, self._info_of):
-                self._publish_alert(event)
+        for event in result.alerts:
+            self._publish_alert(event)
         for h in result.hazards:
             self._publish_hazard(h)
         if self.annotate_path:
@@ -346,10 +234,9 @@ class RsuService:
                  o.pos_x_m, "+".join(e.cues) or "-")
 
     def _publish_hazard(self, h: HazardEvent) -> None:
-        lat, lon = self.corridor.to_latlon(h.x_m, h.y_m)
         msg = HazardAlert(src=self.rsu_id, seq=self._seq["hazard"], stamp=max(self.clock.now(), 0.0),
                           hazard_id=f"{self.rsu_id}-hz-{h.hazard_id}", state=h.state, rsu_id=self.rsu_id,
-                          pos_x_m=h.x_m, pos_y_m=h.y_m, lat_deg=lat, lon_deg=lon, lane=h.lane,
+                          pos_x_m=h.x_m, pos_y_m=h.y_m, lat_deg=h.lat_deg, lon_deg=h.lon_deg, lane=h.lane,
                           length_m=max(h.length_m, 0.0), width_m=max(h.width_m, 0.0),
                           confidence=float(np.clip(h.confidence, 0.0, 1.0)), first_seen=max(h.first_seen_s, 0.0))
         self.transport.publish(self.hazard_key, msg)

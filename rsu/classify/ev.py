@@ -1,8 +1,8 @@
 """The RSU's EV classifier hook and EV alert logic (issue 5; Framework B, thesis 2.3-2.4).
 
 :class:`TrackEvClassifier` is the ``RsuPipeline`` classifier hook ``(frame, tracks) -> {track_id:
-(ev_score, light_state, ev_state)}``. It keeps one :class:`~rsu.classify.temporal.TrackEvidence` per
-track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
+EvVerdict}`` (:class:`EvVerdict`: ev_score, light_state, ev_state and the track's evidence record). It
+keeps one :class:`~rsu.classify.temporal.TrackEvidence` per track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
 (clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
 detector's box can cut the light bar off the roof; 0.25 by default, as the EV-body classifier was trained),
 optionally scores the same crop with the EV-body classifier (``body``, issue 17: only while the track shows
@@ -34,7 +34,7 @@ for ``leave_after_s`` (it left the view).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,6 +149,21 @@ class TrackInfo:
     """When the EV-body classifier last scored this track."""
 
 
+@dataclass(frozen=True)
+class EvVerdict:
+    """The classifier hook's answer for one track in one frame (``rsu.pipeline.Classifier``)."""
+
+    ev_score: float
+    """In [0, 1]."""
+    light_state: LightState | None = None
+    """None: unknown."""
+    ev_state: EvState | None = None
+    """None: the pipeline decides from ``ev_score`` and its threshold."""
+    track: TrackInfo | None = None
+    """The track's evidence record (read by :class:`EvAlertManager` and ``iea-rsu scan``); None for a hook that
+    keeps none."""
+
+
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -213,9 +228,6 @@ class TrackEvClassifier:
         self.max_tracks = max_tracks
         self.tracks: dict[int, TrackInfo] = {}
 
-    def evidence(self, track_id: int) -> TrackInfo | None:
-        return self.tracks.get(int(track_id))
-
     def crop_bounds(self, box, width: int, height: int) -> tuple[int, int, int, int] | None:
         """The track's crop: its box grown upwards by ``above_fraction`` (light bars sit on the roof, often
         outside a COCO "car" box), clipped to the image."""
@@ -272,10 +284,10 @@ class TrackEvClassifier:
         info.last_body_s = now_s
         return float(np.clip(self.body(crop), 0.0, 1.0))
 
-    def __call__(self, frame, tracks) -> dict[int, tuple[float, LightState, EvState]]:
+    def __call__(self, frame, tracks) -> dict[int, EvVerdict]:
         now = float(frame.timestamp_s)
         image = frame.image
-        out: dict[int, tuple[float, LightState, EvState]] = {}
+        out: dict[int, EvVerdict] = {}
         ids = [int(t) for t in tracks.track_ids]
         boxes = np.asarray(tracks.boxes, float).reshape(-1, 4)
         if self.handover_after_s > 0 and any(tid not in self.tracks for tid in ids):
@@ -302,7 +314,7 @@ class TrackEvClassifier:
                 occluders = [bounds[j] for j in np.flatnonzero(boxes[:, 3] > box[3]) if bounds[j] is not None]
                 lamps, bar, score, crop = self._measure(image, bounds[k], occluders)
                 state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar)
-            out[tid] = (ev.ev_score, ev.light_state, state)
+            out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)
         return out
 
@@ -382,13 +394,15 @@ class EvAlertManager:
     active: dict[int, _Active] = field(default_factory=dict)
 
     def update(self, now_s: float, objects: Iterable[DetectedObject],
-               info_of: Callable[[int], TrackInfo | None]) -> list[AlertEvent]:
+               verdicts: Mapping[int, EvVerdict]) -> list[AlertEvent]:
+        """``verdicts``: this frame's answers of the classifier hook, by track id (their evidence records)."""
         events: list[AlertEvent] = []
         seen: set[int] = set()
         for obj in objects:
             tid = int(obj.object_id)
             seen.add(tid)
-            info = info_of(tid)
+            verdict = verdicts.get(tid)
+            info = verdict.track if verdict is not None else None
             a = self.active.get(tid)
             if obj.ev_state == EvState.CONFIRMED:
                 ev = info.evidence if info is not None else None

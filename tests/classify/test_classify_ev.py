@@ -57,17 +57,18 @@ def test_clip_box_to_image():
 
 def test_flashing_light_bar_confirms_fast_and_the_red_car_never():
     _, states = run(int(6 * FPS))
-    first = next(t for t, out in states if out.get(1, (0, 0, EvState.NONE))[2] == EvState.CONFIRMED)
+    first = next(t for t, out in states if 1 in out and out[1].ev_state == EvState.CONFIRMED)
     assert 0.5 < first <= 0.5 + 0.6
-    assert all(out[2][2] != EvState.CONFIRMED for _, out in states)
-    score, light, state = states[-1][1][1]
+    assert all(out[2].ev_state != EvState.CONFIRMED for _, out in states)
+    v = states[-1][1][1]
+    score, light, state = v.ev_score, v.light_state, v.ev_state
     assert state == EvState.CONFIRMED and light == LightState.FLASHING and score > 0.9
-    assert states[-1][1][2][1] == LightState.OFF
+    assert states[-1][1][2].light_state == LightState.OFF
 
 
 def test_no_lights_no_confirmation():
     _, states = run(int(5 * FPS), lights_on_at=1e9)
-    assert all(s[2] != EvState.CONFIRMED for _, out in states for s in out.values())
+    assert all(s.ev_state != EvState.CONFIRMED for _, out in states for s in out.values())
 
 
 def test_crop_score_is_called_on_the_clipped_crop_and_alone_cannot_confirm():
@@ -81,7 +82,7 @@ def test_crop_score_is_called_on_the_clipped_crop_and_alone_cannot_confirm():
     _, states = run(int(3 * FPS), entries_of=lambda k: [(7, (100.0, 100.0, 180.0, 280.0))], clf=clf,
                     lights_on_at=1e9)
     assert seen and seen[0] == (185, 80, 3)  # the box grown 25 % (45 px) upwards, clipped at the bottom (y 240)
-    assert all(out[7][2] != EvState.CONFIRMED for _, out in states)
+    assert all(out[7].ev_state != EvState.CONFIRMED for _, out in states)
 
 
 def test_tracks_are_forgotten_when_gone():
@@ -106,7 +107,7 @@ def obj(tid, state, x=10.0):
 
 def test_alert_life_cycle_active_refresh_2hz_and_cleared_when_gone():
     m = EvAlertManager()
-    info = lambda tid: None  # noqa: E731
+    info = {}  # no evidence records
     events = []
     for k in range(60):  # 4 s at 15 fps: candidate, then confirmed from frame 5, gone from frame 40
         t = k / FPS
@@ -124,8 +125,8 @@ def test_alert_life_cycle_active_refresh_2hz_and_cleared_when_gone():
 
 def test_alert_cleared_when_the_evidence_clears():
     m = EvAlertManager()
-    ev1 = m.update(0.0, [obj(4, EvState.CONFIRMED)], lambda tid: None)
-    ev2 = m.update(0.1, [obj(4, EvState.CLEARED)], lambda tid: None)
+    ev1 = m.update(0.0, [obj(4, EvState.CONFIRMED)], {})
+    ev2 = m.update(0.1, [obj(4, EvState.CLEARED)], {})
     assert [e.state for e in ev1] == [AlertState.ACTIVE] and [e.state for e in ev2] == [AlertState.CLEARED]
 
 
@@ -140,10 +141,12 @@ def test_above_fraction_sees_a_light_bar_just_above_the_box():
 def test_boxes_too_small_to_resolve_a_light_bar_are_not_measured():
     small = (110.0, 100.0, 140.0, 125.0)  # 30 x 25 px, on the flashing bar
     clf, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)])
-    assert all(out[5] == (clf.tracks[5].evidence.ev_score, LightState.UNKNOWN, EvState.NONE) for _, out in states)
+    assert all((out[5].ev_score, out[5].light_state, out[5].ev_state) == (clf.tracks[5].evidence.ev_score,
+                                                                         LightState.UNKNOWN, EvState.NONE)
+               for _, out in states)
     assert clf.tracks[5].evidence.frames == 0
     _, states = run(int(3 * FPS), entries_of=lambda k: [(5, small)], clf=TrackEvClassifier(min_box_px=20))
-    assert states[-1][1][5][2] == EvState.CONFIRMED
+    assert states[-1][1][5].ev_state == EvState.CONFIRMED
 
 
 def moving_ev_scene(t, x0=40.0, speed_pxps=75.0, flash_frames=2, period_frames=7):
@@ -171,7 +174,7 @@ def run_fragmented(clf, n_frames=int(4 * FPS), visible=9, hidden=3, other_at=Non
         if other_at is not None and k >= other_at:
             entries.append((7, (500.0, 100.0, 580.0, 160.0)))
         out = clf(Frame(img, t, k, "cam"), tracks(entries))
-        confirmed += [(t, tid) for tid, v in out.items() if v[2] == EvState.CONFIRMED]
+        confirmed += [(t, tid) for tid, v in out.items() if v.ev_state == EvState.CONFIRMED]
     return confirmed
 
 

@@ -14,7 +14,8 @@ from rsu.build import PipelineConfig, build_classifier, build_tracker
 from rsu.detect import Detections
 from rsu.frames import ArraySource
 from rsu.localize import Localizer
-from rsu.service import RsuPipeline, RsuService
+from rsu.pipeline import RsuPipeline
+from rsu.service import RsuService
 
 CORRIDOR = load_corridor()
 FPS = 15.0

@@ -192,7 +192,8 @@ def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
     from protocol.transport import LocalBus
     from rsu.build import PipelineConfig, build_tracker
     from rsu.frames import ArraySource
-    from rsu.service import RsuPipeline, RsuService
+    from rsu.pipeline import RsuPipeline
+    from rsu.service import RsuService
 
     corridor, rsu, base, loc = scene
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])

@@ -19,9 +19,11 @@ from protocol.keys import all_rsus_expr, rsu_key
 from protocol.messages import Health, HealthStatus, ObjectList, ObjectType
 from protocol.transport import LocalBus, ZenohTransport
 from rsu.build import MOTION, PipelineConfig, build_detector, build_pipeline, build_tracker
+from rsu.classify.ev import EvVerdict
 from rsu.frames import ArraySource, Frame, SourceStalled
 from rsu.localize import Localizer
-from rsu.service import RsuPipeline, RsuService
+from rsu.pipeline import RsuPipeline
+from rsu.service import RsuService
 
 ROOT = Path(__file__).resolve().parents[2]
 CORRIDOR = load_corridor()
@@ -160,7 +162,8 @@ def test_classifier_hook_marks_ev_tracks():
     def classifier(frame, tracks):
         calls.append(frame.frame_number)
         # the left car (smaller x) is the EV with flashing lights
-        return {int(t): (0.9 if b[0] < 640 else 0.1, None) for t, b in zip(tracks.track_ids, tracks.boxes, strict=True)}
+        return {int(t): EvVerdict(0.9 if b[0] < 640 else 0.1) for t, b in zip(tracks.track_ids, tracks.boxes,
+                                                                             strict=True)}
 
     pipeline = RsuPipeline(build_detector(MOTION_RSU), build_tracker(MOTION_RSU), Localizer(CORRIDOR, "rsu1"),
                            classifier=classifier)
