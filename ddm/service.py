@@ -48,7 +48,7 @@ from collections import Counter, deque
 
 import numpy as np
 
-from ddm.catchup import catch_up_order, catch_up_queries, encode_state, state_document
+from ddm.catchup import CorridorPresence
 from ddm.commands import CommandManager, CommandState
 from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
@@ -79,7 +79,6 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
-from protocol.ranges import MAX_COUNT
 from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
 
@@ -130,7 +129,7 @@ def implausible_objects(msg: ObjectList) -> list[int]:
     return bad
 
 
-class DdmService:
+class DdmService(CorridorPresence):
     def __init__(self, transport: Transport, clock: Clock, corridor: Corridor, config: DdmConfig | None = None,
                  *, corridor_id: str | None = None, ddm_id: str = "ddm",
                  hazard_config: HazardConfig | None = None, signer: Signer | None = None,
@@ -203,88 +202,6 @@ class DdmService:
         ]
         if catch_up:
             self.catch_up()
-
-    # ------------------------------------------------------------------ presence, state, catch-up
-    def _on_presence(self, key: str, alive: bool) -> None:
-        now = self.clock.now()
-        with self._lock:
-            change = self.presence.update(key, alive, now)
-            if change is None:
-                return
-            role, node, up = change
-            if role == "rsu":
-                log.log(logging.INFO if up else logging.WARNING, "RSU %s %s (liveliness token)", node,
-                        "is up" if up else "is gone")
-                self._refresh_stale(now)
-            elif role == "vehicle" and not up:
-                log.warning("vehicle %s is gone (liveliness token lost): no decisions for it", node)
-
-    def _refresh_stale(self, now: float, publish: bool = True) -> bool:
-        """Stale RSUs: silent streams (``world.stale_rsus``) and lost tokens; log and publish changes."""
-        stale = set(self.world.stale_rsus(now)) | set(self.presence.lost("rsu"))
-        for r in sorted(stale - self.stale_now):
-            log.warning("RSU %s is stale (%s)", r, "token lost" if r in self.presence.lost("rsu")
-                        else f"no objects for > {self.config.rsu_stale_s:.2f} s")
-        for r in sorted(self.stale_now - stale):
-            log.info("RSU %s is alive again", r)
-        changed = stale != self.stale_now
-        self.stale_now = stale
-        self._stale_reported = stale
-        if changed and publish and self.last_health is not None:
-            self.publish_health(now)  # at once, not at the next 1 Hz beat
-        return changed
-
-    def _count_missed(self, key: str, seq: int) -> None:
-        """Sample-miss detection on the alert and ack streams: a gap in a publisher's ``seq``. The sum
-        saturates at ``MAX_COUNT``: a peer's seq jumps (each up to 2**53) must not make Health unpublishable
-        (found by fuzzing, issue 24)."""
-        last = self._last_seq.get(key)
-        self._last_seq[key] = seq
-        if last is not None and seq > last + 1:
-            name = "missed_alert_samples" if "/rsu/" in key else "missed_ack_samples"
-            self.counters[name] = min(MAX_COUNT, self.counters[name] + seq - last - 1)
-
-    def _answer_state(self, _query: str) -> list[tuple[str, bytes]]:
-        with self._lock:
-            doc = state_document(self, self.clock.now())
-        return [(ddm_state_key(self.corridor_id), encode_state(doc))]
-
-    def _answer_health(self, _query: str) -> list[tuple[str, bytes]]:
-        from protocol.codec import encode
-
-        h = self.last_health
-        return [] if h is None else [(self._health_key, encode(h))]
-
-    def catch_up(self, timeout_s: float = 0.5) -> int:
-        """Query what the corridor knows now (object lists, active alerts, vehicle states) and ingest it;
-        when every RSU of the corridor answered with objects, stop listening and decide at once."""
-        replies = []
-        try:
-            for expr in catch_up_queries(self.corridor_id):
-                replies += self.transport.query(expr, timeout_s)
-        except NotImplementedError:
-            return 0
-        ordered = catch_up_order(replies)
-        for key, msg in ordered:
-            topic = parse_key(key).topic
-            self.catch_up_replies[topic] = self.catch_up_replies.get(topic, 0) + 1
-            if parse_key(key).domain == "vehicle":
-                self._on_vehicle_state(key, msg)
-            else:
-                self._on_rsu(key, msg)
-        heard = {parse_key(k).node for k, m in ordered if isinstance(m, ObjectList)}
-        expected = {r.rsu_id for r in self.corridor.rsus}
-        if expected and expected <= heard:
-            now = self.clock.now()
-            with self._lock:
-                self.listen_until_s = min(self.listen_until_s, now)
-                self._decide_all(now)
-            log.info("caught up from %d replies (%s): deciding at once", len(ordered),
-                     ", ".join(f"{k}={v}" for k, v in sorted(self.catch_up_replies.items())))
-        elif ordered:
-            log.info("caught up from %d replies; RSUs not heard yet: %s", len(ordered),
-                     ", ".join(sorted(expected - heard)) or "-")
-        return len(ordered)
 
     # ------------------------------------------------------------------ inputs
     def _reject(self, reason: str, detail: str) -> None:
