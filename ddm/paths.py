@@ -130,8 +130,8 @@ def plan_stop_holding_speed(frame: RoadFrame, s0: float, d0: float, heading_erro
                             d_target: float, cfg: DdmConfig, *, stop_within_s: float | None = None,
                             max_stop_dist_m: float | None = None) -> PlannedPath | None:
     """Move to offset d_target at the current speed, then stop there (issue 18): the speed profile holds
-    ``speed_mps`` over the lane change and brakes after it at the comfort deceleration (raised up to
-    ``max_decel_mps2`` to stop within ``max_stop_dist_m``). With the EV's time to pass below
+    ``speed_mps`` over the lane change and brakes after it at the comfort deceleration; with a car ahead
+    (``max_stop_dist_m``) it holds as long as braking at up to ``max_decel_mps2`` still stops in the room. With the EV's time to pass below
     ``urgent_within_s`` the change steers at ``urgent_lat_accel_mps2`` (peak curvature 5.77 dd / L^2) without
     the ``lane_change_min_s`` floor. None when the room ahead is too short for that (``plan_stop`` then)."""
     v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
@@ -143,19 +143,23 @@ def plan_stop_holding_speed(frame: RoadFrame, s0: float, d0: float, heading_erro
         lc = max(cfg.lane_change_min_m, math.sqrt(QUINTIC_PEAK * abs(dd) / kappa) if dd else 0.0)
     else:
         lc = braking_lane_change_length(dd, v0, 0.0, kroad, cfg)
-    decel = cfg.comfort_decel_mps2
-    brake = max(5.0, v0 * v0 / (2.0 * decel))
+    hold = lc  # speed held this far, then braking to the stop
+    brake = max(5.0, v0 * v0 / (2.0 * cfg.comfort_decel_mps2))
     if max_stop_dist_m is not None and max_stop_dist_m > 0 and lc + brake > max_stop_dist_m:
-        room = max_stop_dist_m - lc
-        if room <= 5.0 or v0 * v0 / (2.0 * room) > cfg.max_decel_mps2:
+        # a car ahead in lane 0: stop within the room, braking as late as max_decel_mps2 allows (the
+        # braking may start before the change is over); the change itself must end 5 m before the stop
+        if max_stop_dist_m < lc + 5.0:
             return None
-        brake = room
-    stop_dist = lc + brake
+        brake = max(min(max_stop_dist_m - lc, v0 * v0 / (2.0 * cfg.comfort_decel_mps2)),
+                    v0 * v0 / (2.0 * cfg.max_decel_mps2))
+        hold = max(0.0, max_stop_dist_m - brake)
+        brake = max_stop_dist_m - hold
+    stop_dist = hold + brake
     decel = v0 * v0 / (2.0 * brake)
     s = _sample(s0, stop_dist + cfg.path_tail_m, cfg)
     rel = s - s0
     d = quintic_offset(rel / lc, d0, d_target, math.tan(heading_error_rad) * lc)
-    v = np.where(rel <= lc, v0, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * (rel - lc))))
+    v = np.where(rel <= hold, v0, np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * (rel - hold))))
     v[rel >= stop_dist - 1e-6] = 0.0
     sx, sy, _ = frame.road.pose_at(s0 + stop_dist, d_target)
     return _build(frame, s, d, v, 0.0, (float(sx), float(sy)), d_target, lc, stop_dist, decel)

@@ -214,9 +214,11 @@ class GapCheck(tuple):
     vehicle that makes the gap unsafe (None when the gap is safe)."""
 
     def __new__(cls, ok: bool, why: str, blocker_speed_mps: float | None = None,
-                room_ahead_m: float | None = None) -> GapCheck:
+                room_ahead_m: float | None = None, blocker_role: str | None = None) -> GapCheck:
         self = super().__new__(cls, (ok, why))
         self.blocker_speed_mps = blocker_speed_mps
+        self.blocker_role = blocker_role
+        """``leader`` or ``follower``: where the vehicle that makes the gap unsafe is (None when safe)."""
         self.room_ahead_m = room_ahead_m
         """``stopping`` checks: how far the AV may travel before it must be stopped behind the leader
         (None: no leader in the lane)."""
@@ -271,7 +273,8 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             need_m = min_stop_distance_m(frame.lane_width_m, ego_v, 0.0, cfg)
             if r < need_m or clearance < cfg.gap_min_m:
                 return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
-                                f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l)
+                                f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l,
+                                blocker_role="leader")
             room = r if room is None else min(room, r)
             worst = worst or f"room to stop in lane {target_lane}"
             continue
@@ -292,7 +295,7 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
                        cfg.gap_min_m + follower_stop_m - av_stop_m)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                            f"{clearance:.1f} m < {need:.1f} m needed", v_long)
+                            f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role)
         worst = worst or f"gaps in lane {target_lane} ok"
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
@@ -338,7 +341,8 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
     def pull_over_gap(t: Threat) -> tuple[bool, str]:
         lc = lane_change_length(frame.lane_centre_offset(0) - d_e, max(v_e, 2.0), 0.0, cfg)
         t_change = lc / max(v_e, 2.0)
-        v_after = max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
+        # a held-speed pull-over (issue 18) does not slow during the change
+        v_after = v_e if cfg.pull_over_hold_speed else max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
         return gap_check(s_e, v_e, v_after, ego.length_m, 0, traffic, frame, t_change, cfg, stopping=True)
 
     passing = {tid: dist for tid, dist in ahead.items() if dist < cfg.pass_margin_m}
@@ -391,12 +395,14 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
             return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
                             **common)
-        if (cfg.let_faster_pass and gap.blocker_speed_mps is not None
-                and gap.blocker_speed_mps > v_e + cfg.min_closing_mps):
-            # issue 18 (e2e seed 6): slowing in the EV's lane for a faster car in lane 0 brings the EV onto
-            # the AV sooner; at its speed the faster car is by soon: keep speed, then pull over behind it
-            return Decision("none", f"{why}; keep speed: let the faster vehicle in lane 0 pass, then pull over: "
-                            f"{describe(t)}", **common)
+        if cfg.let_faster_pass and gap.blocker_speed_mps is not None and (
+                gap.blocker_speed_mps > v_e + cfg.min_closing_mps or gap.blocker_role == "follower"):
+            # issue 18 (e2e seed 6): slowing in the EV's lane for a car in lane 0 brings the EV onto the AV
+            # sooner; a faster car is by soon, a follower at the AV's speed or slower (drivers slow for an
+            # EV) drops back: keep speed, then pull over
+            what = "the faster vehicle in lane 0 pass" if gap.blocker_speed_mps > v_e + cfg.min_closing_mps \
+                else "the vehicle behind in lane 0 pass or drop back"
+            return Decision("none", f"{why}; keep speed: let {what}, then pull over: {describe(t)}", **common)
         return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow in lane {lane_e}: {describe(t)}",
                         target_lane=lane_e, slow_because="gap", **common)
 
