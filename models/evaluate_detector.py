@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from rsu.detect import OnnxDetector
+from rsu.track import iou_matrix
 
 HELD_OUT_SEEDS = (900_001, 900_002)
 ZONE_M = 100.0
@@ -51,18 +52,6 @@ class HeldOutSet:
     names: list[str] = field(default_factory=list)
 
 
-def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of every box of a (N, 4) with every box of b (M, 4), xyxy."""
-    if len(a) == 0 or len(b) == 0:
-        return np.zeros((len(a), len(b)))
-    lt = np.maximum(a[:, None, :2], b[None, :, :2])
-    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = np.clip(rb - lt, 0, None).prod(-1)
-    area_a = (a[:, 2:] - a[:, :2]).prod(-1)
-    area_b = (b[:, 2:] - b[:, :2]).prod(-1)
-    return inter / np.maximum(area_a[:, None] + area_b[None] - inter, 1e-9)
-
-
 def average_precision(detections: list[tuple[np.ndarray, np.ndarray]], truths: list[tuple[np.ndarray, np.ndarray]],
                       iou_threshold: float = 0.5) -> tuple[float, int, float]:
     """VOC all-point AP for one class.
@@ -81,7 +70,8 @@ def average_precision(detections: list[tuple[np.ndarray, np.ndarray]], truths: l
     matched = [np.zeros(len(g), bool) for g, _ in truths]
     tp = np.zeros(len(recs))
     fp = np.zeros(len(recs))
-    ious = [iou_matrix(d, g) for (d, _), (g, _) in zip(detections, truths, strict=True)]
+    ious = [np.nan_to_num(iou_matrix(np.asarray(d, float).reshape(-1, 4), np.asarray(g, float).reshape(-1, 4)))
+            for (d, _), (g, _) in zip(detections, truths, strict=True)]
     for j, (_, img, k) in enumerate(recs):
         gboxes, difficult = truths[img]
         if len(gboxes) == 0:

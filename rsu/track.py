@@ -44,7 +44,6 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 DIM_X = 7
-DIM_Z = 4
 
 F = np.eye(DIM_X)
 F[0, 4] = F[1, 5] = F[2, 6] = 1.0
@@ -83,19 +82,8 @@ def block_to_full_covariance(p00: np.ndarray, p01: np.ndarray, p11: np.ndarray) 
     return full
 
 
-def boxes_to_z(boxes: np.ndarray) -> np.ndarray:
-    """(N, 4) xyxy boxes -> (N, 4) measurements [u, v, s, r] (s = w h: also the box area)."""
-    z = np.empty((len(boxes), 4))
-    wh = boxes[:, 2:4] - boxes[:, 0:2]
-    np.divide(wh, 2.0, out=z[:, 0:2])
-    z[:, 0:2] += boxes[:, 0:2]
-    np.multiply(wh[:, 0], wh[:, 1], out=z[:, 2])
-    np.divide(wh[:, 0], wh[:, 1], out=z[:, 3])
-    return z
-
-
 def _boxes_to_z_cm(boxes_cm: np.ndarray) -> np.ndarray:
-    """(4, N) coordinate-major xyxy boxes -> (4, N) measurements [u, v, s, r] (same arithmetic)."""
+    """(4, N) coordinate-major xyxy boxes -> (4, N) measurements [u, v, s, r] (s = w h: also the box area)."""
     z = np.empty_like(boxes_cm)
     wh = boxes_cm[2:4] - boxes_cm[0:2]
     np.divide(wh, 2.0, out=z[0:2])

@@ -16,11 +16,11 @@ from models.evaluate_detector import (
     ZONE_M,
     average_precision,
     evaluate,
-    iou_matrix,
     render_held_out,
     restrict,
 )
 from rsu.detect import PROJECT_CLASSES, OnnxDetector, yolox_grids
+from rsu.track import iou_matrix
 
 MODEL = Path(__file__).resolve().parents[2] / "models" / "iea_det_tiny.onnx"
 needs_model = pytest.mark.skipif(not MODEL.is_file(), reason=f"{MODEL} not built (make models)")
