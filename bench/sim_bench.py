@@ -27,6 +27,7 @@ from protocol.corridor import load_corridor  # noqa: E402
 from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot  # noqa: E402
 from sim.render import Renderer  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
+from sim.scenery import render_scenery  # noqa: E402
 from sim.vehicles import LIVERY_AMBULANCE, make_style, random_colour  # noqa: E402
 from sim.world import World  # noqa: E402
 
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         full.labels(s)
     figures["labels_per_s"] = len(snaps) / (time.perf_counter() - t0)
     t0 = time.perf_counter()
-    full._render_background("day")
+    render_scenery(full.cfg, full.cam, full.road, full.seed, "day")
     figures["background_build_s"] = time.perf_counter() - t0
 
     world = World(load_scenario("ev_two_lanes_dense"))

@@ -30,9 +30,17 @@ from pathlib import Path
 
 import cv2
 
-from sim.render import CLASS_EV, CLASS_NAMES, MIN_VISIBLE_FRACTION, Renderer, yolo_line
+from sim.render import CLASS_EV, CLASS_NAMES, MIN_VISIBLE_FRACTION, Label, Renderer
 from sim.scenario import Scenario, load_scenario
 from sim.world import World
+
+
+def yolo_line(label: Label, width_px: int, height_px: int) -> str:
+    """Darknet/YOLO label line ``class x_centre y_centre w h`` relative to the image (thesis 2.1)."""
+    x1, y1, x2, y2 = label.bbox_px
+    return (f"{label.class_id} {(x1 + x2) / 2 / width_px:.6f} {(y1 + y2) / 2 / height_px:.6f} "
+            f"{(x2 - x1) / width_px:.6f} {(y2 - y1) / height_px:.6f}")
+
 
 WORLD_DT_S = 0.05
 LIGHTING_CYCLE = ("day", "dusk", "night")

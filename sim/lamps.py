@@ -53,7 +53,7 @@ FRONT_LAMPS = {
     "truck": (2, (0.02, 0.12), (0.05, 0.2)),
     "bus": (1, (0.02, 0.1), (0.1, 0.28)),
 }
-"""Per body kind: the part whose front face carries the front corner lamps (``render._body_parts``), the
+"""Per body kind: the part whose front face carries the front corner lamps (``sim.bodies.body_parts``), the
 u range of the left one seen from outside (the vehicle's right corner; mirrored for the other) and v."""
 
 
@@ -97,7 +97,7 @@ def signal_on(style: int, t_s: float) -> bool:
 
 def signal_decals(kind: str, style: int, tails: Iterable[tuple[int, float, float, float, float]]) -> list[tuple]:
     """Decal fields ``(part, face, u0, u1, v0, v1, colour, lamp)`` of a vehicle's signal lamps, from its
-    tail lights ``(part, u0, u1, v0, v1)`` on the rear face (render._body_parts)."""
+    tail lights ``(part, u0, u1, v0, v1)`` on the rear face (sim.bodies.body_parts)."""
     sig = style_signal(style)
     if sig is None or kind not in FRONT_LAMPS:
         return []

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from protocol.messages import Actor, ActorKind, Lighting, WorldSnapshot
+from sim.bodies import face_points
 from sim.lamps import (
     DUTY,
     FREQ_MAX_HZ,
@@ -15,7 +16,7 @@ from sim.lamps import (
     style_signal,
     with_signal_lamps,
 )
-from sim.render import CLASS_VEHICLE, Renderer, _face_points
+from sim.render import CLASS_VEHICLE, Renderer
 from sim.scenario import ScenarioError, load_scenario, parse_scenario
 from sim.vehicles import LIVERY_TWO_TONE, make_style, style_detail, style_livery
 from sim.world import World
@@ -36,7 +37,7 @@ def lamp_pixels(r: Renderer, a: Actor, lamp: str, face: str) -> list[tuple[int, 
     out = []
     for dc in decals:
         if dc.lamp == lamp and dc.face == face:
-            uv, _ = r.cam.project(_face_points(corners[dc.part], face, dc.u0, dc.u1, dc.v0, dc.v1).mean(axis=0,
+            uv, _ = r.cam.project(face_points(corners[dc.part], face, dc.u0, dc.u1, dc.v0, dc.v1).mean(axis=0,
                                                                                                       keepdims=True))
             out.append((int(round(uv[0, 0])), int(round(uv[0, 1]))))
     return sorted(out)
@@ -45,7 +46,7 @@ def lamp_pixels(r: Renderer, a: Actor, lamp: str, face: str) -> list[tuple[int, 
 def face_x_range(r: Renderer, a: Actor, part: int, face: str) -> tuple[float, float]:
     """Image x extent of a face of one of the actor's parts."""
     _parts, _decals, corners, _uv, _depth, _rot = r._actor_geometry(a)
-    uv, _ = r.cam.project(_face_points(corners[part], face, 0.0, 1.0, 0.0, 1.0))
+    uv, _ = r.cam.project(face_points(corners[part], face, 0.0, 1.0, 0.0, 1.0))
     return float(uv[:, 0].min()), float(uv[:, 0].max())
 
 

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot
-from sim.render import CLASS_EV, CLASS_VEHICLE, MIN_VISIBLE_FRACTION, Renderer, ev_lamps_on, yolo_line
+from sim.bodies import ev_lamps_on
+from sim.dataset import yolo_line
+from sim.render import CLASS_EV, CLASS_VEHICLE, MIN_VISIBLE_FRACTION, Renderer
 from sim.scenario import load_scenario
 from sim.vehicles import LIVERY_AMBULANCE, make_style
 from sim.world import World

@@ -1,0 +1,156 @@
+"""The watched road and the dual background of the hazard detector (Porikli, Ivanov, Haga 2008; see ``rsu.hazard``):
+:func:`road_mask` (the pixels that see the carriageway) and :class:`StaticForeground` (long- and short-term
+backgrounds, the static-evidence image, ghosts)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from protocol.corridor import CameraConfig, Road
+from rsu.hazard.config import HazardConfig
+
+
+def road_mask(camera: CameraConfig, road: Road, scale: float = 1.0, *, right_margin_m: float | None = None,
+              left_margin_m: float = 1.0, step_m: float = 2.0, min_depth_m: float = 2.0,
+              max_range_m: float = 120.0) -> np.ndarray:
+    """bool (h, w) mask at ``scale`` of the pixels that see the carriageway and its margins: every
+    road piece of ``step_m`` from the right shoulder edge (``right_margin_m`` right of lane 0, default
+    the shoulder width) to ``left_margin_m`` left of the last lane, at most ``max_range_m`` from the
+    camera, projected with the camera model."""
+    h, w = int(round(camera.height_px * scale)), int(round(camera.width_px * scale))
+    mask = np.zeros((h, w), np.uint8)
+    d0 = -(road.shoulder_width_m if right_margin_m is None else right_margin_m)
+    d1 = road.lanes * road.lane_width_m + left_margin_m
+    s = np.arange(0.0, road.length_m + step_m, step_m)
+    s = np.minimum(s, road.length_m)
+    r = camera.rotation_world_to_camera
+    k = camera.intrinsic_matrix
+    edges = []
+    for d in (d0, d1):
+        x, y, _ = road.pose_at(s, d)
+        pc = (r @ (np.column_stack([x, y, np.zeros_like(x)]) - camera.centre_world).T).T
+        edges.append(pc)
+    for i in range(len(s) - 1):
+        quad = np.array([edges[0][i], edges[0][i + 1], edges[1][i + 1], edges[1][i]])
+        if np.any(quad[:, 2] < min_depth_m) or np.any(np.linalg.norm(quad, axis=1) > max_range_m):
+            continue
+        uv = (k @ quad.T).T
+        uv = uv[:, :2] / uv[:, 2:3] * scale
+        if np.all(uv[:, 0] < -w) or np.all(uv[:, 0] > 2 * w) or np.all(uv[:, 1] < -h) or np.all(uv[:, 1] > 2 * h):
+            continue
+        cv2.fillConvexPoly(mask, np.round(uv * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+    return mask.astype(bool)
+
+
+class StaticForeground:
+    """The dual background and the static-evidence image (see the module docstring). Working scale."""
+
+    def __init__(self, config: HazardConfig, roi: np.ndarray | None = None) -> None:
+        self.cfg = config
+        self.roi = roi
+        """bool mask at working scale of the pixels watched (the road); None: all."""
+        self.long_bg: np.ndarray | None = None
+        self.short_bg: np.ndarray | None = None
+        self.evidence: np.ndarray | None = None
+        self._init: list[np.ndarray] = []
+        self._seen = 0
+        self.last_static: np.ndarray | None = None
+        self.last_frame: np.ndarray | None = None
+
+    @property
+    def ready(self) -> bool:
+        return self.long_bg is not None
+
+    def small(self, image: np.ndarray) -> np.ndarray:
+        s = self.cfg.scale
+        return image if s == 1.0 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+
+    def prime(self, small: np.ndarray) -> None:
+        """Take a frame of the empty road as both backgrounds (an RSU that has been running)."""
+        f = small.astype(np.float32)
+        self.long_bg, self.short_bg = f.copy(), f.copy()
+        self.evidence = np.zeros(f.shape[:2], np.int16)
+        self._init = []
+
+    def update(self, small: np.ndarray, hold: np.ndarray | None = None) -> bool:
+        """One frame at working scale (uint8 BGR or grey); ``hold``: bool mask of pixels covered by
+        vehicles (evidence unchanged there). Returns False while initialising or on a skipped frame."""
+        cfg = self.cfg
+        f = small.astype(np.float32)
+        self._seen += 1
+        if self.long_bg is None:
+            if (self._seen - 1) % cfg.init_stride == 0:
+                self._init.append(f)
+            if self.short_bg is None:
+                self.short_bg = f.copy()
+            else:
+                cv2.accumulateWeighted(f, self.short_bg, cfg.short_alpha)
+            if len(self._init) >= cfg.init_frames:
+                self.long_bg = np.median(np.stack(self._init), axis=0).astype(np.float32)
+                self.evidence = np.zeros(f.shape[:2], np.int16)
+                self._init = []
+            return False
+        d_long = cv2.absdiff(f, self.long_bg)
+        d_short = cv2.absdiff(f, self.short_bg)
+        if d_long.ndim == 3:
+            d_long, d_short = _channel_max(d_long), _channel_max(d_short)
+        fg_long = d_long > cfg.diff_threshold
+        cv2.accumulateWeighted(f, self.short_bg, cfg.short_alpha)
+        if np.count_nonzero(fg_long) > cfg.max_foreground_fraction * fg_long.size:
+            return False
+        stable = d_short < cfg.stable_threshold
+        static = fg_long & stable
+        static = cv2.morphologyEx(static.astype(np.uint8), cv2.MORPH_OPEN, np.ones((2, 2), np.uint8)).astype(bool)
+        free = np.ones_like(static) if hold is None else ~hold
+        if self.roi is not None:
+            static &= self.roi
+        e = self.evidence
+        e[static & free] += 1
+        e[~fg_long & free] -= cfg.decay
+        np.clip(e, 0, cfg.evidence_max, out=e)
+        learn = ((~fg_long) & (e == 0)).view(np.uint8)
+        cv2.accumulateWeighted(f, self.long_bg, cfg.long_alpha, mask=learn)
+        self.last_static = static
+        self.last_frame = f
+        return True
+
+    def is_ghost(self, x: int, y: int, sel: np.ndarray) -> bool:
+        """Edge test of a component (``sel`` at offset x, y, working scale): more edge on its outline in
+        the long-term background than in the frame means the object is in the background, not the frame."""
+        h, w = sel.shape
+        pad = 3
+        H, W = self.evidence.shape
+        x0, y0, x1, y1 = max(0, x - pad), max(0, y - pad), min(W, x + w + pad), min(H, y + h + pad)
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        mask[y - y0:y - y0 + h, x - x0:x - x0 + w] = sel
+        k = np.ones((3, 3), np.uint8)
+        ring = cv2.dilate(mask, k).astype(bool) & ~cv2.erode(mask, k).astype(bool)
+        if not ring.any():
+            return False
+
+        def edge(img: np.ndarray) -> float:
+            g = img[y0:y1, x0:x1]
+            g = cv2.cvtColor(g, cv2.COLOR_BGR2GRAY) if g.ndim == 3 else g
+            mag = np.abs(cv2.Sobel(g, cv2.CV_32F, 1, 0)) + np.abs(cv2.Sobel(g, cv2.CV_32F, 0, 1))
+            return float(mag[ring].mean())
+
+        return edge(self.long_bg) > self.cfg.ghost_edge_ratio * edge(self.last_frame)
+
+    def absorb(self, x: int, y: int, sel: np.ndarray) -> None:
+        """Take the frame's pixels of a component into the long-term background and forget their evidence."""
+        h, w = sel.shape
+        region = (slice(y, y + h), slice(x, x + w))
+        self.long_bg[region][sel] = self.last_frame[region][sel]
+        self.evidence[region][sel] = 0
+
+
+
+def _channel_max(img: np.ndarray) -> np.ndarray:
+    """Largest channel of an (h, w, c) image (cv2: numpy's reduction over the last axis is slow)."""
+    ch = cv2.split(img)
+    out = ch[0]
+    for c in ch[1:]:
+        out = cv2.max(out, c)
+    return out
+

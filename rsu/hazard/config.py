@@ -1,0 +1,124 @@
+"""Settings of the hazard detector (``HazardConfig``) and what it reports (``HazardEvent``); see ``rsu.hazard``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.messages import HazardState
+
+ToGround = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""(N, 2) pixels (u, v) -> ((N, 2) ground x, y; (N,) valid)."""
+
+
+@dataclass(frozen=True)
+class HazardConfig:
+    scale: float = 0.5
+    """Working scale of the background models (1280x720 -> 640x360)."""
+    init_frames: int = 9
+    init_stride: int = 8
+    """Long-term background: median of ``init_frames`` frames taken every ``init_stride`` frames
+    (9 x 8 frames = 4.8 s at 15 fps; a car at 10 m/s moves 48 m meanwhile)."""
+    long_alpha: float = 0.002
+    """Long-term learning rate per frame (time constant 500 frames = 33 s at 15 fps)."""
+    short_alpha: float = 0.25
+    """Short-term learning rate (time constant 4 frames)."""
+    diff_threshold: float = 28.0
+    """Largest channel difference (0-255) from the long-term background that makes a pixel foreground
+    (sensor noise in the renders is ~3 levels; asphalt texture under blur ~8)."""
+    stable_threshold: float = 10.0
+    """Largest channel difference from the short-term background of a still pixel."""
+    on_frames: int = 15
+    """A new hazard needs pixels static for this many frames (1 s at 15 fps)."""
+    off_frames: int = 5
+    """... and stays while its pixels keep at least this much evidence (hysteresis)."""
+    evidence_max: int = 60
+    """Evidence saturates here: a removed object's pixels decay back below ``off_frames`` in
+    (evidence_max - off_frames) / decay frames."""
+    decay: int = 3
+    on_pixels_min: int = 12
+    """Pixels (working scale) with E >= on_frames that a new hazard needs (a 0.5 m object at 80 m is
+    about 4 x 3 working pixels; at 20 m about 15 x 10)."""
+    min_area_px: int = 10
+    """Smallest component (working-scale pixels) considered at all."""
+    moved_px: float = 12.0
+    moved_fraction: float = 0.25
+    moving_speed_mps: float = 2.0
+    moving_frames: int = 5
+    """... or whose localised speed (when the caller gives speeds) was at least ``moving_speed_mps`` for
+    ``moving_frames`` frames in a row (a slow car far away moves a few pixels a second)."""
+    """A track whose box centre moved more than ``moved_px`` (full-scale pixels) and this fraction of its
+    smaller box side since it began is a vehicle (a car entering at the image edge grows from the edge:
+    its centre moves though its bottom stays on the border)."""
+    min_parked_width_m: float = 1.2
+    """A stopped track's region is parked only if its box's bottom edge spans at least this on the road
+    (vehicle-sized), so a box of debris that a detector tracked is never masked for long."""
+    max_vehicle_overlap: float = 0.5
+    """A new hazard must have less than this fraction of its pixels inside held vehicle regions."""
+    vehicle_margin_px: float = 4.0
+    stop_window_s: float = 1.5
+    stop_px: float = 4.0
+    stop_check_s: float = 0.5
+    slow_fraction: float = 0.5
+    """A moved track whose bottom-centre moved less than ``stop_px`` or this fraction of its box height
+    over the last ``stop_check_s`` is slow or stopped: new tracks born inside its region are fragments
+    of it, and when the track ends its region is parked."""
+    vehicle_grow: float = 0.2
+    """A vehicle's held region is the union of its boxes over ``stop_window_s`` grown by this fraction
+    of its box size on every side."""
+    parked_hold_s: float = 120.0
+    """A stopped vehicle's region is held at most this long after its track ended."""
+    parked_release_fraction: float = 0.25
+    """... and released once less than this fraction of it is static foreground (it drove off)."""
+    min_width_m: float = 0.2
+    """Narrower static components (a sliver along a lane line, a shadow edge) are not reported."""
+    max_width_m: float = 3.0
+    """Wider static components are not debris (and not a lane-blocking object one lane can pass)."""
+    max_length_m: float = 6.0
+    """Longer static components are not debris (a slow car far away smears to ~7 m)."""
+    match_m: float = 2.0
+    """A component within this distance of a known hazard (or overlapping its box) is that hazard."""
+    clear_after_s: float = 1.0
+    persist_period_s: float = 1.0
+    position_smoothing: float = 0.2
+    """Exponential smoothing weight of a new measurement of a known hazard's position and size."""
+    max_range_m: float = 120.0
+    """Road farther than this from the camera is not watched (a 0.5 m object there is ~3 pixels)."""
+    ghost_edge_ratio: float = 1.2
+    """A new static component whose outline has more edge (Sobel) in the long-term background than in
+    the frame is a ghost (something that was there when the background was learnt has left): it is
+    absorbed into the background instead of reported."""
+    max_foreground_fraction: float = 0.4
+    """A frame whose long-term foreground exceeds this (exposure jump, camera moved) is skipped."""
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.scale <= 1.0:
+            raise ValueError(f"scale must be in [0.05, 1], got {self.scale}")
+        if not 0 < self.off_frames <= self.on_frames <= self.evidence_max:
+            raise ValueError("need 0 < off_frames <= on_frames <= evidence_max")
+        if not (0 < self.long_alpha < 1 and 0 < self.short_alpha <= 1):
+            raise ValueError("learning rates must be in (0, 1]")
+        if self.init_frames < 1 or self.init_stride < 1 or self.decay < 1:
+            raise ValueError("init_frames, init_stride and decay must be >= 1")
+
+
+@dataclass(frozen=True)
+class HazardEvent:
+    """One life-cycle event of a hazard seen by this camera (corridor frame, metres)."""
+
+    hazard_id: int
+    state: HazardState
+    x_m: float
+    y_m: float
+    lane: int | None
+    length_m: float
+    width_m: float
+    confidence: float
+    first_seen_s: float
+    bbox_px: tuple[float, float, float, float]
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    """Set by the pipeline (``rsu.pipeline.RsuPipeline``), from the corridor's origin."""
+
