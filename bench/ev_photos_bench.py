@@ -37,8 +37,6 @@ from rsu.classify.temporal import EvidenceConfig, measure_lamps  # noqa: E402
 from rsu.detect import OnnxDetector  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
-if not REAL.is_dir():
-    REAL = Path("/work/shared/data/real")
 
 
 class LampRule:
