@@ -72,26 +72,19 @@ held-out runs (``python bench/ev_bench.py --json``, 2-core machine shared with o
 
 from __future__ import annotations
 
-import os
+from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import os
 import statistics  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from collections import Counter, defaultdict  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 from protocol.messages import AlertState  # noqa: E402
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402

@@ -14,11 +14,9 @@ App. A) and ms per crop; with ``--json`` the last line is one JSON object of the
 
 from __future__ import annotations
 
-import os
+from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -26,10 +24,6 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402

@@ -32,11 +32,9 @@ so those figures count every track, not only the ones another camera's geometry 
 
 from __future__ import annotations
 
-import os
+from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -44,10 +42,6 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 from rsu.classify.body import load_body_classifier  # noqa: E402
 from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # noqa: E402

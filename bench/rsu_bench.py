@@ -32,26 +32,18 @@ With ``--json`` the last line is one JSON object of the figures.
 
 from __future__ import annotations
 
-import os
+from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Iterable  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-from dataclasses import dataclass, replace  # noqa: E402
 
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort  # noqa: E402
 from models.evaluate_detector import ZONE_M  # noqa: E402
