@@ -31,8 +31,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from protocol.corridor import load_corridor  # noqa: E402
-from rsu.calibration import SurveyPoint, ground_points, project, solve_camera  # noqa: E402
+from rsu.calibration import SurveyPoint, solve_camera  # noqa: E402
 from rsu.calibration_error import error_table, format_error_table  # noqa: E402
+from rsu.camera_geometry import ground_points, project  # noqa: E402
 
 SPREAD_PX = [(100, 660), (1180, 660), (250, 450), (1030, 450), (400, 300), (880, 300), (560, 230), (720, 230)]
 """Pixels of the 8 surveyed points on the 1280x720 rsu1 view (their ground points are the truth)."""

@@ -23,14 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.corridor import Road
-from rsu.calibration import (
-    CalibrationError,
-    CameraSolution,
-    SurveyPoint,
-    ground_points,
-    project,
-    solve_camera,
-)
+from rsu.calibration import CalibrationError, CameraSolution, SurveyPoint, solve_camera
+from rsu.camera_geometry import ground_points, project
 
 GROUND_TOLERANCE_M = 0.05
 """Pairs within this height of the road plane count as road-plane pairs (the corridor's calibration)."""

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from protocol.corridor import CameraConfig, Road
-from rsu.calibration import project
+from rsu.camera_geometry import project
 
 GRID = (110, 110, 110)
 LANE = (255, 255, 0)

@@ -12,15 +12,9 @@ import numpy as np
 import pytest
 
 from protocol.corridor import load_corridor, parse_corridor
-from rsu.calibration import (
-    CalibrationError,
-    SurveyPoint,
-    ground_points,
-    project,
-    read_points_csv,
-    solve_camera,
-)
+from rsu.calibration import CalibrationError, SurveyPoint, read_points_csv, solve_camera
 from rsu.calibration_error import error_table
+from rsu.camera_geometry import ground_points, project
 from rsu.overlay import CalibrationOverlay, OverlayPoint, check_image
 
 ROOT = Path(__file__).resolve().parents[2]
