@@ -12,6 +12,8 @@
     iea demo                    run the main scenario end to end (what `make demo` runs)
     iea scenario run NAME       run any scenario end to end (--inprocess --fast: lockstep, faster than real time)
     iea up                      the compose topology as local processes around one router
+    iea record --out run.mcap   every key of a running corridor into an MCAP file
+    iea replay run.mcap         republish a recording (--speed X, --keys EXPR)
 """
 
 from __future__ import annotations
@@ -318,6 +320,18 @@ def _up(argv: list[str]) -> int:
     return up.main(argv)
 
 
+def _record(argv: list[str]) -> int:
+    from deploy import record
+
+    return record.main(argv)
+
+
+def _replay(argv: list[str]) -> int:
+    from deploy import replay
+
+    return replay.main(argv)
+
+
 def _scenario(argv: list[str]) -> int:
     from deploy.lockstep import scenario_main
 
@@ -339,6 +353,8 @@ def main(argv: list[str] | None = None) -> int:
         "health": ("check a running service's Health (docker-compose health check)", _health),
         "status": ("every service of a running corridor as one table (iea status --corridor-id ID)", _status),
         "up": ("router + every service as local processes (no Docker)", _up),
+        "record": ("record every key of a corridor to MCAP (iea record --out run.mcap)", _record),
+        "replay": ("republish an MCAP recording (iea replay run.mcap [--speed X] [--keys EXPR])", _replay),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]

@@ -233,7 +233,7 @@ def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]
 
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
              corridor_id: str | None = None, quiet: bool = False, detector: str = "project",
-             seed: int | None = None, signed: bool = True) -> dict[str, Any]:
+             seed: int | None = None, signed: bool = True, record: bool = True) -> dict[str, Any]:
     from protocol import keys
     from protocol.transport import ZenohTransport
     from sim.scenario import load_scenario
@@ -250,6 +250,13 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     monitor = RunMonitor(cid, road=corridor.road)
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
+    recorder = None
+    if record:  # every key as it went on the wire, for `iea replay` and log viewers (issue 22)
+        from deploy.record import McapRecorder
+
+        recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario})
+        transport.subscribe_bytes(keys.corridor_expr(cid), recorder.on_bytes)
+        say(f"[demo] recording every key to {run_dir / 'run.mcap'} (--no-record: off)")
     common: list[str] = []
     key_args: dict[str, list[str]] = {}
     if signed:
@@ -292,6 +299,8 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     finally:
         group.stop_all()
         transport.close()
+        if recorder is not None:
+            recorder.close()
 
     metrics = monitor.metrics()
     first = metrics.get("first_alert_rsu")
@@ -350,8 +359,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="RSU detector: 'project' (models/iea_det_tiny.onnx, default), 'motion' (MOG2) or an ONNX path")
     ap.add_argument("--runs", default=str(ROOT / "runs"), help="where run folders go")
     ap.add_argument("--unsigned", action="store_true", help="no signatures (default: throwaway keys, signed)")
+    ap.add_argument("--no-record", action="store_true",
+                    help="do not record the run (default: every key to <run folder>/run.mcap; `iea replay` it)")
     args = ap.parse_args(argv)
-    m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector, signed=not args.unsigned)
+    m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector, signed=not args.unsigned,
+                 record=not args.no_record)
     print_summary(m)
     from deploy.outcome import judge_run
     from sim.scenario import load_scenario

@@ -79,6 +79,8 @@ class LockstepConfig:
     warmup_s: float = WARMUP_S
     """Before scenario time 0 the motion and hazard detectors learn their background from this many seconds
     of each camera's own frames of the road with traffic (``sim.warmup``): no picture of the empty road."""
+    record_mcap: Path | None = None
+    """Record every key of the bus to this MCAP file (``deploy.record``; receive time: the simulated clock)."""
 
 
 class _Task:
@@ -111,6 +113,14 @@ class CorridorLockstep:
         self.bus = LocalBus()
         self.monitor = RunMonitor(self.corridor_id, vehicle_id=self.vehicle_id or "av1", road=corridor.road)
         self._monitor_sub = self.bus.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
+        self.recorder = None
+        if cfg.record_mcap is not None:  # subscribed before any service: it sees each message before they act on it
+            from deploy.record import McapRecorder
+
+            self.recorder = McapRecorder(cfg.record_mcap, clock=self.clock.now,
+                                         metadata={"corridor_id": self.corridor_id, "scenario": sc.name,
+                                                   "seed": str(sc.seed), "mode": "lockstep"})
+            self.bus.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         self.sim = SimService(sc, self.bus, self.clock, seed=sc.seed)
         self.sim.close_subscription()  # the AV's pose comes from its plant (below), not over the radio
         self._tasks: list[_Task] = []
@@ -265,6 +275,8 @@ class CorridorLockstep:
     def finish(self) -> dict[str, Any]:
         for svc in self.rsus.values():
             svc.close_outputs()
+        if self.recorder is not None:
+            self.recorder.close()
         m = self.monitor.metrics()
         m["scenario"] = self.scenario.name
         m["seed"] = self.scenario.seed
@@ -335,7 +347,8 @@ def scenario_main(argv: list[str] | None = None) -> int:
     if args.inprocess:
         run_dir = runs / f"scenario-{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
         cfg = LockstepConfig(scenario=sc.name, seed=args.seed, duration_s=args.duration_s, detector=args.detector,
-                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast)
+                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast,
+                             record_mcap=run_dir / "run.mcap")
         print(f"[scenario] {sc.name} seed {sc.seed} in lockstep ({'fast' if args.fast else 'real time'}); "
               f"run folder {run_dir}", flush=True)
         runner = CorridorLockstep(cfg, scenario=sc)

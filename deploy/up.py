@@ -50,7 +50,7 @@ class Up:
                  run_dir: Path | None = None, detector: str = "project", rsu_ids: list[str] | None = None,
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
-                 signed: bool = True, keys_dir: str | None = None) -> None:
+                 signed: bool = True, keys_dir: str | None = None, record: bool = False) -> None:
         """``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
         of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
         from deploy.signing import key_args, load_key_bundle, write_key_bundle
@@ -93,6 +93,9 @@ class Up:
         self.monitor = RunMonitor(self.corridor_id, road=self.corridor.road)
         self.health: dict[str, tuple[float, str]] = {}
         self.transport = None
+        self.record = record
+        """Record every key to ``<run folder>/run.mcap`` from the monitor's session (issue 22)."""
+        self.recorder = None
 
     # ------------------------------------------------------------------ lifecycle
     def _start_router(self, timeout_s: float = 20.0) -> None:
@@ -116,6 +119,11 @@ class Up:
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), self._on_health)
             for cb in extra_subscribers or []:
                 self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
+            if self.record:
+                from deploy.record import McapRecorder
+
+                self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id})
+                self.transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         settled = False
         for spec in self.specs:
             if spec.name in ("vehicle", "sim") and not settled:
@@ -135,6 +143,8 @@ class Up:
         if self.transport is not None:
             self.transport.close()
             self.transport = None
+        if self.recorder is not None:
+            self.recorder.close()
         self.group.stop_all(keep_last=0 if self.peer else 1)
 
     def __enter__(self) -> Up:
@@ -200,6 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sign with this `iea deploy keys --out DIR` bundle (default: throwaway keys in the run folder)")
     ap.add_argument("--unsigned", action="store_true",
                     help="no signatures: vehicles accept any command the router lets through (closed lab only)")
+    ap.add_argument("--no-record", action="store_true",
+                    help="do not record (default: every key to <run folder>/run.mcap; `iea replay` it)")
     return ap
 
 
@@ -223,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
-                signed=not args.unsigned, keys_dir=args.keys)
+                signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2
