@@ -223,15 +223,19 @@ class RsuService:
                                           body_score=(None if e.body_score is None
                                                       else float(np.clip(e.body_score, 0.0, 1.0)))),
                       clear_reason=e.clear_reason)
-        self.transport.publish(self.ev_key, msg)
-        if msg.state == AlertState.CLEARED:
-            self._active.pop(msg.alert_id, None)
-        else:
-            self._active[msg.alert_id] = (self.ev_key, msg)
-        self._seq["ev"] += 1
+        self._publish_alert_message("ev", self.ev_key, msg.alert_id, msg, msg.state == AlertState.CLEARED)
         self.alerts_published[str(e.state)] += 1
         log.info("EvAlert %s %s (track %d, lane %s, x %.1f m, cues %s)", msg.alert_id, e.state, e.track_id, o.lane,
                  o.pos_x_m, "+".join(e.cues) or "-")
+
+    def _publish_alert_message(self, kind: str, key: str, alert_id: str, msg, ended: bool) -> None:
+        """Publish an EvAlert or HazardAlert and keep the latest message of each active one (queries answer them)."""
+        self.transport.publish(key, msg)
+        if ended:
+            self._active.pop(alert_id, None)
+        else:
+            self._active[alert_id] = (key, msg)
+        self._seq[kind] += 1
 
     def _publish_hazard(self, h: HazardEvent) -> None:
         msg = HazardAlert(src=self.rsu_id, seq=self._seq["hazard"], stamp=max(self.clock.now(), 0.0),
@@ -239,12 +243,7 @@ class RsuService:
                           pos_x_m=h.x_m, pos_y_m=h.y_m, lat_deg=h.lat_deg, lon_deg=h.lon_deg, lane=h.lane,
                           length_m=max(h.length_m, 0.0), width_m=max(h.width_m, 0.0),
                           confidence=float(np.clip(h.confidence, 0.0, 1.0)), first_seen=max(h.first_seen_s, 0.0))
-        self.transport.publish(self.hazard_key, msg)
-        if msg.state == HazardState.CLEAR:
-            self._active.pop(msg.hazard_id, None)
-        else:
-            self._active[msg.hazard_id] = (self.hazard_key, msg)
-        self._seq["hazard"] += 1
+        self._publish_alert_message("hazard", self.hazard_key, msg.hazard_id, msg, msg.state == HazardState.CLEAR)
         self.hazards_published[str(h.state)] += 1
         if h.state != "persist":
             log.info("HazardAlert %s %s (lane %s, x %.1f y %.1f m, %.1f x %.1f m)", msg.hazard_id, h.state, h.lane,
