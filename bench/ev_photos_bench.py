@@ -25,10 +25,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig, measure_lamps  # noqa: E402
-from rsu.detect import OnnxDetector  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
         print(f"ev_photos_bench: {args.folder} or {args.detector} absent", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    det = OnnxDetector(args.detector, score_threshold=args.score_threshold, intra_op_threads=1)
+    det = build_detector(PipelineConfig(detector=str(args.detector), score_threshold=args.score_threshold))
     models = [load_classifier("cnn"), load_classifier("hsv8-gb"), LampRule()]
     scene_crops = load_scene_crops(args.folder, det)
     scores, counts = evaluate_scenes(args.folder, det, models, scene_crops=scene_crops)

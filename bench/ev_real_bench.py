@@ -43,10 +43,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.body import load_body_classifier  # noqa: E402
 from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # noqa: E402
 from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
-from rsu.detect import OnnxDetector  # noqa: E402
+from rsu.detect import Detector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -74,7 +75,7 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None) -> dict:
     return out
 
 
-def photo_figures(folder: Path, detector: OnnxDetector, body) -> dict:
+def photo_figures(folder: Path, detector: Detector, body) -> dict:
     """Largest vehicle of each whole-scene photo, grown upwards as the RSU crops, through the body model."""
     crops, labels = load_scene_crops(folder, detector, above_fraction=body.above_fraction)
     probs = np.array([0.0 if c is None else float(body.predict([c])[0]) for c in crops])
@@ -134,7 +135,7 @@ def main(argv=None) -> int:
         figures[key] = None
     if body is not None and not args.clips_only:
         figures.update(threshold=body.threshold, above_fraction=body.above_fraction)
-        det = OnnxDetector(YOLOX, intra_op_threads=1)
+        det = build_detector(PipelineConfig(detector=str(YOLOX)))
         figures.update(photo_figures(REAL / "ev_images", det, body))
         print(f"photos: {figures['photo_images']} ({figures['photo_ev_images']} EV), a vehicle in "
               f"{figures['photo_with_vehicle']}: accuracy {figures['photo_accuracy']:.3f}, precision "
