@@ -4,9 +4,9 @@
 (s along the road, d to the left; lane k spans ``[k w, (k + 1) w]``) by the rig (``deploy/faults.py``),
 the lockstep corridor, the process runs (``deploy/up.py``) and the demo (``RunMonitor``):
 
-- **the EV's lane** comes from the EV's own path: every lane its body touches from lights-on until it
-  reaches the AV (an EV that drives round the AV does not move the lane to where it went); never
-  recomputed per sample afterwards;
+- **the EV's lane** comes from the EV's own path: every lane its body touches in the ``EV_LANE_WINDOW_S``
+  before it reaches the AV (an EV that drives round the AV afterwards does not move the lane to where it
+  went, and a lane it was leaving at lights-on does not count); never recomputed per sample afterwards;
 - the EV **reaches** the AV at the first sample after lights-on where, behind it, its front is within its
   following distance of the AV's rear: ``reach_gap_m + reach_headway_s * v_EV`` (2 m + 1 s x speed);
 - **yielded** (the only pass): at that moment the AV's whole body (its width turned by its heading
@@ -37,6 +37,8 @@ from typing import Any
 
 MIN_HAZARD_CLEARANCE_M = 1.0
 STOPPED_MPS = 0.05
+EV_LANE_WINDOW_S = 1.0
+"""The EV's lane is the lanes its body touched in this long before it reached the AV (its approach)."""
 
 
 @dataclass(frozen=True)
@@ -150,7 +152,10 @@ def judge_yield(samples: Sequence[YieldSample], params: YieldParams = YieldParam
     reach = next((i for i in range(lit, len(samples)) if _reached(samples[i], params)), None)
     passed_i = next((i for i in range(lit, len(samples)) if _passed(samples[i])), None)
     end = reach if reach is not None else (passed_i if passed_i is not None else len(samples) - 1)
-    strip = ev_lane_strip(samples[lit:end + 1], params.lane_width_m)
+    start = end
+    while start > lit and samples[end].t_s - samples[start - 1].t_s <= EV_LANE_WINDOW_S + 1e-9:
+        start -= 1
+    strip = ev_lane_strip(samples[start:end + 1], params.lane_width_m)
     approach = [smp.ev.speed_mps for smp in samples[lit:end + 1] if smp.ev is not None]
     v_ref = max(approach) if approach else 0.0
     delay_end = passed_i if passed_i is not None else len(samples) - 1

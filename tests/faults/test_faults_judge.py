@@ -99,3 +99,13 @@ def test_scenario_verdict_takes_the_yield_verdict():
     assert not ok and why.startswith("stopped_in_ev_lane")
     assert judge_run({**m, "yield": {"passed": True, "status": "yielded", "reason": "x"}}, ev_lights_on=True)[0]
     assert not judge_run({k: v for k, v in m.items() if k != "yield"}, ev_lights_on=True)[0]
+
+
+def test_a_lane_the_ev_was_leaving_at_lights_on_is_not_its_lane():
+    """Seed 3 of the corridor: the EV finishes its move into lane 1 as its lights go on (its body still over
+    the line into lane 0); the AV that moved to lane 0 well before the EV reached it yielded."""
+    def ev_d(t, s):
+        return 4.2 + min(t, 1.0) * 1.35  # from d 4.2 (body over the line) to the lane-1 centre 5.55 by t = 1 s
+
+    v = _run(cruise(lambda t: LANE1 if t < 0.5 else max(1.25, LANE1 - 3.0 * (t - 0.5))), ev_d=ev_d, lights_at=0.0)
+    assert v.passed and v.status == "yielded" and v.ev_lane_d_m == (3.7, 7.4)
