@@ -54,14 +54,16 @@ def metrics(labels: np.ndarray, prob: np.ndarray, threshold: float = 0.5) -> tup
 
 def ms_per_crop(model, crops: Sequence[np.ndarray], calls: int) -> float:
     """Median milliseconds of one ``model.predict([crop])`` call over ``calls`` calls cycling through
-    ``crops`` (after one warm-up call): the cost of classifying one crop, as the RSU classifies them."""
+    ``crops`` (after one warm-up call): the cost of classifying one crop, as the RSU classifies them. Counted
+    in this process's CPU time (the model runs on one thread), so a machine busy with other jobs does not
+    inflate it: one core's cost, as ``rsu_bench``'s processed fps."""
     model.predict([crops[0]])
     times = []
     for k in range(calls):
         crop = crops[k % len(crops)]
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         model.predict([crop])
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return 1000.0 * float(np.median(times))
 
 
