@@ -14,6 +14,7 @@
     iea up                      the compose topology as local processes around one router
     iea record --out run.mcap   every key of a running corridor into an MCAP file
     iea replay run.mcap         republish a recording (--speed X, --keys EXPR)
+    iea view [--port 8080]      the corridor live in a browser (plan, health, timeline)
 """
 
 from __future__ import annotations
@@ -332,6 +333,12 @@ def _replay(argv: list[str]) -> int:
     return replay.main(argv)
 
 
+def _view(argv: list[str]) -> int:
+    from deploy import view
+
+    return view.main(argv)
+
+
 def _scenario(argv: list[str]) -> int:
     from deploy.lockstep import scenario_main
 
@@ -355,6 +362,7 @@ def main(argv: list[str] | None = None) -> int:
         "up": ("router + every service as local processes (no Docker)", _up),
         "record": ("record every key of a corridor to MCAP (iea record --out run.mcap)", _record),
         "replay": ("republish an MCAP recording (iea replay run.mcap [--speed X] [--keys EXPR])", _replay),
+        "view": ("the corridor live in a browser (iea view --port 8080 --corridor-id ID)", _view),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]
