@@ -9,6 +9,7 @@ import sys
 import threading
 
 from ddm.config import DdmConfig
+from protocol import metrics
 from protocol.logsetup import add_log_level_argument, configure_logging
 
 
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "file trusts RSU keys)")
     add_log_level_argument(r)
     ZenohSettings.add_arguments(r)
+    metrics.add_arguments(r)
     return p
 
 
@@ -62,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         all_rsus_expr(args.corridor_id or corridor.corridor_id)  # a corridor id that cannot be a key chunk fails here
         trust = TrustList.from_corridor(corridor)
         signer = load_signer(args.key, args.key_id, trust) if args.key else None
+        metrics.serve_from_args(args, "ddm", "ddm")
     except (CorridorError, ValueError) as exc:
         print(f"iea-ddm: {exc}", file=sys.stderr)
         return 2

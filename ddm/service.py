@@ -55,7 +55,7 @@ from ddm.geometry import RoadFrame
 from ddm.hazard import HazardBook, HazardConfig, HazardDecision, HazardResponse, decide_hazard
 from ddm.policy import Decision, Ego, Response, decide, plan
 from ddm.world import CorridorWorld
-from protocol import presence
+from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
 from protocol.corridor import Corridor
 from protocol.keys import (
@@ -416,6 +416,7 @@ class DdmService(CorridorPresence):
         if t0 is not None and self._issued_in_call:
             ms = (time.perf_counter() - t0) * 1000.0
             self.decision_latency_ms.append(ms)
+            metrics.observe_stages({"decision": ms / 1000.0})
             self._period_latency.append(ms)
         self._issued_in_call = False
 
@@ -485,6 +486,7 @@ class DdmService(CorridorPresence):
                 log.info("hazard %d %s", hid, what)
             self._decide_all(now)
             self._step_time_s = time.perf_counter() - t0
+            metrics.observe_stages({"step": self._step_time_s})
             if self._health_timer.due(now) or changed:
                 self.publish_health(now)  # at 1 Hz, and at once when an RSU goes stale or comes back
 

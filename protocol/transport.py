@@ -42,6 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from protocol import metrics
 from protocol.channel import ChannelModel, ChannelState
 from protocol.clock import Clock, WallClock
 from protocol.codec import ProtocolError, decode, encode
@@ -149,6 +150,7 @@ class Transport:
         self.publish_bytes(key, encode(message))
         with self._stats_lock:
             self.stats.published += 1
+        metrics.on_published(key, message)  # a no-op unless the process serves metrics (--metrics-port)
 
     def subscribe(
         self, key_expr: str, callback: MessageCallback, on_reject: RejectCallback | None = None
@@ -162,12 +164,14 @@ class Transport:
                 reason = exc.reason if isinstance(exc, ProtocolError) else "key"
                 with self._stats_lock:
                     self.stats.rejected[reason] += 1
+                metrics.on_rejected(key, reason)
                 log.debug("rejected input on %s: %s", key, exc)
                 if on_reject is not None:
                     on_reject(key, exc)
                 return
             with self._stats_lock:
                 self.stats.received += 1
+            metrics.on_received(key, message)
             try:
                 callback(key, message)
             except Exception:  # a handler bug must not kill the transport thread

@@ -7,6 +7,7 @@ import sys
 
 import cv2
 
+from protocol import metrics
 from protocol.corridor import CorridorError
 from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.transport import ZenohSettings
@@ -86,6 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="key id of --key (default: the corridor trust entry holding its public key)")
     add_log_level_argument(ap)
     ZenohSettings.add_arguments(ap)
+    metrics.add_arguments(ap)
     return ap
 
 
@@ -237,6 +239,7 @@ def main(argv: list[str] | None = None) -> int:
             sim_seed=args.sim_seed, fps=args.fps, realtime=args.realtime, read_timeout_s=args.read_timeout_s,
             max_stall_s=args.max_stall_s, queue_size=args.queue_size, max_frames=args.max_frames,
             annotate=args.annotate, key=args.key, key_id=args.key_id, zenoh=ZenohSettings.from_args(args))
+        metrics.serve_from_args(args, "rsu", args.rsu)
         return run_rsu(options, pipeline_config(args))
     except (CorridorError, KeyError, ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:
         print(f"iea-rsu: {exc}", file=sys.stderr)

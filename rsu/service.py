@@ -31,7 +31,7 @@ from collections import Counter
 import cv2
 import numpy as np
 
-from protocol import presence
+from protocol import metrics, presence
 from protocol.clock import Clock, WallClock
 from protocol.codec import encode
 from protocol.corridor import Corridor
@@ -205,6 +205,7 @@ class RsuService:
         if self.annotate_path:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
+        metrics.observe_stages(result.stage_s)
         for k, v in result.stage_s.items():
             self._period_stage_s[k] += v
         self.frames += 1

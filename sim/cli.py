@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from protocol import metrics
 from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.transport import ZenohSettings
 
@@ -34,6 +35,7 @@ def _add_run(sub) -> None:
                         "the AV, so the world and the car start together")
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
     ZenohSettings.add_arguments(p)
+    metrics.add_arguments(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.cmd == "run":
+            metrics.serve_from_args(args, "sim", "sim")
             return run_scenario(args.scenario, ZenohSettings.from_args(args), corridor_file=args.corridor,
                                 corridor_id=args.corridor_id, record=args.record, speed=args.speed,
                                 duration_s=args.duration, seed=args.seed, lighting=args.lighting,

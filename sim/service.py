@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import cv2
 
-from protocol import presence
+from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer, WallClock
 from protocol.codec import encode
 from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
@@ -117,6 +117,7 @@ class SimService:
         t0 = time.perf_counter()
         self.world.step(self.dt_s)
         self._step_ms = (time.perf_counter() - t0) * 1e3
+        metrics.observe_stages({"step": self._step_ms / 1e3})
         snap = self.world.snapshot(stamp=self.clock.now(), src=self.src, seq=self.published)
         self.last_snapshot = snap
         self.transport.publish(sim_world_key(self.corridor_id), snap)

@@ -9,6 +9,7 @@ import logging
 import signal
 import sys
 
+from protocol import metrics
 from protocol.transport import ZenohSettings
 from vehicle.localisation import FixSourceConfig
 
@@ -60,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "DDM key; commands are then verified against them whatever this flag says)")
     run.add_argument("-v", "--verbose", action="store_true")
     ZenohSettings.add_arguments(run)
+    metrics.add_arguments(run)
 
     ls = sub.add_parser("lockstep", help="replay the field test in lockstep (no transport) and write a run folder")
     ls.add_argument("--speed", type=_positive, default=13.4, metavar="MPS", help="cruise speed (default 13.4)")
@@ -111,6 +113,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     settings = ZenohSettings.from_args(args)
+    try:
+        metrics.serve_from_args(args, "vehicle", args.vehicle)
+    except ValueError as exc:
+        print(f"iea-vehicle: {exc}", file=sys.stderr)
+        return 2
     config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=args.link_timeout,
                                                 localisation_stale_s=args.localisation_stale))
     fix = FixSourceConfig("gnss", args.gnss_sigma, args.gnss_rate, args.gnss_latency)

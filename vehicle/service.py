@@ -29,7 +29,7 @@ import time
 from collections import Counter, deque
 from dataclasses import dataclass
 
-from protocol import presence
+from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
 from protocol.codec import encode
 from protocol.keys import ddm_health_key, parse_key, rsu_topic_expr, vehicle_key
@@ -300,7 +300,9 @@ class VehicleService:
             t = self._next_control_s
             t0 = time.perf_counter_ns()
             out = self.sim.step(t, dt)
-            self._ctrl_time_ns += time.perf_counter_ns() - t0
+            ctrl_ns = time.perf_counter_ns() - t0
+            self._ctrl_time_ns += ctrl_ns
+            metrics.observe_stages({"control": ctrl_ns * 1e-9})
             self._ctrl_steps += 1
             self._ctrl_steps_total += 1
             for decision in out.decisions:
