@@ -32,6 +32,13 @@ the specification (``deploy/compose_schema.py`` checks both schemas). Long-form 
 specification later; 1.29.2 refuses the file), so the project name comes from the file's folder or
 ``COMPOSE_PROJECT_NAME`` / ``-p`` (the header suggests ``iea-<corridor>``); nor ``version``: optional for
 both, 1.29.2 validates "2.x", "3.x" and no version alike, and Docker Compose v2 warns it is obsolete.
+
+Metrics (issue 22): every IEA service serves Prometheus metrics on port ``METRICS_PORT`` of its container
+(``--metrics-port``; exposed to the compose network only), and the optional profile ``monitoring`` adds a
+Prometheus server (the official ``prom/prometheus`` image, pinned) scraping them every 5 s, its UI on
+host port 9090: ``docker compose --profile monitoring up``. Its configuration is written by its own
+command line (the image's shell), so the compose file stays the one file to deploy. Profiles are in both
+schemas (docker-compose >= 1.28).
 """
 
 from __future__ import annotations
@@ -47,6 +54,11 @@ ROUTER_ENDPOINT = "tcp/router:7447"
 ACL_DIR_IN_CONTAINER = "/etc/iea/acl"
 SIGNED_CORRIDOR_IN_CONTAINER = "/etc/iea/corridor.toml"
 KEYS_DIR_IN_CONTAINER = "/etc/iea/keys"
+METRICS_PORT = 9464
+"""Every IEA container's Prometheus endpoint (each container has its own network namespace)."""
+PROMETHEUS_IMAGE = "prom/prometheus:v2.53.0"
+"""The official Prometheus image, pinned (2.53 is a long-term-support release)."""
+MONITORING_PROFILE = "monitoring"
 
 
 def _zenoh_args(user: str, acl: bool) -> list[str]:
@@ -88,7 +100,9 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             command = command + ["--key", key]
         svc: dict[str, Any] = {
             "image": IEA_IMAGE,
-            "command": command + ["--corridor", corridor_in_image] + _zenoh_args(user, acl),
+            "command": command + ["--corridor", corridor_in_image] + _zenoh_args(user, acl)
+            + ["--metrics-port", str(METRICS_PORT)],
+            "expose": [str(METRICS_PORT)],
             "depends_on": {"router": {"condition": "service_started"}},
             "restart": "unless-stopped",
             "healthcheck": _healthcheck(role, node, user, acl),
@@ -124,7 +138,23 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             s0, lane, speed = av_start[v.vehicle_id]
             cmd += ["--start-s", f"{s0:g}", "--start-lane", str(lane), "--speed", f"{speed:g}"]
         services[v.vehicle_id] = iea_service(v.vehicle_id, cmd, "vehicle", v.vehicle_id)
+    services["prometheus"] = prometheus_service([n for n in services if n != "router"])
     return {"services": services}  # no top-level `name`: docker-compose 1.29.2 refuses it (module docstring)
+
+
+def prometheus_config(targets: list[str]) -> list[str]:
+    """The lines of prometheus.yml scraping ``targets`` (compose service names) on ``METRICS_PORT``."""
+    return ["global: {scrape_interval: 5s, evaluation_interval: 5s}", "scrape_configs:", "  - job_name: iea",
+            "    static_configs:", "      - targets: [" + ", ".join(f"'{t}:{METRICS_PORT}'" for t in targets) + "]"]
+
+
+def prometheus_service(targets: list[str]) -> dict[str, Any]:
+    """The optional Prometheus server (profile ``monitoring``): its config written by its own shell, then run."""
+    write = "printf '%s\\n' " + " ".join(f'"{line}"' for line in prometheus_config(targets))
+    run = "exec /bin/prometheus --config.file=/tmp/prometheus.yml --storage.tsdb.path=/prometheus"
+    return {"image": PROMETHEUS_IMAGE, "profiles": [MONITORING_PROFILE], "entrypoint": ["/bin/sh", "-c"],
+            "command": [f"{write} > /tmp/prometheus.yml && {run}"], "ports": ["9090:9090"],
+            "depends_on": {t: {"condition": "service_started"} for t in targets}, "restart": "unless-stopped"}
 
 
 def compose_yaml(doc: dict[str, Any], header: str = "") -> str:
@@ -142,6 +172,7 @@ HEADER = """\
 #   iea deploy acl --out secrets/acl --dictionary-path /etc/iea/acl/users.txt
 #   iea deploy keys --out secrets/keys
 # Real cameras: RSU1_SOURCE=rtsp://... docker compose up   (default: each RSU renders the simulator's view)
+# Monitoring: docker compose --profile monitoring up   (Prometheus on :9090 scraping every service's :9464/metrics)
 # Valid for Docker Compose v2 (`docker compose`) and Debian 12's docker-compose 1.29.2 (`docker-compose`).
 # Project name: this folder's name, or COMPOSE_PROJECT_NAME=iea-rellis (or `-p iea-rellis`).
 """

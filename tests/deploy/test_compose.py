@@ -7,6 +7,7 @@ the tool is installed (.ci/run installs it; no Docker engine needed)."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from deploy.compose import ROUTER_ENDPOINT, ZENOH_IMAGE, compose_services
+from deploy.compose import METRICS_PORT, PROMETHEUS_IMAGE, ROUTER_ENDPOINT, ZENOH_IMAGE, compose_services
 from deploy.compose_schema import COMPOSE_SPEC, DOCKER_COMPOSE_V1, compose_errors
 from protocol.corridor import load_corridor
 
@@ -47,6 +48,9 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
     assert "name" not in doc and "version" not in doc  # neither key means the same to compose v1 and v2
     services = doc["services"]
     rsu_ids = [r.rsu_id for r in corridor.rsus]
+    optional = {n for n, s in services.items() if s.get("profiles")}  # `--profile monitoring` only (issue 22)
+    assert optional == {"prometheus"}
+    services = {n: s for n, s in services.items() if n not in optional}
     assert set(services) == {"router", "sim", "ddm", *rsu_ids, *(v.vehicle_id for v in corridor.vehicles)}
     # the router image is pinned to the Python binding's version
     assert services["router"]["image"] == ZENOH_IMAGE and ZENOH_IMAGE.endswith(":" + version("eclipse-zenoh"))
@@ -70,11 +74,27 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
             assert keys_mounted == [f"./secrets/keys/{name}.pem:/etc/iea/keys/{name}.pem:ro"]
         else:
             assert keys_mounted == [] and getattr(args, "key", None) is None
+        assert args.metrics_port == METRICS_PORT and svc["expose"] == [str(METRICS_PORT)]  # issue 22
         if cmd[0] == "rsu":  # camera source from the environment, the simulator's view by default
             assert args.rsu == name and args.source == f"${{{name.upper()}_SOURCE:-sim}}"
     # the vehicle starts where the scenario puts the AV
     v = vehicle_parser().parse_args(services["av1"]["command"][1:])
     assert (v.start_s, v.start_lane, v.speed) == (135.0, 1, 13.4)
+
+
+def test_monitoring_profile_scrapes_every_service():
+    """The optional Prometheus server (issue 22): the official image pinned, its config listing every IEA
+    service's metrics port, written by its own command line."""
+    services = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))["services"]
+    prom = services["prometheus"]
+    assert prom["profiles"] == ["monitoring"] and prom["image"] == PROMETHEUS_IMAGE
+    assert re.fullmatch(r"prom/prometheus:v\d+\.\d+\.\d+", prom["image"])
+    script = prom["command"][0]
+    lines = re.findall(r'"([^"]*)"', script.split(" > ")[0])
+    config = yaml.safe_load("\n".join(lines))
+    targets = config["scrape_configs"][0]["static_configs"][0]["targets"]
+    iea = [n for n, s in services.items() if s.get("image") == "iea-corridor:latest"]
+    assert sorted(targets) == sorted(f"{n}:{METRICS_PORT}" for n in iea)
 
 
 def test_rsus_option_and_open_deployment():
