@@ -48,8 +48,9 @@ class ViewServer:
         self.plan_json = json.dumps(self.plan, separators=(",", ":")).encode()
         self.picture = CorridorPicture(corridor_id)
         self.rate_hz = rate_hz
-        self.seen: dict[str, Any] = {}
-        """The page's last report of what it drew (``POST /api/seen``)."""
+        self.seen: dict[str, dict[str, Any]] = {}
+        """The pages' last reports of what they drew (``POST /api/seen``), by mode: ``live`` (the stream) or
+        ``poll`` (``?poll``: plain requests, for screenshots)."""
         self._frame = (0.0, b"{}")
         self._frame_lock = threading.Lock()
         self._stop = threading.Event()
@@ -156,7 +157,8 @@ def _handler(view: ViewServer) -> type[BaseHTTPRequestHandler]:
             elif path == "/api/state":
                 self._send(view.frame(), "application/json")
             elif path == "/api/seen":
-                self._send(json.dumps(view.seen).encode(), "application/json")
+                mode = "poll" if "mode=poll" in self.path else "live"
+                self._send(json.dumps(view.seen.get(mode, {})).encode(), "application/json")
             elif path == "/events":
                 self._stream()
             else:
@@ -175,8 +177,8 @@ def _handler(view: ViewServer) -> type[BaseHTTPRequestHandler]:
             except ValueError:
                 self._send(b"report is not JSON", "text/plain", 400)
                 return
-            if isinstance(report, dict):
-                view.seen = {**report, "received": time.time()}
+            if isinstance(report, dict) and report.get("mode") in ("live", "poll"):
+                view.seen[report["mode"]] = {**report, "received": time.time()}
             self._send(b"{}", "application/json")
 
         def _stream(self) -> None:
