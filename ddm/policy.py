@@ -254,13 +254,15 @@ def _room_behind_m(clearance_m: float, leader_speed_mps: float, cfg: DdmConfig) 
 
 def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, target_lane: int,
               others: list[Track], frame: RoadFrame, change_time_s: float, cfg: DdmConfig,
-              exclude: set[int] = frozenset(), stopping: bool = False) -> GapCheck:
+              exclude: set[int] = frozenset(), stopping: bool = False, av_stop_m: float | None = None) -> GapCheck:
     """Is there a safe gap for the AV in ``target_lane``? (ok, explanation).
 
     ``stopping``: the AV will stop in that lane (pull-over), so a leader only has to leave it room
     to stop behind it even if the leader brakes too: clearance + v_l^2 / (2 comfort) >= gap_min +
     v_AV^2 / (2 max_decel); the room left is returned (``room_ahead_m``) to place the stop point. A
-    follower needs a gap that does not close during the change and room to stop behind the AV's stop."""
+    follower needs a gap that does not close during the change and room to stop behind the AV's stop
+    (``av_stop_m`` ahead: a held-speed pull-over's lane change and comfort stop; default the shortest stop
+    at ``max_decel_mps2``)."""
     cand = [o for o in others if o.track_id not in exclude]
     if not cand:
         return GapCheck(True, f"lane {target_lane} empty")
@@ -289,10 +291,10 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             # the AV ends stopped at least v^2 / (2 max_decel) ahead: the follower needs room to stop
             # behind that (reacting after gap_time_s), and a gap that does not close during the change
             v_f = max(v_f, 0.0)
-            av_stop_m = ego_v * ego_v / (2.0 * cfg.max_decel_mps2)
+            av_stop = ego_v * ego_v / (2.0 * cfg.max_decel_mps2) if av_stop_m is None else av_stop_m
             follower_stop_m = v_f * cfg.gap_time_s + v_f * v_f / (2.0 * cfg.comfort_decel_mps2)
             need = max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s,
-                       cfg.gap_min_m + follower_stop_m - av_stop_m)
+                       cfg.gap_min_m + follower_stop_m - av_stop)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
                             f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role)
@@ -341,8 +343,13 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
     def pull_over_gap(t: Threat) -> tuple[bool, str]:
         lc = lane_change_length(frame.lane_centre_offset(0) - d_e, max(v_e, 2.0), 0.0, cfg)
         t_change = lc / max(v_e, 2.0)
-        # a held-speed pull-over (issue 18) does not slow during the change
-        v_after = v_e if cfg.pull_over_hold_speed else max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
+        # a held-speed pull-over (issue 18) does not slow during the change and stops after it, a lane
+        # change and a comfort stop ahead: a follower has that much room to stop behind it
+        if cfg.pull_over_hold_speed:
+            av_stop = lc + v_e * v_e / (2.0 * cfg.comfort_decel_mps2)
+            return gap_check(s_e, v_e, v_e, ego.length_m, 0, traffic, frame, t_change, cfg, stopping=True,
+                             av_stop_m=av_stop)
+        v_after = max(0.0, v_e - cfg.comfort_decel_mps2 * t_change)
         return gap_check(s_e, v_e, v_after, ego.length_m, 0, traffic, frame, t_change, cfg, stopping=True)
 
     passing = {tid: dist for tid, dist in ahead.items() if dist < cfg.pass_margin_m}
