@@ -220,15 +220,20 @@ def main(argv: list[str] | None = None) -> int:
     mode = "peer mode, no router (iea demo)" if args.peer else "client mode via one router (iea up)"
     print(f"e2e: rellis_ev_yield x {args.runs} seeds as processes over Zenoh on loopback, {mode}")
     runs = []
+    alert_samples: list[float] = []  # every lights on -> EvAlert measured, re-timed runs' first tries too
     for seed in range(1, args.runs + 1):
         t = time.monotonic()
         m = one_run(seed, root, args.duration_s, args.peer)
         if (m.get("yield") or {}).get("status") == "not_reached":
+            if m["latency_s"].get("lights_on_to_alert_s") is not None:
+                alert_samples.append(m["latency_s"]["lights_on_to_alert_s"])
             # the EV never came within its following distance of the AV: the run tested nothing; re-time it
             print(run_line(seed, m, time.monotonic() - t) + f"\n      re-timed: {RETIME_EXTRA_S:.0f} s longer", flush=True)
             t = time.monotonic()
             m = one_run(seed, root / "retimed", args.duration_s + RETIME_EXTRA_S, args.peer)
             m["retimed_duration_s"] = args.duration_s + RETIME_EXTRA_S
+        if m["latency_s"].get("lights_on_to_alert_s") is not None:
+            alert_samples.append(m["latency_s"]["lights_on_to_alert_s"])
         runs.append(m)
         print(run_line(seed, m, time.monotonic() - t), flush=True)
     dists = print_distribution(f"processes over Zenoh ({mode}), wall-clock stamps", runs)
@@ -280,11 +285,11 @@ def main(argv: list[str] | None = None) -> int:
     print("\n fault table")
     t = time.monotonic()
     alert = dict(MEASURED_ALERT_DELAY_S)
-    measured = dists["lights_on_to_alert_s"]
+    measured = distribution(alert_samples)
     if measured["n"]:
         alert = {"median": measured["median"], "p99": measured["p99"]}
     print(f" rig alert delay: median {alert['median']:.2f} s, p99 {alert['p99']:.2f} s "
-          f"({'measured above' if measured['n'] else 'issue 18 figures: no process run here'})")
+          f"({'every process run above, re-timed first tries too' if measured['n'] else 'issue 18 figures: no process run here'})")
     faults: list[FaultOutcome] = []
     for q in ("p99", "median"):
         for f in latency_faults(alert_delay_s=alert[q]) + dropout_faults(alert_delay_s=alert[q]):
@@ -333,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
             "process_yield": {r["seed"]: (r.get("yield") or {}).get("status") for r in runs},
             "process_retimed": [r["seed"] for r in runs if r.get("retimed_duration_s")],
             "rig_alert_delay_s": {k: round(v, 3) for k, v in alert.items()},
+            "process_alert_delays_s": alert_samples,
             "lockstep_runs": len(ls_runs),
             "lockstep_lights_on_to_manoeuvre_median_s": lq("lights_on_to_manoeuvre_s", "median"),
             "lockstep_lights_on_to_manoeuvre_p99_s": lq("lights_on_to_manoeuvre_s", "p99"),
