@@ -6,7 +6,10 @@
 The scene: rsu1 of the RELLIS corridor, 20 vehicles (cars, vans, trucks, a bus, an EV with its light
 bar on, brake lights) spread over 25..120 m in both lanes, moving between frames. Figures: full
 pipeline (vehicles, lamps with glow, motion blur, exposure, sensor noise) per lighting, and the same
-without the per-frame effects as the in-run baseline. World steps: the ev_two_lanes_dense scenario.
+without the per-frame effects as the in-run baseline. render_ms (issue 19, target <= 5): CPU time (process time,
+so other processes on a shared machine do not count) per full-pipeline day frame, best of three runs, and the same
+for dusk and night and for issue 17's straightforward renderer (``sim.render_reference``) in the same run. World
+steps: the ev_two_lanes_dense scenario.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
 from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot  # noqa: E402
 from sim.render import Renderer  # noqa: E402
+from sim.render_reference import ReferenceRenderer  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
 from sim.scenery import render_scenery  # noqa: E402
 from sim.vehicles import LIVERY_AMBULANCE, make_style, random_colour  # noqa: E402
@@ -68,6 +72,19 @@ def fps(renderer: Renderer, lighting: str, frames: int, repeats: int = 3) -> flo
     return best
 
 
+def cpu_ms_per_frame(renderer: Renderer, lighting: str, frames: int, repeats: int = 3) -> float:
+    """CPU time (ms) per frame, best of ``repeats`` runs: process time counts this process's work only."""
+    snaps = [scene(k / 15.0, lighting) for k in range(frames)]
+    renderer.render(snaps[0], 0)  # background, noise and body-model caches
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.process_time()
+        for k, s in enumerate(snaps):
+            renderer.render(s, k)
+        best = min(best, (time.process_time() - t0) * 1000.0 / frames)
+    return best
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="few frames (smoke run)")
@@ -86,6 +103,12 @@ def main(argv: list[str] | None = None) -> int:
     figures["render_fps_1280x720_dusk"] = fps(full, "dusk", frames // 2)
     figures["render_fps_1280x720_night"] = fps(full, "night", frames // 2)
     figures["render_fps_1280x720_no_effects"] = fps(plain, "day", frames)
+    figures["render_ms"] = cpu_ms_per_frame(full, "day", frames)
+    figures["render_ms_dusk"] = cpu_ms_per_frame(full, "dusk", frames // 2)
+    figures["render_ms_night"] = cpu_ms_per_frame(full, "night", frames // 2)
+    reference = ReferenceRenderer(cam, corridor.road, seed=1)
+    reference._backgrounds = full._backgrounds
+    figures["render_ms_reference"] = cpu_ms_per_frame(reference, "day", frames // 2)
     snaps = [scene(k / 15.0, "day") for k in range(frames // 2)]
     t0 = time.perf_counter()
     for s in snaps:
@@ -113,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  full pipeline, night : {figures['render_fps_1280x720_night']:7.1f} fps")
     print(f"  baseline, no effects : {figures['render_fps_1280x720_no_effects']:7.1f} fps  "
           f"(effects cost x{figures['render_fps_1280x720_no_effects'] / figures['render_fps_1280x720']:.2f})")
+    print(f"  CPU per frame        : {figures['render_ms']:.2f} ms day (target <= 5), {figures['render_ms_dusk']:.2f} "
+          f"dusk, {figures['render_ms_night']:.2f} night; issue 17's renderer {figures['render_ms_reference']:.2f} ms day")
     print(f"  labels (id buffer)   : {figures['labels_per_s']:7.1f} frames/s")
     print(f"  static background    : {figures['background_build_s']:7.2f} s once per camera and lighting")
     print(f"world ev_two_lanes_dense, {figures['world_vehicles']} vehicles: {figures['world_steps_per_s']:.0f} steps/s "

@@ -5,7 +5,7 @@ colour_bgr, brake_on, light_bar and ``style``: ``sim.vehicles``)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -245,3 +245,54 @@ def face_points(corners: np.ndarray, face: str, u0: float, u1: float, v0: float,
     return bottom + (d + (c - d) * u - bottom) * v
 
 
+
+
+@dataclass
+class BodyModel:
+    """An actor's body in its own frame, built once per look (``body_model``) and posed per frame by the renderer:
+    part corners, each part face's outward unit normal and centre, base colours, decal quads and the contact-shadow
+    footprint (the lower body's bottom grown 8 %), stacked so one matrix product poses and projects them all."""
+
+    parts: list[Part]
+    decals: list[Decal]
+    points: np.ndarray  # (8P + 4D + 4, 3): part corners, decal quads, contact footprint
+    normals: np.ndarray  # (P, 5, 3) outward unit normals of the faces (FACE_NAMES order)
+    centres: np.ndarray  # (P, 5, 3) face centres
+    face_ok: np.ndarray  # (P, 5) the face has an area
+    base_bgr: np.ndarray  # (P, 5, 3) colour before shading: top colour on top faces, side colour elsewhere
+    glass: np.ndarray  # (P, 5) glass faces (shaded brighter)
+    top: np.ndarray  # (P, 5) top faces
+    decal_part: np.ndarray  # (D,) part index of each decal
+    decal_face: np.ndarray  # (D,) face index (FACE_NAMES) of each decal
+    off_bgr: dict[str, list] = field(default_factory=dict)  # per lighting, each decal's unlit colour (renderer's)
+
+
+def body_model(actor: Actor) -> BodyModel:
+    """``body_parts`` of ``actor`` with the geometry the renderer needs, in the vehicle frame."""
+    parts, decals = body_parts(actor)
+    corners = np.stack([p.corners() for p in parts])  # (P, 8, 3)
+    fc = corners[:, FACE_IDX]  # (P, 5, 4, 3)
+    a, b, d = fc[:, :, 0], fc[:, :, 1], fc[:, :, 3]
+    n = np.cross(b - a, d - a)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.where(norm > 1e-9, norm, 1.0)
+    centres = fc.mean(axis=2)
+    n = np.where((np.sum(n * (centres - corners.mean(axis=1)[:, None, :]), axis=-1) < 0)[..., None], -n, n)
+    top = np.zeros((len(parts), len(FACE_NAMES)), bool)
+    top[:, FACE_NAMES.index("top")] = True
+    base = np.empty((len(parts), len(FACE_NAMES), 3))
+    glass = np.zeros_like(top)
+    for i, p in enumerate(parts):
+        side = p.side_colour if p.side_colour is not None else p.colour
+        up = p.top_colour if p.top_colour is not None else p.colour
+        for f in range(len(FACE_NAMES)):
+            col = up if top[i, f] else side
+            base[i, f] = col
+            glass[i, f] = col is GLASS_BGR
+    quads = [face_points(corners[dc.part], dc.face, dc.u0, dc.u1, dc.v0, dc.v1) for dc in decals]
+    foot = corners[0, :4]
+    foot = foot.mean(axis=0) + (foot - foot.mean(axis=0)) * 1.08
+    points = np.concatenate([corners.reshape(-1, 3), *quads, foot])
+    return BodyModel(parts, decals, points, n, centres, norm[..., 0] > 1e-9, base, glass, top,
+                     np.array([dc.part for dc in decals], dtype=int),
+                     np.array([FACE_NAMES.index(dc.face) for dc in decals], dtype=int))

@@ -13,3 +13,4 @@ def test_sim_bench_quick_prints_json_figures_last():
     figures = json.loads(r.stdout.strip().splitlines()[-1])
     assert figures["render_fps_1280x720"] > 0 and figures["world_steps_per_s"] > 0
     assert figures["vehicles_in_view"] == 20
+    assert 0 < figures["render_ms"] < figures["render_ms_reference"]  # the cached path is the cheaper one

@@ -1,0 +1,207 @@
+"""The straightforward renderer of issue 17 (each actor's parts built, transformed and shaded from scratch per
+frame, each cast shadow darkened with numpy), kept as the reference that ``sim.render.Renderer``'s cached fast path
+is tested and benchmarked against (issue 19: same pixels within noise). Not used by the corridor."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from protocol.messages import Actor, WorldSnapshot
+from sim.bodies import (
+    BLUE_LAMP_BGR,
+    FACE_IDX,
+    FACE_NAMES,
+    FACES,
+    GLASS_BGR,
+    RED_LAMP_BGR,
+    TAIL_OFF_BGR,
+    TAIL_ON_BGR,
+    ev_lamps_on,
+    face_points,
+)
+from sim.camera import NEAR_M
+from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
+from sim.render import Renderer
+from sim.scenery import LIGHTING
+
+
+class ReferenceRenderer(Renderer):
+    """``Renderer`` with issue 17's per-frame drawing: the reference for the fast path's tests and bench."""
+
+    @staticmethod
+    def _visible_faces(parts, corners, C) -> list[dict[str, np.ndarray]]:
+        """Per part, the faces that face the camera (back-face culling) with their outward unit normals."""
+        fc_all = corners[:, FACE_IDX]  # (P, 5, 4, 3)
+        a, b, d = fc_all[:, :, 0], fc_all[:, :, 1], fc_all[:, :, 3]
+        e1, e2 = b - a, d - a
+        n = np.stack([e1[..., 1] * e2[..., 2] - e1[..., 2] * e2[..., 1],
+                      e1[..., 2] * e2[..., 0] - e1[..., 0] * e2[..., 2],
+                      e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]], axis=-1)
+        norm = np.linalg.norm(n, axis=-1, keepdims=True)
+        n = n / np.where(norm > 1e-9, norm, 1.0)
+        fc = fc_all.mean(axis=2)
+        centre = corners.mean(axis=1)[:, None, :]
+        n = np.where((np.sum(n * (fc - centre), axis=-1) < 0)[..., None], -n, n)
+        vis = (np.sum(n * (C - fc), axis=-1) > 0) & (norm[..., 0] > 1e-9)
+        return [{FACE_NAMES[f]: n[p, f] for f in np.flatnonzero(vis[p])} for p in range(len(parts))]
+
+    def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
+        """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
+        pts = corners.reshape(-1, 3)
+        ground = pts[:, :2] - pts[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
+        hull = cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
+        uv, depth = self.cam.project(np.column_stack([hull, np.zeros(len(hull))]))
+        if np.any(depth <= NEAR_M):
+            return
+        x1, y1 = np.floor(uv.min(axis=0)).astype(int)
+        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
+        if x2 - x1 < 2 or y2 - y1 < 2:
+            return
+        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
+        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        roi = img[y1:y2, x1:x2]
+        dark = (roi.astype(np.uint16) * int(256 * (1 - strength)) >> 8).astype(np.uint8)
+        m = mask > 127
+        roi[m] = dark[m]
+
+    def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
+        """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index)."""
+        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
+        L = LIGHTING[lighting]
+        if frame_index is None:
+            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
+        img = self.background(lighting).copy()
+        t = snapshot.sim_time_s
+        C = self.cam.C
+        sun = np.array(L["sun_dir"], dtype=float)
+        sun /= np.linalg.norm(sun)
+        gain = L["scene_gain"]
+        glows: list[tuple[np.ndarray, tuple, float]] = []
+        lamp_pts: dict[tuple[str, str], list] = {}
+        drawn = []
+        for _dist, a in self._ordered(snapshot):
+            geo = self._actor_geometry(a)
+            uv, depth = geo[3], geo[4]
+            if np.any(depth <= NEAR_M):
+                continue
+            allx, ally = uv[..., 0], uv[..., 1]
+            if allx.max() < -200 or ally.max() < 0 or allx.min() >= self.w + 200 or ally.min() >= self.h:
+                continue  # (shadows may reach into the image from a little outside)
+            drawn.append((a, geo))
+            if L["sun"] > 0.05 and self.shadows:
+                self._draw_shadow(img, geo[2], sun, 0.45 * L["sun"] / 0.55)
+            if L["running_lights"] and a.kind.value != "debris":
+                self._draw_headlight_pool(img, a, 1.0 if lighting == "night" else 0.4)
+        for a, geo in drawn:
+            parts, decals, corners, uv, depth, rot = geo
+            allx, ally = uv[..., 0], uv[..., 1]
+            if allx.max() < 0 or allx.min() >= self.w:
+                continue
+            blur_px = self._blur_vector(a, L["exposure_s"]) if self.blur_enabled else None
+            # contact shadow
+            fp = corners[0][:4].copy()
+            centre = fp.mean(axis=0)
+            fp = centre + (fp - centre) * 1.08
+            suv, _ = self.cam.project(fp)
+            cv2.fillConvexPoly(img, np.round(suv * 16).astype(np.int32), (16, 16, 16), cv2.LINE_AA, 4)
+            faces = self._visible_faces(parts, corners, C)
+            face_uv: dict[tuple[int, str], np.ndarray] = {}
+            for p_i, part in enumerate(parts):
+                for name, n in faces[p_i].items():
+                    idx, _n_local = FACES[name]
+                    shade = L["ambient"] + L["sun"] * max(0.0, float(n @ sun))
+                    if name == "top":
+                        col = part.top_colour if part.top_colour is not None else part.colour
+                    else:
+                        col = part.side_colour if part.side_colour is not None else part.colour
+                    if col is GLASS_BGR:
+                        shade = 0.6 + 0.5 * shade * (1.3 if name == "top" else 1.0)
+                    colour = np.clip(np.asarray(col) * shade * gain, 0, 255)
+                    poly = uv[p_i][list(idx)]
+                    face_uv[(p_i, name)] = poly
+                    cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour.tolist(), cv2.LINE_AA, 4)
+            red_on, blue_on = ev_lamps_on(a.light_bar, t)
+            sig_on = signal_on(a.style, t)
+            tail_bright = a.brake_on or L["running_lights"]
+            shown = [dc for dc in decals if (dc.part, dc.face) in face_uv]
+            if shown:
+                all_uv, _ = self.cam.project(np.concatenate(
+                    [face_points(corners[dc.part], dc.face, dc.u0, dc.u1, dc.v0, dc.v1) for dc in shown]))
+            for k_dc, dc in enumerate(shown):
+                puv = all_uv[4 * k_dc:4 * k_dc + 4]
+                lit = False
+                if dc.lamp == "turn" and not sig_on:
+                    continue  # the tail light under it shows
+                if dc.lamp == "tail":
+                    if tail_bright:
+                        lit = True
+                        colour = TAIL_ON_BGR if a.brake_on else (50, 50, 200)
+                    else:
+                        colour = np.clip(TAIL_OFF_BGR * gain * 1.1, 0, 255).tolist()
+                elif dc.lamp == "ev_red" and red_on:
+                    lit, colour = True, RED_LAMP_BGR
+                elif dc.lamp == "ev_blue" and blue_on:
+                    lit, colour = True, BLUE_LAMP_BGR
+                elif dc.lamp in SIGNAL_LAMPS and sig_on:
+                    lit, colour = True, AMBER_ON_BGR if dc.lamp == "hazard" else TURN_ON_BGR
+                else:
+                    colour = np.clip(np.asarray(dc.colour, dtype=float) * (0.85 if dc.lamp else 1.0)
+                                     * (L["ambient"] + 0.5 * L["sun"]) * gain * 1.3, 0, 255).tolist()
+                cv2.fillConvexPoly(img, np.round(puv * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
+                if lit:
+                    strength = 1.0 if dc.lamp.startswith("ev") else SIGNAL_GLOW if dc.lamp in SIGNAL_LAMPS \
+                        else (0.55 if a.brake_on else 0.3)
+                    if dc.lamp.startswith("ev") and dc.part == len(parts) - 1:
+                        # one halo per light-bar colour (its faces share it)
+                        key = (a.actor_id, dc.lamp)
+                        if key in lamp_pts:
+                            lamp_pts[key][0] = np.vstack([lamp_pts[key][0], puv])
+                        else:
+                            lamp_pts[key] = [puv, colour, strength]
+                    else:
+                        glows.append((puv, colour, strength))
+            if blur_px is not None:
+                self._motion_blur(img, uv, blur_px)
+        glows.extend(tuple(v) for v in lamp_pts.values())
+        if glows:
+            self._draw_glows(img, glows, L["glow"])
+        if self.exposure_enabled:
+            img = cv2.LUT(img, self._exposure_lut(t, lighting))
+        if self.noise_enabled:
+            img = self._add_noise(img, lighting, frame_index)
+        return img
+
+    def _motion_blur(self, img: np.ndarray, uv: np.ndarray, vec: np.ndarray) -> None:
+        """Blur a vehicle's ROI along its image motion during the exposure."""
+        n = int(min(25, math.ceil(float(np.hypot(*vec)))))
+        pad = n + 2
+        x1 = max(0, int(uv[..., 0].min()) - pad)
+        x2 = min(self.w, int(uv[..., 0].max()) + pad)
+        y1 = max(0, int(uv[..., 1].min()) - pad)
+        y2 = min(self.h, int(uv[..., 1].max()) + pad)
+        if x2 - x1 < 3 or y2 - y1 < 3:
+            return
+        k = np.zeros((2 * n + 1, 2 * n + 1), np.float32)
+        direction = vec / max(1e-6, float(np.hypot(*vec)))
+        for i in range(n + 1):
+            x, y = np.round(n + direction * (i - n / 2)).astype(int)
+            k[np.clip(y, 0, 2 * n), np.clip(x, 0, 2 * n)] += 1.0
+        k /= k.sum()
+        roi = img[y1:y2, x1:x2]
+        roi[:] = cv2.filter2D(roi, -1, k, borderType=cv2.BORDER_REPLICATE)
+
+    def _blur_vector(self, a: Actor, exposure_s: float) -> np.ndarray | None:
+        if a.speed_mps < 0.5:
+            return None
+        p0 = np.array([[a.pos_x_m, a.pos_y_m, a.height_m / 2]])
+        step = a.speed_mps * exposure_s
+        p1 = p0 + step * np.array([[math.cos(a.heading_rad), math.sin(a.heading_rad), 0.0]])
+        uv, depth = self.cam.project(np.vstack([p0, p1]))
+        if np.any(depth <= NEAR_M):
+            return None
+        vec = uv[1] - uv[0]
+        return vec if float(np.hypot(*vec)) >= 1.5 else None
