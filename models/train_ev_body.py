@@ -139,7 +139,10 @@ def confident_threshold(y: np.ndarray, p: np.ndarray, min_precision: float = 0.9
     return 0.99
 
 
-def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s: float, log=print) -> None:
+def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s: float, log=print,
+          label_smoothing: float = 0.0) -> None:
+    """AdamW, one-cycle, weighted BCE; ``label_smoothing`` eps trains on targets eps/2 and 1 - eps/2 (some labels
+    of ``ev_train`` are wrong: a police car labelled 0 among them; soft targets keep them from dominating)."""
     import torch
 
     torch.manual_seed(seed)
@@ -161,13 +164,13 @@ def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s:
             idx = order[i:i + 32]
             xb = torch.from_numpy(np.stack([augment(x[k], rng, x.shape[1]) for k in idx]).astype(np.float32)
                                   .transpose(0, 3, 1, 2).copy())
-            yb = torch.from_numpy(y[idx]).reshape(-1, 1)
+            yb = torch.from_numpy(y[idx] * (1.0 - label_smoothing) + 0.5 * label_smoothing).reshape(-1, 1)
             loss = torch.nn.functional.binary_cross_entropy_with_logits(model.logits(xb), yb, pos_weight=pos_weight)
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
-            total, n = total + float(loss) * len(idx), n + len(idx)
+            total, n = total + loss.item() * len(idx), n + len(idx)
         log(f"epoch {epoch + 1}/{epochs}: loss {total / n:.4f} ({time.time() - t0:.0f} s)")
         if time.time() - t0 > budget_s:
             log(f"time budget {budget_s:.0f} s spent: stopping after epoch {epoch + 1}")
@@ -236,6 +239,8 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", default=None, help="also save the trained PyTorch weights here")
     ap.add_argument("--from-checkpoint", default=None, help="export and score these weights instead of training")
     ap.add_argument("--budget-s", type=float, default=1500.0, help="stop after the epoch that passes this time")
+    ap.add_argument("--label-smoothing", type=float, default=0.0,
+                    help="train on soft targets eps/2 and 1 - eps/2 (noisy labels); 0: hard targets")
     args = ap.parse_args(argv)
 
     import torch
@@ -253,7 +258,8 @@ def main(argv=None) -> int:
         model.load_state_dict(torch.load(args.from_checkpoint))
         print(f"weights from {args.from_checkpoint}: not trained again", flush=True)
     else:
-        train(model, *data["train"], args.epochs, args.seed, args.budget_s, log=lambda m: print(m, flush=True))
+        train(model, *data["train"], args.epochs, args.seed, args.budget_s, log=lambda m: print(m, flush=True),
+              label_smoothing=args.label_smoothing)
     out = Path(args.out)
     if args.checkpoint and not args.from_checkpoint:
         import torch
