@@ -4,6 +4,8 @@ backgrounds, the static-evidence image, ghosts)."""
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -54,7 +56,8 @@ class StaticForeground:
         self.short_bg: np.ndarray | None = None
         self.evidence: np.ndarray | None = None
         self._init: list[np.ndarray] = []
-        self._seen = 0
+        self._since_init_s = math.inf
+        """Time since the last frame taken into the initial median."""
         self.last_static: np.ndarray | None = None
         self.last_frame: np.ndarray | None = None
 
@@ -70,25 +73,28 @@ class StaticForeground:
         """Take a frame of the empty road as both backgrounds (an RSU that has been running)."""
         f = small.astype(np.float32)
         self.long_bg, self.short_bg = f.copy(), f.copy()
-        self.evidence = np.zeros(f.shape[:2], np.int16)
+        self.evidence = np.zeros(f.shape[:2], np.float32)
         self._init = []
 
-    def update(self, small: np.ndarray, hold: np.ndarray | None = None) -> bool:
-        """One frame at working scale (uint8 BGR or grey); ``hold``: bool mask of pixels covered by
-        vehicles (evidence unchanged there). Returns False while initialising or on a skipped frame."""
+    def update(self, small: np.ndarray, hold: np.ndarray | None = None, dt_s: float = 1 / 15) -> bool:
+        """One frame at working scale (uint8 BGR or grey) ``dt_s`` after the last one looked at; ``hold``: bool
+        mask of pixels covered by vehicles (evidence unchanged there). Learning rates are 1 - exp(-dt / tau) and
+        evidence counts seconds. Returns False while initialising or on a skipped frame."""
         cfg = self.cfg
         f = small.astype(np.float32)
-        self._seen += 1
+        short_alpha = 1.0 - math.exp(-dt_s / cfg.short_tau_s)
         if self.long_bg is None:
-            if (self._seen - 1) % cfg.init_stride == 0:
+            self._since_init_s += dt_s
+            if self._since_init_s >= cfg.init_interval_s - 1e-3:
                 self._init.append(f)
+                self._since_init_s = 0.0
             if self.short_bg is None:
                 self.short_bg = f.copy()
             else:
-                cv2.accumulateWeighted(f, self.short_bg, cfg.short_alpha)
+                cv2.accumulateWeighted(f, self.short_bg, short_alpha)
             if len(self._init) >= cfg.init_frames:
                 self.long_bg = np.median(np.stack(self._init), axis=0).astype(np.float32)
-                self.evidence = np.zeros(f.shape[:2], np.int16)
+                self.evidence = np.zeros(f.shape[:2], np.float32)
                 self._init = []
             return False
         d_long = cv2.absdiff(f, self.long_bg)
@@ -96,7 +102,7 @@ class StaticForeground:
         if d_long.ndim == 3:
             d_long, d_short = _channel_max(d_long), _channel_max(d_short)
         fg_long = d_long > cfg.diff_threshold
-        cv2.accumulateWeighted(f, self.short_bg, cfg.short_alpha)
+        cv2.accumulateWeighted(f, self.short_bg, short_alpha)
         if np.count_nonzero(fg_long) > cfg.max_foreground_fraction * fg_long.size:
             return False
         stable = d_short < cfg.stable_threshold
@@ -106,11 +112,11 @@ class StaticForeground:
         if self.roi is not None:
             static &= self.roi
         e = self.evidence
-        e[static & free] += 1
-        e[~fg_long & free] -= cfg.decay
-        np.clip(e, 0, cfg.evidence_max, out=e)
+        e[static & free] += dt_s
+        e[~fg_long & free] -= cfg.decay * dt_s
+        np.clip(e, 0, cfg.evidence_max_s, out=e)
         learn = ((~fg_long) & (e == 0)).view(np.uint8)
-        cv2.accumulateWeighted(f, self.long_bg, cfg.long_alpha, mask=learn)
+        cv2.accumulateWeighted(f, self.long_bg, 1.0 - math.exp(-dt_s / cfg.long_tau_s), mask=learn)
         self.last_static = static
         self.last_frame = f
         return True

@@ -17,38 +17,47 @@ ToGround = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 class HazardConfig:
     scale: float = 0.5
     """Working scale of the background models (1280x720 -> 640x360)."""
+    rate_hz: float = 3.0
+    """The detector looks at a frame at most this often (issue 19: debris is static, a camera's 15 fps are not
+    needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it."""
+    warmup_fps: float = 15.0
+    """Frame rate assumed for untimed warm-up frames (``HazardDetector.learn_background`` without a time)."""
     init_frames: int = 9
-    init_stride: int = 8
-    """Long-term background: median of ``init_frames`` frames taken every ``init_stride`` frames
-    (9 x 8 frames = 4.8 s at 15 fps; a car at 10 m/s moves 48 m meanwhile)."""
-    long_alpha: float = 0.002
-    """Long-term learning rate per frame (time constant 500 frames = 33 s at 15 fps)."""
-    short_alpha: float = 0.25
-    """Short-term learning rate (time constant 4 frames)."""
+    init_interval_s: float = 8 / 15
+    """Long-term background: median of ``init_frames`` frames at least ``init_interval_s`` apart (9 frames over
+    ~5 s; a car at 10 m/s moves 48 m meanwhile)."""
+    long_tau_s: float = 33.3
+    """Long-term background's time constant (issue 10's rate 0.002 per frame at 15 fps)."""
+    short_tau_s: float = 0.232
+    """Short-term background's time constant (issue 10's rate 0.25 per frame at 15 fps): the learning rate of an
+    update dt after the last is 1 - exp(-dt / tau)."""
     diff_threshold: float = 28.0
     """Largest channel difference (0-255) from the long-term background that makes a pixel foreground
     (sensor noise in the renders is ~3 levels; asphalt texture under blur ~8)."""
     stable_threshold: float = 10.0
     """Largest channel difference from the short-term background of a still pixel."""
-    on_frames: int = 15
-    """A new hazard needs pixels static for this many frames (1 s at 15 fps)."""
-    off_frames: int = 5
+    on_s: float = 1.0
+    """A new hazard needs pixels static for this long (evidence: seconds of static foreground)."""
+    off_s: float = 1 / 3
     """... and stays while its pixels keep at least this much evidence (hysteresis)."""
-    evidence_max: int = 60
-    """Evidence saturates here: a removed object's pixels decay back below ``off_frames`` in
-    (evidence_max - off_frames) / decay frames."""
-    decay: int = 3
+    evidence_max_s: float = 4.0
+    """Evidence saturates here: a removed object's pixels decay back below ``off_s`` in
+    (evidence_max_s - off_s) / decay seconds."""
+    decay: float = 3.0
+    """Evidence lost per second where the pixel shows the long-term background again."""
+    max_update_gap_s: float = 1.0
+    """Longest time one update counts (a stalled camera does not turn one frame into seconds of evidence)."""
     on_pixels_min: int = 12
-    """Pixels (working scale) with E >= on_frames that a new hazard needs (a 0.5 m object at 80 m is
+    """Pixels (working scale) with E >= on_s that a new hazard needs (a 0.5 m object at 80 m is
     about 4 x 3 working pixels; at 20 m about 15 x 10)."""
     min_area_px: int = 10
     """Smallest component (working-scale pixels) considered at all."""
     moved_px: float = 12.0
     moved_fraction: float = 0.25
     moving_speed_mps: float = 2.0
-    moving_frames: int = 5
-    """... or whose localised speed (when the caller gives speeds) was at least ``moving_speed_mps`` for
-    ``moving_frames`` frames in a row (a slow car far away moves a few pixels a second)."""
+    moving_s: float = 4 / 15
+    """... or whose localised speed (when the caller gives speeds) stayed at least ``moving_speed_mps`` for
+    ``moving_s`` (a slow car far away moves a few pixels a second)."""
     """A track whose box centre moved more than ``moved_px`` (full-scale pixels) and this fraction of its
     smaller box side since it began is a vehicle (a car entering at the image edge grows from the edge:
     its centre moves though its bottom stays on the border)."""
@@ -96,12 +105,20 @@ class HazardConfig:
     def __post_init__(self) -> None:
         if not 0.05 <= self.scale <= 1.0:
             raise ValueError(f"scale must be in [0.05, 1], got {self.scale}")
-        if not 0 < self.off_frames <= self.on_frames <= self.evidence_max:
-            raise ValueError("need 0 < off_frames <= on_frames <= evidence_max")
-        if not (0 < self.long_alpha < 1 and 0 < self.short_alpha <= 1):
-            raise ValueError("learning rates must be in (0, 1]")
-        if self.init_frames < 1 or self.init_stride < 1 or self.decay < 1:
-            raise ValueError("init_frames, init_stride and decay must be >= 1")
+        if not 0 < self.off_s <= self.on_s <= self.evidence_max_s:
+            raise ValueError(f"need 0 < off_s <= on_s <= evidence_max_s, got {self.off_s}, {self.on_s}, "
+                             f"{self.evidence_max_s}")
+        if self.long_tau_s <= 0 or self.short_tau_s <= 0:
+            raise ValueError("long_tau_s and short_tau_s must be > 0 s")
+        if self.init_frames < 1 or self.init_interval_s < 0 or self.decay <= 0:
+            raise ValueError("need init_frames >= 1, init_interval_s >= 0 s and decay > 0")
+        if self.rate_hz < 0 or self.warmup_fps <= 0 or self.max_update_gap_s <= 0:
+            raise ValueError("need rate_hz >= 0 (0: every frame), warmup_fps > 0 and max_update_gap_s > 0")
+
+    @property
+    def period_s(self) -> float:
+        """Shortest time between two frames the detector looks at (0: every frame)."""
+        return 1.0 / self.rate_hz if self.rate_hz > 0 else 0.0
 
 
 @dataclass(frozen=True)

@@ -80,13 +80,19 @@ class HazardDetector:
         self.vehicles = VehicleMask(self.cfg, to_ground)
         self.stats = HazardStats()
         self.last_components: list[_Component] = []
+        self._last_t_s: float | None = None
+        """Time of the last frame looked at (``update``)."""
+        self._learn_t_s: float | None = None
+        """Time of the last warm-up frame learnt (``learn_background``)."""
+        self._learn_frames = 0
+        """Untimed warm-up frames seen."""
 
 
     # ------------------------------------------------------------------ components
     def _components(self) -> list[_Component]:
         cfg = self.cfg
         e = self.fg.evidence
-        mask = (e >= cfg.off_frames).astype(np.uint8)
+        mask = (e >= cfg.off_s).astype(np.uint8)
         mask = cv2.dilate(mask, np.ones((3, 3), np.uint8))
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         out = []
@@ -94,13 +100,13 @@ class HazardDetector:
         for k in range(1, n):
             x, y, w, h, _area = stats[k]
             sel = labels[y:y + h, x:x + w] == k
-            sel &= e[y:y + h, x:x + w] >= cfg.off_frames
+            sel &= e[y:y + h, x:x + w] >= cfg.off_s
             area = int(np.count_nonzero(sel))
             if area < cfg.min_area_px:
                 continue
             self.stats.components += 1
             ev = e[y:y + h, x:x + w][sel]
-            strong = int(np.count_nonzero(ev >= cfg.on_frames)) >= cfg.on_pixels_min
+            strong = int(np.count_nonzero(ev >= cfg.on_s)) >= cfg.on_pixels_min
             cols = np.flatnonzero(sel.any(axis=0))
             lowest = h - 1 - np.argmax(sel[::-1, cols], axis=0)  # lowest selected row per column
             uv = np.column_stack([(x + cols + 0.5) / s, (y + lowest + 1.0) / s])
@@ -128,7 +134,7 @@ class HazardDetector:
                 self.stats.off_lane += 1
                 continue
             bbox = (x / s, y / s, (x + w) / s, (y + h) / s)
-            conf = float(np.clip(ev.mean() / cfg.evidence_max, 0.05, 1.0))
+            conf = float(np.clip(ev.mean() / cfg.evidence_max_s, 0.05, 1.0))
             out.append(_Component(bbox, float(cx), float(cy), float(s_c), float(d_c), length, width, strong, conf,
                                   (int(x), int(y)), sel))
         return out
@@ -143,24 +149,48 @@ class HazardDetector:
         """Start from a known empty-road frame instead of the initial median (full-size BGR)."""
         self.fg.prime(self.fg.small(empty_road))
 
-    def learn_background(self, image: np.ndarray) -> None:
-        """A frame from before the watch starts (full-size BGR, e.g. ``sim.warmup``): learnt into the
-        backgrounds (initial median, then the running averages) with no static evidence kept and no
-        hazard raised, so traffic that stood still during the warm-up is not a hazard later."""
-        self.fg.update(self.fg.small(image))
+    def learn_background(self, image: np.ndarray, t_s: float | None = None) -> None:
+        """A frame from before the watch starts (full-size BGR, e.g. ``sim.warmup``) at ``t_s`` (None: one
+        ``warmup_fps`` frame after the last): learnt into the backgrounds (initial median, then the running
+        averages) at most ``rate_hz`` times a second, with no static evidence kept and no hazard raised, so traffic
+        that stood still during the warm-up is not a hazard later."""
+        if t_s is None:
+            self._learn_frames += 1
+            t_s = (self._learn_frames - 1) / self.cfg.warmup_fps
+        dt = self._due(self._learn_t_s, t_s)
+        if dt is None:
+            return
+        self._learn_t_s = t_s
+        self.fg.update(self.fg.small(image), dt_s=dt)
         if self.fg.evidence is not None:
             self.fg.evidence[:] = 0
+
+    def _due(self, last_t_s: float | None, t_s: float) -> float | None:
+        """Seconds this frame counts for (since the last one looked at, at most ``max_update_gap_s``), or None
+        when it comes sooner than ``1 / rate_hz`` after it. The first frame, or one from before the last (a
+        new clock), counts one period."""
+        period = self.cfg.period_s
+        if last_t_s is None or t_s < last_t_s:
+            return period if period > 0 else 1.0 / self.cfg.warmup_fps
+        if t_s - last_t_s < period - 1e-3:
+            return None
+        return min(t_s - last_t_s, self.cfg.max_update_gap_s)
 
     # ------------------------------------------------------------------ per frame
     def update(self, image: np.ndarray, t_s: float, track_ids=(), boxes=(),
                speeds: dict[int, float] | None = None) -> list[HazardEvent]:
         """One frame (BGR, full size) at time ``t_s`` with this frame's track ids and xyxy boxes (and,
-        optionally, each track's localised speed in m/s by track id)."""
+        optionally, each track's localised speed in m/s by track id). Frames sooner than ``1 / rate_hz`` after the
+        last one looked at are passed over (no cost, no events)."""
         cfg = self.cfg
+        dt = self._due(self._last_t_s, t_s)
+        if dt is None:
+            return []
+        self._last_t_s = t_s
         self.stats.frames += 1
         small = self.fg.small(image)
         hold = self.vehicles.update(t_s, track_ids, boxes, speeds, small.shape[:2])
-        if not self.fg.update(small, hold):
+        if not self.fg.update(small, hold, dt_s=dt):
             if self.fg.ready:
                 self.stats.skipped_frames += 1
             return []

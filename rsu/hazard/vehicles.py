@@ -19,7 +19,8 @@ class _TrackMemory:
     box: np.ndarray
     moved: bool = False
     last_s: float = 0.0
-    fast_frames: int = 0
+    fast_since_s: float | None = None
+    """Since when its localised speed has stayed at least ``moving_speed_mps`` (None: it is not that fast)."""
     history: deque = field(default_factory=deque)
     """(t_s, box) of the last ``stop_window_s``."""
 
@@ -102,12 +103,15 @@ class VehicleMask:
             while mem.history and t_s - mem.history[0][0] > cfg.stop_window_s:
                 mem.history.popleft()
             if speeds is not None:
-                fast = speeds.get(tid, 0.0) >= cfg.moving_speed_mps
-                mem.fast_frames = mem.fast_frames + 1 if fast else 0
+                if speeds.get(tid, 0.0) < cfg.moving_speed_mps:
+                    mem.fast_since_s = None
+                elif mem.fast_since_s is None:
+                    mem.fast_since_s = t_s
             if not mem.moved:
                 moved = math.hypot(uv[0] - mem.first_uv[0], uv[1] - mem.first_uv[1])
+                fast_s = t_s - mem.fast_since_s if mem.fast_since_s is not None else -1.0
                 mem.moved = (moved > max(cfg.moved_px, cfg.moved_fraction * min(b[2] - b[0], b[3] - b[1]))
-                             or mem.fast_frames >= cfg.moving_frames)
+                             or fast_s >= cfg.moving_s - 1e-3)
             if mem.moved:
                 out.append(mem.hold_box(cfg))
         for tid in [t for t in self._tracks if t not in present]:

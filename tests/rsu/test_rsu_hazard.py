@@ -75,7 +75,7 @@ def run(det, frames, t0=0.0, dt=1 / 15, tracks=None):
     return events
 
 
-FAST = dict(on_frames=6, off_frames=2, evidence_max=15, decay=3, clear_after_s=0.3, persist_period_s=0.5)
+FAST = dict(on_s=0.4, off_s=2 / 15, evidence_max_s=1.0, decay=3.0, clear_after_s=0.3, persist_period_s=0.5)
 """A quicker life cycle than the defaults (keeps the tests short); the logic is the same."""
 
 
@@ -86,23 +86,44 @@ def test_debris_appears_persists_and_clears(scene):
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
     box = patch_box(rsu, x, y)
     rng = np.random.default_rng(1)
-    present = [frame_with(base, [box], noise=rng) for _ in range(30)]
-    gone = [frame_with(base, [], noise=rng) for _ in range(15)]
+    present = [frame_with(base, [box], noise=rng) for _ in range(45)]
+    gone = [frame_with(base, [], noise=rng) for _ in range(20)]
     events = run(det, present + gone)
     states = [e.state for _, e in events]
     assert states[0] == HazardState.APPEAR
     t_appear, first = events[0]
-    # the short-term background needs ~8 frames (alpha 0.25) to take the object in, then on_frames (6)
-    assert 6 / 15 - 1e-6 <= t_appear <= 15 / 15
+    # the short-term background needs ~0.5 s to take the object in, then on_s (0.4 s); looked at 3 times a second
+    assert 6 / 15 - 1e-6 <= t_appear <= 15 / 15 + 1e-6
     assert first.lane == 1
     # the ground contact of the object's near face: within its length of the true centre, laterally within 0.5 m
     assert abs(first.x_m - x) < 1.0 and abs(first.y_m - y) < 0.5
     assert 0.3 < first.width_m < 1.6
     persists = [t for t, e in events if e.state == HazardState.PERSIST]
-    assert len(persists) >= 2 and np.allclose(np.diff(persists), 0.5, atol=0.07)  # at persist_period_s
+    # every persist_period_s (0.5 s) on the frames looked at (every 1/3 s): 2/3 s apart
+    assert len(persists) >= 2 and np.allclose(np.diff(persists), 2 / 3, atol=0.07)
     clears = [t for t, e in events if e.state == HazardState.CLEAR]
-    assert len(clears) == 1 and 2.0 < clears[0] <= 2.0 + 0.8  # removed at 2 s: evidence decays, then 0.3 s
+    assert len(clears) == 1 and 3.0 - 1e-6 <= clears[0] <= 3.0 + 1.0  # removed at 3 s: evidence decays, 0.3 s
     assert {e.hazard_id for _, e in events} == {first.hazard_id}
+
+
+def test_looks_at_3_frames_a_second_with_the_same_timing_as_every_frame(scene):
+    """Issue 19: the detector passes over frames sooner than 1 / rate_hz after the last it looked at; evidence and
+    learning rates count seconds, so the object appears and clears at about the same times as at 15 fps."""
+    corridor, rsu, base, loc = scene
+    y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    box = patch_box(rsu, 125.0, y)
+    rng = np.random.default_rng(11)
+    frames = [frame_with(base, [box], noise=rng) for _ in range(45)] + [frame_with(base, [], noise=rng)
+                                                                        for _ in range(30)]
+    times = {}
+    for rate in (0.0, 3.0):
+        det = detector(corridor, rsu, loc, base, rate_hz=rate, **FAST)
+        events = run(det, frames)
+        times[rate] = {e.state: t for t, e in reversed(events)}  # first of each state
+        assert det.stats.frames == (75 if rate == 0 else 15)
+    # appear within one period; clear within two (at 3 Hz one look takes the evidence past the hysteresis)
+    assert abs(times[3.0][HazardState.APPEAR] - times[0.0][HazardState.APPEAR]) <= 1 / 3 + 1e-6, times
+    assert abs(times[3.0][HazardState.CLEAR] - times[0.0][HazardState.CLEAR]) <= 2 / 3 + 1e-6, times
 
 
 def test_moving_and_tracked_vehicles_are_not_hazards(scene):
@@ -110,14 +131,14 @@ def test_moving_and_tracked_vehicles_are_not_hazards(scene):
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
     rng = np.random.default_rng(2)
     # a car drives from 20 m to 40 m ahead at 10 m/s, stops there (a queue) and stays: tracked while moving
-    xs = [120.0 + min(10.0 * k / 15, 20.0) for k in range(45)]
+    xs = [120.0 + min(10.0 * k / 15, 20.0) for k in range(54)]  # stopped for 1.6 s (the detector looks at 3 Hz)
     boxes = [patch_box(rsu, x, y, 4.5, 1.8, 1.5) for x in xs]
     frames = [frame_with(base, [b], colour=(200, 200, 200), noise=rng) for b in boxes]
     det = detector(corridor, rsu, loc, base, **FAST)
     assert run(det, frames, tracks=lambda k: ([7], [boxes[k]])) == []
     # the detector then loses the stopped car (a background model absorbs it): its region stays parked
     more = [frame_with(base, [boxes[-1]], colour=(200, 200, 200), noise=rng) for _ in range(15)]
-    assert run(det, more, t0=3.0) == []
+    assert run(det, more, t0=54 / 15) == []
     # control: the same pixels without the track are reported (so the masking is what kept them out)
     det2 = detector(corridor, rsu, loc, base, **FAST)
     events = run(det2, frames)
@@ -148,7 +169,7 @@ def test_ghost_of_an_object_that_left_is_absorbed(scene):
 
 def test_initial_median_ignores_passing_traffic(scene):
     corridor, rsu, base, loc = scene
-    cfg = HazardConfig(init_frames=5, init_stride=3, **FAST)
+    cfg = HazardConfig(init_frames=5, init_interval_s=0.2, **FAST)
     det = HazardDetector(corridor.road, loc.mapper.to_ground, cfg, camera=rsu.camera)
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
     rng = np.random.default_rng(5)
@@ -171,7 +192,7 @@ def test_road_mask_covers_the_lanes_not_the_sky(scene):
 
 def test_config_is_validated():
     with pytest.raises(ValueError):
-        HazardConfig(off_frames=20, on_frames=10)
+        HazardConfig(off_s=2.0, on_s=1.0)
     with pytest.raises(ValueError):
         HazardConfig(scale=2.0)
 
@@ -242,3 +263,17 @@ def test_slow_far_vehicle_is_masked_by_its_localised_speed(scene):
     for k, img in enumerate(frames):
         events += det.update(img, k / 15, [7], [boxes[k]], {7: 1.5})
     assert events == []
+
+
+def test_untimed_warm_up_frames_learn_the_background_at_the_detector_rate(scene):
+    """``learn_background`` without times (``sim.warmup``: the camera's 15 fps) counts them at ``warmup_fps`` and
+    learns from 3 a second: 6 s of warm-up make the initial median (9 frames 8/15 s apart), with no evidence."""
+    corridor, rsu, base, loc = scene
+    det = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(), camera=rsu.camera)
+    rng = np.random.default_rng(12)
+    looked = []
+    for _ in range(90):
+        det.learn_background(frame_with(base, [], noise=rng))
+        looked.append(det._learn_t_s)
+    assert det.fg.ready and not det.fg.evidence.any()
+    assert len(set(looked)) == 18  # every fifth frame
