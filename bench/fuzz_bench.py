@@ -15,7 +15,9 @@ Per target and seed:
   names the last input the handler accepted, the one that left the state behind). Each sample holds
   the payload in hex and the (seed, target, input index) that regenerates it.
 - per-input cost: the CPU time of this thread from the bytes handed to the bus (or decoder) to the
-  handler's return, ms (``max_input_ms``: what one input costs, GC included; the wall-clock maximum,
+  handler's return, ms (``max_input_ms``: what one input costs, GC included; the same less the garbage
+  collector's pauses during it is ``max_input_net_gc_ms``, the longest pause ``max_gc_pause_ms``: a
+  full collection's cost grows with the process's heap, not with the input; the wall-clock maximum,
   which also holds scheduler stalls from other processes on the host, is ``max_input_wall_ms``). The
   scene's own work between inputs (a DDM or vehicle step, a render every 200 inputs, a fresh car every
   4,000) is timed apart: ``max_step_ms``.
@@ -105,6 +107,10 @@ class Result:
     """CPU time of the slowest input (this thread: decode + handler, GC included)."""
     max_input_wall_ms: float = 0.0
     """Wall-clock time of the slowest input (also holds stalls caused by other processes)."""
+    max_input_net_gc_ms: float = 0.0
+    """CPU time of the slowest input less the garbage collector's pauses during it."""
+    max_gc_pause_ms: float = 0.0
+    """Longest pause of Python's garbage collector (its cost grows with the process's heap, not the input)."""
     slowest_input: str = ""
     """(seed, index, size, head in hex) of the input with the largest CPU time."""
     max_step_ms: float = 0.0
@@ -157,6 +163,17 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
     total_ns = 0
     last_accepted: tuple[int, bytes] = (-1, b"")
     thread_ns, wall_ns = time.thread_time_ns, time.perf_counter_ns
+    gc_ns, gc_start = [0], [0]
+
+    def on_gc(phase: str, _info: dict) -> None:
+        if phase == "start":
+            gc_start[0] = thread_ns()
+        else:
+            pause = thread_ns() - gc_start[0]
+            gc_ns[0] += pause
+            res.max_gc_pause_ms = max(res.max_gc_pause_ms, pause / 1e6)
+
+    gc.callbacks.append(on_gc)
     t_start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numpy overflow warnings on 1e308 inputs are not crashes
@@ -167,6 +184,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
                 if trace:
                     traced_mark = tracemalloc.get_traced_memory()[0]
             payload = target.payload()
+            g0 = gc_ns[0]
             w0, c0 = wall_ns(), thread_ns()
             try:
                 ok = target.feed(payload)
@@ -184,6 +202,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
                 res.max_input_ms = dt_ms
                 res.slowest_input = f"seed {seed} input {i}: {len(payload)} bytes, head {payload[:24].hex()}"
             res.max_input_wall_ms = max(res.max_input_wall_ms, (w1 - w0) / 1e6)
+            res.max_input_net_gc_ms = max(res.max_input_net_gc_ms, dt_ms - (gc_ns[0] - g0) / 1e6)
             res.inputs += 1
             res.accepted += bool(ok)
             if ok:
@@ -198,6 +217,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
                 if isinstance(target, _BusTarget):
                     target.bus.stats.handler_errors = 0
             res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
+    gc.callbacks.remove(on_gc)
     res.rejected = res.inputs - res.accepted
     res.seconds = time.perf_counter() - t_start
     res.mean_input_us = total_ns / max(1, n) / 1000.0
@@ -226,6 +246,8 @@ def merge(results: Sequence[Result]) -> Result:
         if r.max_input_ms >= out.max_input_ms:
             out.max_input_ms, out.slowest_input = r.max_input_ms, r.slowest_input
         out.max_input_wall_ms = max(out.max_input_wall_ms, r.max_input_wall_ms)
+        out.max_input_net_gc_ms = max(out.max_input_net_gc_ms, r.max_input_net_gc_ms)
+        out.max_gc_pause_ms = max(out.max_gc_pause_ms, r.max_gc_pause_ms)
         out.max_step_ms = max(out.max_step_ms, r.max_step_ms)
         out.rss_growth_kb = max(out.rss_growth_kb, r.rss_growth_kb)
         if r.traced_peak_kb is not None:
@@ -266,7 +288,8 @@ def run(n: int, names: list[str] | None = None, seeds: Sequence[int] = (0,), tra
         say(f"per target over seeds {','.join(map(str, seeds))}:")
         for r in merged:
             say(f"  {r.name:<24}{r.inputs:>9} inputs {r.crashes:>3} crashes, slowest input {r.max_input_ms:6.2f} ms "
-                f"({r.slowest_input}), rss +{r.rss_growth_kb:.0f} kB")
+                f"({r.slowest_input}), {r.max_input_net_gc_ms:.2f} ms less GC pauses (longest pause "
+                f"{r.max_gc_pause_ms:.1f} ms), rss +{r.rss_growth_kb:.0f} kB")
     traced = [r.traced_growth_kb for r in merged if r.traced_growth_kb is not None]
     return {
         "fuzz_inputs": sum(r.inputs for r in merged),
@@ -274,6 +297,8 @@ def run(n: int, names: list[str] | None = None, seeds: Sequence[int] = (0,), tra
         "fuzz_max_input_ms": round(max((r.max_input_ms for r in merged), default=0.0), 3),
         "fuzz_max_rss_growth_kb": max((r.rss_growth_kb for r in merged), default=0.0),
         "fuzz_max_input_wall_ms": round(max((r.max_input_wall_ms for r in merged), default=0.0), 3),
+        "fuzz_max_input_net_gc_ms": round(max((r.max_input_net_gc_ms for r in merged), default=0.0), 3),
+        "fuzz_max_gc_pause_ms": round(max((r.max_gc_pause_ms for r in merged), default=0.0), 3),
         "fuzz_max_step_ms": round(max((r.max_step_ms for r in merged), default=0.0), 3),
         "fuzz_seeds": list(seeds),
         "fuzz_inputs_per_target": n,
@@ -310,7 +335,8 @@ def main(argv: list[str] | None = None) -> int:
     out = run(n, args.targets.split(",") if args.targets else None, args.seeds, args.tracemalloc)
     print(f"fuzz: {out['fuzz_inputs']} inputs over {out['fuzz_targets']} targets x seeds {out['fuzz_seeds']}, "
           f"{out['fuzz_crashes']} crashes, slowest input {out['fuzz_max_input_ms']:.2f} ms CPU "
-          f"({out['fuzz_max_input_wall_ms']:.1f} ms wall), max RSS growth {out['fuzz_max_rss_growth_kb']:.0f} kB, "
+          f"({out['fuzz_max_input_wall_ms']:.1f} ms wall, {out['fuzz_max_input_net_gc_ms']:.2f} ms less GC pauses, "
+          f"longest GC pause {out['fuzz_max_gc_pause_ms']:.1f} ms), max RSS growth {out['fuzz_max_rss_growth_kb']:.0f} kB, "
           f"{out['fuzz_seconds']:.0f} s")
     if args.json:
         print(json.dumps(out))
