@@ -297,10 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.corridor_faults:
         faults += corridor_faults(quick=args.quick)
     if not args.no_process_faults:
-        from deploy.process_faults import PROCESS_FAULTS
+        from deploy.process_faults import PROCESS_FAULTS, run_retimed
 
         for fn in PROCESS_FAULTS.values():
-            faults.append(fn(root))
+            faults.append(run_retimed(fn, root))
     print(f" {'condition':<34} {'':<6} {'margin':>9}  outcome  [runner]")
     for f in faults:
         print(" " + f.row() + f"  [{f.runner}]")
