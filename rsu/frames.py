@@ -110,6 +110,12 @@ class VideoSource(_IterMixin):
     ``capture_factory`` replaces ``cv2.VideoCapture`` (tests).
     """
 
+    @property
+    def stamps_capture_time(self) -> bool:
+        """Are frames stamped with the wall-clock capture time (live input, not a file played in real time)? Then
+        the RSU reports each frame's age at publication (``RsuService``)."""
+        return self.live and not self.realtime
+
     def __init__(self, uri: str | int | os.PathLike, *, source_id: str | None = None,
                  read_timeout_s: float = 5.0, open_timeout_s: float = 10.0, queue_size: int = 2,
                  live: bool | None = None, realtime: bool = False,

@@ -49,6 +49,9 @@ class FrameResult:
     hazards: list[HazardEvent] = field(default_factory=list)
     """With ``lat_deg`` / ``lon_deg`` set."""
     stage_s: dict[str, float] = field(default_factory=dict)
+    """Wall-clock seconds per stage."""
+    stage_cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds per stage (this thread: what the stage cost, whatever else the machine was doing)."""
 
 
 class RsuPipeline:
@@ -79,25 +82,33 @@ class RsuPipeline:
             self.hazards.learn_background(image)
 
     def process(self, frame: Frame) -> FrameResult:
-        t0 = time.perf_counter()
+        t = [time.perf_counter()]
+        c = [time.thread_time()]
+
+        def lap() -> None:
+            t.append(time.perf_counter())
+            c.append(time.thread_time())
+
         det = self.detector.detect(frame.image)
-        t1 = time.perf_counter()
+        lap()
         tracks = self.tracker.update(det.boxes, det.scores, det.classes)
-        t2 = time.perf_counter()
+        lap()
         verdicts = self.classifier(frame, tracks) if self.classifier is not None else {}
-        t3 = time.perf_counter()
+        lap()
         localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
         objects = [self._to_message(o, verdicts.get(o.track_id)) for o in localized]
         alerts = self.alerts.update(frame.timestamp_s, objects, verdicts) if self.alerts is not None else []
-        t4 = time.perf_counter()
+        lap()
         hazards = []
         if self.hazards is not None:
             hazards = [self._located(h) for h in self.hazards.update(
                 frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,
                 {o.track_id: o.speed_mps for o in localized})]
-        t5 = time.perf_counter()
+        lap()
+        names = STAGES[:5]
         return FrameResult(objects, tracks, verdicts, alerts, hazards,
-                           dict(detect=t1 - t0, track=t2 - t1, classify=t3 - t2, localize=t4 - t3, hazard=t5 - t4))
+                           {k: t[i + 1] - t[i] for i, k in enumerate(names)},
+                           {k: c[i + 1] - c[i] for i, k in enumerate(names)})
 
     def _located(self, h: HazardEvent) -> HazardEvent:
         lat, lon = self.localizer.corridor.to_latlon(h.x_m, h.y_m)

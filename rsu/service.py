@@ -8,6 +8,12 @@ camera: ``rsu.overlay.CalibrationOverlay``) and reports health. Frames never que
 sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
+Latest frame, not a queue (issue 19): the simulated camera renders the newest snapshot when the RSU asks for a frame
+and counts the camera frames it passed over (``drops.source``). Health reports the processed rate
+(``rates_hz.frames``, beside the camera's ``rates_hz.camera``), per stage the mean wall-clock and CPU (``{stage}_cpu``)
+milliseconds per frame (``render`` when the camera renders in this process), and, for sources stamped with the
+capture time, the frame's age when its ObjectList went out (``latency_ms.frame_age`` mean, ``frame_age_max``).
+
 EV alerts (the pipeline's alert events, when it has a classifier) are published as ``EvAlert`` on
 ``iea/{c}/rsu/{rsu}/ev``, ``alert_id = f"{rsu_id}-ev-{track_id}"``; hazards (when it has a hazard detector) as
 ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``, ``hazard_id = f"{rsu_id}-hz-{n}"``.
@@ -49,6 +55,7 @@ from protocol.messages import (
     ObjectList,
     Role,
 )
+from protocol.ranges import MAX_LATENCY_MS
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent
@@ -98,6 +105,8 @@ class RsuService:
         self._period_frames = 0
         self._period_start_s = self._start_s
         self._period_stage_s = dict.fromkeys(STAGES, 0.0)
+        self._period_stage_cpu_s = dict.fromkeys(STAGES, 0.0)
+        self._period_ages_s: list[float] = []
         self._stalled = False
         self.state_key = rsu_state_key(cid, rsu_id)
         self._latest: dict[str, object] = {}  # "objects" / "health" -> the last message published
@@ -186,11 +195,13 @@ class RsuService:
             self.last_error = f"frame {frame.frame_number}: {exc}"
             log.exception("processing frame %d failed", frame.frame_number)
             return
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         msg = ObjectList(src=self.rsu_id, seq=self._seq["objects"], stamp=max(self.clock.now(), 0.0),
                          rsu_id=self.rsu_id, frame=frame.frame_number,
                          measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
         self.transport.publish(self.objects_key, msg)
+        if getattr(self.source, "stamps_capture_time", False):  # the frame's age when its objects went out
+            self._period_ages_s.append(max(self.clock.now() - frame.timestamp_s, 0.0))
         self._latest["objects"] = msg
         self._seq["objects"] += 1
         if log.isEnabledFor(logging.DEBUG):
@@ -205,9 +216,15 @@ class RsuService:
         if self.annotate_path:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
+        result.stage_cpu_s["publish"] = time.thread_time() - c0
+        render = getattr(self.source, "last_render_s", None)  # a simulated camera renders in this process
+        if render is not None:
+            result.stage_s["render"], result.stage_cpu_s["render"] = render
         metrics.observe_stages(result.stage_s)
         for k, v in result.stage_s.items():
-            self._period_stage_s[k] += v
+            self._period_stage_s[k] = self._period_stage_s.get(k, 0.0) + v
+        for k, v in result.stage_cpu_s.items():
+            self._period_stage_cpu_s[k] = self._period_stage_cpu_s.get(k, 0.0) + v
         self.frames += 1
         self._period_frames += 1
 
@@ -285,15 +302,23 @@ class RsuService:
         period = max(now - self._period_start_s, 1e-9)
         n = self._period_frames
         latency_ms = {k: (1000.0 * v / n if n else 0.0) for k, v in self._period_stage_s.items()}
+        latency_ms.update({f"{k}_cpu": (1000.0 * v / n if n else 0.0) for k, v in self._period_stage_cpu_s.items()})
+        ages = self._period_ages_s
+        if ages:
+            latency_ms["frame_age"] = min(1000.0 * sum(ages) / len(ages), MAX_LATENCY_MS)
+            latency_ms["frame_age_max"] = min(1000.0 * max(ages), MAX_LATENCY_MS)
         status = HealthStatus.OK
         if final_error:
             status = HealthStatus.ERROR
         elif self._stalled or self.errors:
             status = HealthStatus.DEGRADED
         drops = {"source": int(getattr(self.source, "drops", 0) or 0)}
+        rates_hz = {"frames": n / period if n else 0.0}
+        if getattr(self.source, "fps", None):
+            rates_hz["camera"] = float(self.source.fps)
         msg = Health(src=self.rsu_id, seq=self._seq["health"], stamp=max(now, 0.0), role=Role.RSU, status=status,
                      uptime_s=max(now - self._start_s, 0.0),
-                     rates_hz={"frames": n / period if n else 0.0},
+                     rates_hz=rates_hz,
                      latency_ms=latency_ms, drops=drops,
                      rejected={"frame_errors": self.errors, "stalls": self.stalls},
                      detail=self.last_error[:256])
@@ -303,3 +328,5 @@ class RsuService:
         self._period_frames = 0
         self._period_start_s = now
         self._period_stage_s = dict.fromkeys(STAGES, 0.0)
+        self._period_stage_cpu_s = dict.fromkeys(STAGES, 0.0)
+        self._period_ages_s = []

@@ -33,7 +33,18 @@ class SimSource:
         self.camera = SimCamera(corridor, rsu_id, transport, seed=seed)
         self.fps = float(self.camera.fps)
         self.source_id = f"sim:{rsu_id}"
-        self.drops = 0
+        self.stamps_capture_time = True
+        """Frames carry the snapshot's publication stamp on the simulator's clock (the RSU reports their age)."""
+
+    @property
+    def drops(self) -> int:
+        """Camera frames passed over because the RSU came late for them (it processes the latest frame)."""
+        return self.camera.frames_skipped
+
+    @property
+    def last_render_s(self) -> tuple[float, float]:
+        """(wall-clock, CPU) seconds of the last frame's rendering: the simulated camera's share of the RSU's work."""
+        return self.camera.last_render_s, self.camera.last_render_cpu_s
 
     def read(self, timeout_s: float | None = None) -> Frame | None:
         timeout = 5.0 if timeout_s is None else float(timeout_s)

@@ -9,6 +9,7 @@ never the snapshot. ``render(snapshot)`` is the plain path for lockstep runs (no
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,12 @@ class SimCamera:
         self._cond = threading.Condition()
         self._sub: Subscription | None = None
         self.snapshots_received = 0
+        self.frames_skipped = 0
+        """Camera frames never delivered because ``read`` came later than the next frame (the reader fell behind:
+        it gets the newest frame, not the ones it missed)."""
+        self.last_render_s = 0.0
+        self.last_render_cpu_s = 0.0
+        """Wall-clock and CPU (this thread) time of the last ``render``."""
         if transport is not None:
             self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
 
@@ -72,12 +79,15 @@ class SimCamera:
     def render(self, snapshot: WorldSnapshot) -> Frame:
         """Render one frame of the snapshot (lockstep path); the frame number is the camera's counter."""
         n = self.frame_index(snapshot.sim_time_s)
+        t0, c0 = time.perf_counter(), time.thread_time()
         img = self.renderer.render(snapshot, frame_index=n)
+        self.last_render_s, self.last_render_cpu_s = time.perf_counter() - t0, time.thread_time() - c0
         return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id, float(snapshot.stamp))
 
     def read(self, timeout_s: float = 1.0) -> Frame | None:
-        """The next frame at the camera's rate: renders the newest snapshot that falls in a camera frame
-        not delivered yet (snapshots come at 20 Hz, a 15 fps camera skips one in four); None on timeout."""
+        """The latest frame, not a queue: renders the newest snapshot that falls in a camera frame not delivered
+        yet (snapshots come at 20 Hz, a 15 fps camera skips one in four); camera frames passed over because the
+        reader came late are counted in ``frames_skipped``. None on timeout."""
         def fresh() -> bool:
             return self._latest is not None and (self._latest_seen is None or
                                                  self.frame_index(self._latest.sim_time_s) > self._latest_seen)
@@ -86,7 +96,10 @@ class SimCamera:
             if not self._cond.wait_for(fresh, timeout_s):
                 return None
             snap = self._latest
-            self._latest_seen = self.frame_index(snap.sim_time_s)
+            n = self.frame_index(snap.sim_time_s)
+            if self._latest_seen is not None:
+                self.frames_skipped += max(0, n - self._latest_seen - 1)
+            self._latest_seen = n
         return self.render(snap)
 
     def frames(self, timeout_s: float = 1.0):
