@@ -217,7 +217,7 @@ class RsuService:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
         result.stage_cpu_s["publish"] = time.thread_time() - c0
-        render = getattr(self.source, "last_render_s", None)  # a simulated camera renders in this process
+        render = getattr(self.source, "last_render_times_s", None)  # a simulated camera renders in this process
         if render is not None:
             result.stage_s["render"], result.stage_cpu_s["render"] = render
         metrics.observe_stages(result.stage_s)

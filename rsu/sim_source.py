@@ -42,9 +42,9 @@ class SimSource:
         return self.camera.frames_skipped
 
     @property
-    def last_render_s(self) -> tuple[float, float]:
+    def last_render_times_s(self) -> tuple[float, float]:
         """(wall-clock, CPU) seconds of the last frame's rendering: the simulated camera's share of the RSU's work."""
-        return self.camera.last_render_s, self.camera.last_render_cpu_s
+        return self.camera.last_render_times_s
 
     def read(self, timeout_s: float | None = None) -> Frame | None:
         timeout = 5.0 if timeout_s is None else float(timeout_s)

@@ -52,9 +52,9 @@ class SimCamera:
         self.frames_skipped = 0
         """Camera frames never delivered because ``read`` came later than the next frame (the reader fell behind:
         it gets the newest frame, not the ones it missed)."""
-        self.last_render_s = 0.0
-        self.last_render_cpu_s = 0.0
-        """Wall-clock and CPU (this thread) time of the last ``render``."""
+        self.last_render_times_s = (0.0, 0.0)
+        """(wall-clock, CPU of this thread) seconds of the last ``render``: the camera's share of an RSU's work
+        when it renders in the RSU's process (``rsu.service.RsuService`` reports it as the ``render`` stage)."""
         if transport is not None:
             self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
 
@@ -81,7 +81,7 @@ class SimCamera:
         n = self.frame_index(snapshot.sim_time_s)
         t0, c0 = time.perf_counter(), time.thread_time()
         img = self.renderer.render(snapshot, frame_index=n)
-        self.last_render_s, self.last_render_cpu_s = time.perf_counter() - t0, time.thread_time() - c0
+        self.last_render_times_s = (time.perf_counter() - t0, time.thread_time() - c0)
         return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id, float(snapshot.stamp))
 
     def read(self, timeout_s: float = 1.0) -> Frame | None:

@@ -39,7 +39,7 @@ def test_a_late_reader_gets_the_newest_frame_and_the_missed_ones_are_counted():
     f = src.read(0.5)
     assert f.frame_number == 7 and f.timestamp_s == pytest.approx(1000.5)  # the newest, stamped on the sim clock
     assert src.drops == 7 - 1 - 1  # frames 2..6 were never processed
-    wall_s, cpu_s = src.last_render_s
+    wall_s, cpu_s = src.last_render_times_s
     assert wall_s > 0 and cpu_s > 0
     src.close()
 
