@@ -72,6 +72,7 @@ from bench.fuzz_targets_field import (  # noqa: E402
     VehicleRsuTarget,
 )
 from protocol.messages import MESSAGE_TYPES  # noqa: E402
+from protocol.runtime import freeze_startup_heap  # noqa: E402
 
 MAX_HEX_BYTES = 4096
 """Crash payloads up to this size are printed whole in hex; larger ones by their head and SHA-256."""
@@ -155,7 +156,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
     rng = random.Random(f"{seed}-{name}")
     target = factory(rng)
     res = Result(name, seeds=[seed])
-    gc.collect()
+    freeze_startup_heap()  # as every service does when its run() starts (protocol.runtime)
     if trace:
         tracemalloc.start()
     rss_mark = None
@@ -218,6 +219,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
                     target.bus.stats.handler_errors = 0
             res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
     gc.callbacks.remove(on_gc)
+    gc.unfreeze()  # the next target starts from its own start-up heap
     res.rejected = res.inputs - res.accepted
     res.seconds = time.perf_counter() - t_start
     res.mean_input_us = total_ns / max(1, n) / 1000.0

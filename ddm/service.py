@@ -79,6 +79,7 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
 
@@ -536,6 +537,7 @@ class DdmService(CorridorPresence):
 
     def run(self, stop: threading.Event) -> None:
         """The real-time loop at ``rate_hz`` until ``stop`` is set."""
+        freeze_startup_heap()  # full GC passes scan only what the service makes from now on
         period = 1.0 / self.config.rate_hz
         log.info("DDM %s on corridor %s: %d RSUs, %d vehicles, %.0f Hz", self.ddm_id, self.corridor_id,
                  len(self.corridor.rsus), len(self.corridor.vehicles), self.config.rate_hz)

@@ -56,6 +56,7 @@ from protocol.messages import (
     Role,
 )
 from protocol.ranges import MAX_LATENCY_MS
+from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu.classify.ev import AlertEvent
@@ -141,6 +142,7 @@ class RsuService:
 
     # ------------------------------------------------------------------ loop
     def run(self) -> int:
+        freeze_startup_heap()  # full GC passes scan only what the service makes from now on
         stall_started: float | None = None
         code = 0
         try:

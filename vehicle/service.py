@@ -45,6 +45,7 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.runtime import freeze_startup_heap
 from protocol.security import AuthError, TrustList
 from protocol.transport import Transport
 from vehicle.commands import ANSWERED_AUTH_REASONS, CommandGate
@@ -322,6 +323,7 @@ class VehicleService:
 
     # ------------------------------------------------------------------ real-time loop
     def run(self, duration_s: float | None = None) -> None:
+        freeze_startup_heap()  # full GC passes scan only what the service makes from now on
         end = None if duration_s is None else self.clock.now() + duration_s
         while not self._stop.is_set():
             now = self.clock.now()
