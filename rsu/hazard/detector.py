@@ -181,15 +181,16 @@ class HazardDetector:
                speeds: dict[int, float] | None = None) -> list[HazardEvent]:
         """One frame (BGR, full size) at time ``t_s`` with this frame's track ids and xyxy boxes (and,
         optionally, each track's localised speed in m/s by track id). Frames sooner than ``1 / rate_hz`` after the
-        last one looked at are passed over (no cost, no events)."""
+        last one looked at are passed over (their tracks only go into the vehicle memory; no events)."""
         cfg = self.cfg
+        self.vehicles.observe(t_s, track_ids, boxes, speeds)  # every frame: cheap, and short tracks count
         dt = self._due(self._last_t_s, t_s)
         if dt is None:
             return []
         self._last_t_s = t_s
         self.stats.frames += 1
         small = self.fg.small(image)
-        hold = self.vehicles.update(t_s, track_ids, boxes, speeds, small.shape[:2])
+        hold = self.vehicles.mask(small.shape[:2])
         if not self.fg.update(small, hold, dt_s=dt):
             if self.fg.ready:
                 self.stats.skipped_frames += 1

@@ -29,12 +29,25 @@ class _TrackMemory:
         if not self.moved or len(self.history) < 2:
             return False
         t1, b1 = self.history[-1]
-        b0 = next(b for t, b in self.history if t >= t1 - cfg.stop_check_s - 1e-9)
+        b0 = self._box_at(t1 - cfg.stop_check_s)
         if b0 is b1:
             return False
         du = (b1[0] + b1[2] - b0[0] - b0[2]) / 2.0
         dv = b1[3] - b0[3]
         return math.hypot(du, dv) < max(cfg.stop_px, cfg.slow_fraction * (b1[3] - b1[1]))
+
+    def _box_at(self, t_s: float) -> np.ndarray:
+        """The box at ``t_s``, interpolated between the samples around it (the oldest one if the history starts
+        later): the same displacement over ``stop_check_s`` whatever rate the detector looks at."""
+        older = None
+        for t, b in self.history:
+            if t >= t_s - 1e-9:
+                if older is None or t - older[0] < 1e-9:
+                    return b
+                w = (t_s - older[0]) / (t - older[0])
+                return older[1] + w * (b - older[1])
+            older = (t, b)
+        return self.history[-1][1]
 
     def hold_box(self, cfg: HazardConfig) -> np.ndarray:
         """Union of the vehicle's boxes over the last ``stop_window_s``, grown by ``vehicle_grow`` of its
@@ -63,12 +76,23 @@ class VehicleMask:
         self._parked: list[_Parked] = []
         self.hold: np.ndarray | None = None
         """bool mask of the held pixels this frame (None: none)."""
+        self._boxes: list[np.ndarray] = []
+
+    def observe(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None) -> None:
+        """This frame's tracks (ids, xyxy boxes, localised speeds by id) into the track memory: every frame, also
+        those the hazard detector does not look at (a track that lives between two looks still moved)."""
+        self._boxes = self._vehicle_boxes(t_s, track_ids, boxes, speeds)
+
+    def mask(self, shape: tuple[int, int]) -> np.ndarray | None:
+        """The held mask of ``shape`` from the last frame observed."""
+        self.hold = self._box_mask(shape, self._boxes)
+        return self.hold
 
     def update(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None,
                shape: tuple[int, int]) -> np.ndarray | None:
-        """This frame's tracks (ids, xyxy boxes, localised speeds by id) -> the held mask of ``shape``."""
-        self.hold = self._box_mask(shape, self._vehicle_boxes(t_s, track_ids, boxes, speeds))
-        return self.hold
+        """``observe`` then ``mask``."""
+        self.observe(t_s, track_ids, boxes, speeds)
+        return self.mask(shape)
 
     def covers(self, origin: tuple[int, int], sel: np.ndarray | None) -> bool:
         """Does the component ``sel`` (a bool patch at ``origin``, working scale) lie mostly inside held pixels?"""
