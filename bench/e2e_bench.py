@@ -11,7 +11,12 @@ every key of the corridor; stamps are the publishers' wall clocks on this one ho
 - lights on -> manoeuvre start: -> the first VehicleState in mode ``manoeuvre`` (20 Hz: +-50 ms);
 - lights on -> response decided: -> the DDM's first response to the EV for the AV, read from its log (a
   command, or "keep speed past the slower vehicle" when a car beside the AV in lane 0 leaves no safe gap);
-  response decided -> manoeuvre start is then the wait for traffic, not the pipeline.
+  response decided -> manoeuvre start is then the wait for traffic, not the pipeline;
+- issue 19, from the run's recording (``bench/e2e_rsu_load.py``): lights on -> response split at the first
+  processed frame with the lamps lit (the alerting RSU's first ObjectList of a frame captured after lights on) ->
+  EvAlert -> DDM decision; per RSU the processed fps (``rsu_fps_min``: every RSU, every 1 s Health period while the
+  simulator ran, the first excepted), the camera frames dropped for being stale, the frames' age at publication and
+  the CPU ms per frame by stage (render, detect, track, classify, localize, hazard, publish).
 
 Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault
 table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
@@ -50,6 +55,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.e2e_rsu_load import first_lit_frame_s, load_figures, print_load, rsu_load  # noqa: E402
 from deploy.corridor_faults import corridor_faults  # noqa: E402
 from deploy.faults import MEASURED_ALERT_DELAY_S, FaultOutcome, dropout_faults, latency_faults  # noqa: E402
 from deploy.up import Up  # noqa: E402
@@ -66,13 +72,16 @@ HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
         ("alert_to_command_at_vehicle_s", "EvAlert -> command at the vehicle"),
         ("lights_on_to_manoeuvre_s", "lights on -> manoeuvre start"),
         ("lights_on_to_response_s", "lights on -> response decided (DDM)"),
+        ("lights_on_to_lit_frame_s", "  lights on -> first lit frame out"),
+        ("lit_frame_to_alert_s", "  first lit frame out -> EvAlert"),
+        ("alert_to_response_s", "  EvAlert -> response decided"),
         ("response_to_manoeuvre_s", "response decided -> manoeuvre start"))
 
 
 def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[str, Any]:
     """One scenario run as processes; returns the RunMonitor metrics plus the EvAlert -> ack hop."""
     up = Up(port=0, run_dir=run_root / f"e2e-seed{seed}", duration_s=duration_s, seed=seed, restart="no",
-            peer=peer)
+            peer=peer, record=True)  # iea up records by default: the RSUs' Health and ObjectLists (issue 19)
     try:
         up.start()
         deadline = time.monotonic() + duration_s + 25
@@ -85,6 +94,13 @@ def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[st
     decisions = logged_decisions(up.group.log_path("ddm"))
     m["ddm_decisions"] = [d for _, d in decisions[:2]]
     add_hops(m, up.monitor.events, decisions)
+    recording = up.run_dir / "run.mcap"
+    m["rsu_load"] = rsu_load(recording)
+    ev, lat = up.monitor.events, m["latency_s"]
+    lit = first_lit_frame_s(recording, m.get("first_alert_rsu"), ev.get("lights_on"))
+    lat["lights_on_to_lit_frame_s"] = None if lit is None else round(lit - ev["lights_on"], 3)
+    lat["lit_frame_to_alert_s"] = (round(ev["first_ev_alert"] - lit, 3)
+                                   if lit is not None and "first_ev_alert" in ev else None)
     m["seed"] = seed
     return m
 
@@ -100,6 +116,8 @@ def add_hops(m: dict[str, Any], ev: dict[str, float], decisions: list[tuple[floa
     lat["lights_on_to_response_s"] = None if resp is None else round(resp - t_on, 3)
     lat["response_to_manoeuvre_s"] = (round(ev["manoeuvre_start"] - resp, 3)
                                       if resp is not None and "manoeuvre_start" in ev else None)
+    lat["alert_to_response_s"] = (round(resp - ev["first_ev_alert"], 3)
+                                  if resp is not None and "first_ev_alert" in ev else None)
 
 
 def one_lockstep_run(seed: int, duration_s: float, ddm_config: Any = None) -> dict[str, Any]:
@@ -237,6 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         runs.append(m)
         print(run_line(seed, m, time.monotonic() - t), flush=True)
     dists = print_distribution(f"processes over Zenoh ({mode}), wall-clock stamps", runs)
+    print_load(runs)
     tot = dists["lights_on_to_manoeuvre_s"]
     missing = args.runs - tot["n"]
     n_yield = yielded(runs)
@@ -332,6 +351,10 @@ def main(argv: list[str] | None = None) -> int:
             "lights_on_to_response_median_s": q("lights_on_to_response_s", "median"),
             "lights_on_to_response_p99_s": q("lights_on_to_response_s", "p99"),
             "response_to_manoeuvre_max_s": q("response_to_manoeuvre_s", "max"),
+            "lights_on_to_lit_frame_median_s": q("lights_on_to_lit_frame_s", "median"),
+            "lit_frame_to_alert_median_s": q("lit_frame_to_alert_s", "median"),
+            "alert_to_response_median_s": q("alert_to_response_s", "median"),
+            **load_figures(runs),
             "target_median_met": med_ok, "target_p99_met": p99_ok, "runs_yield_ok": n_yield,
             "process_runs": len(runs), "process_runs_yielded": n_yield,
             "process_ev_delay_s": {r["seed"]: (r.get("yield") or {}).get("ev_delay_s") for r in runs},

@@ -1,0 +1,113 @@
+"""What each RSU kept up with in a process run of ``bench/e2e_bench.py`` (issue 19), from the run's recording
+(``iea up`` records every key of the corridor into ``<run folder>/run.mcap``, ``deploy/record.py``):
+
+- per RSU, from its 1 Hz ``Health``: processed frames per second (``rates_hz.frames``) beside the camera's
+  (``rates_hz.camera``), the camera frames it passed over because it came late (``drops.source``: it processes the
+  latest frame, not a queue), the frames' age when their ObjectList went out (``latency_ms.frame_age``) and the CPU
+  milliseconds per frame of each stage (``latency_ms.{stage}_cpu``: render, detect, track, classify, localize,
+  hazard, publish). Only the periods while the simulator ran count, the first one excepted (the camera's static
+  scene and the models are built on the first frames);
+- the split of lights on -> EvAlert at the first processed frame with the lamps lit: the first ObjectList of the
+  RSU that raised the first alert whose frame was captured after lights on (its ``measurement_time``, the
+  snapshot's stamp), published at its stamp.
+
+Pure functions of the recording; stamps are the publishers' wall clocks on one host.
+"""
+
+from __future__ import annotations
+
+import statistics
+from pathlib import Path
+from typing import Any
+
+STAGES = ("render", "detect", "track", "classify", "localize", "hazard", "publish")
+
+
+def _messages(path: Path, kinds: set[str]) -> list[tuple[str, Any]]:
+    from deploy.record import read_recording
+    from protocol.codec import decode
+
+    return [(m.key, decode(m.payload)) for m in read_recording(path) if m.kind in kinds]
+
+
+def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Per RSU id: fps_min / fps_median (processed), camera_fps, frames_dropped (last count), frame_age_ms_median,
+    frame_age_ms_max and cpu_ms_per_frame {stage: mean over the periods}; {} when ``path`` is missing."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    msgs = _messages(path, {"Health", "WorldSnapshot"})
+    snaps = [m.stamp for _k, m in msgs if m.KIND == "WorldSnapshot"]
+    if not snaps:
+        return {}
+    t0, t1 = min(snaps), max(snaps)
+    health: dict[str, list[Any]] = {}
+    for _key, m in msgs:
+        if m.KIND == "Health" and m.role.value == "rsu":
+            health.setdefault(m.src, []).append(m)
+    out = {}
+    for rsu_id, hs in sorted(health.items()):
+        running = [h for h in hs if t0 < h.stamp <= t1 + 0.5][1:]  # the first period builds caches and models
+        if not running:
+            continue
+        fps = [h.rates_hz.get("frames", 0.0) for h in running]
+        ages = [h.latency_ms["frame_age"] for h in running if "frame_age" in h.latency_ms]
+        cpu = {s: round(statistics.fmean(h.latency_ms[f"{s}_cpu"] for h in running if f"{s}_cpu" in h.latency_ms), 2)
+               for s in STAGES if any(f"{s}_cpu" in h.latency_ms for h in running)}
+        out[rsu_id] = {
+            "fps_min": round(min(fps), 2), "fps_median": round(statistics.median(fps), 2),
+            "camera_fps": running[-1].rates_hz.get("camera"), "frames_dropped": hs[-1].drops.get("source", 0),
+            "frame_age_ms_median": round(statistics.median(ages), 1) if ages else None,
+            "frame_age_ms_max": round(max(h.latency_ms.get("frame_age_max", 0.0) for h in running), 1) if ages else None,
+            "cpu_ms_per_frame": cpu, "cpu_ms_per_frame_total": round(sum(cpu.values()), 2), "periods": len(running)}
+    return out
+
+
+def first_lit_frame_s(path: str | Path, rsu_id: str | None, lights_on_s: float | None) -> float | None:
+    """Publication stamp of ``rsu_id``'s first ObjectList whose frame was captured at or after ``lights_on_s``."""
+    path = Path(path)
+    if rsu_id is None or lights_on_s is None or not path.is_file():
+        return None
+    stamps = [m.stamp for _k, m in _messages(path, {"ObjectList"})
+              if m.rsu_id == rsu_id and m.measurement_time >= lights_on_s]
+    return min(stamps) if stamps else None
+
+
+def print_load(runs: list[dict[str, Any]]) -> None:
+    """One line per RSU over the runs: processed fps (min of the periods, min over runs), drops, frame age, CPU."""
+    by_rsu: dict[str, list[dict[str, Any]]] = {}
+    for r in runs:
+        for rsu_id, load in (r.get("rsu_load") or {}).items():
+            by_rsu.setdefault(rsu_id, []).append(load)
+    if not by_rsu:
+        print(" per-RSU load: no recording")
+        return
+    print(f"\n per RSU over {len(runs)} process runs (Health, 1 s periods while the simulator ran, first one excepted)")
+    print(f" {'rsu':<6} {'fps min':>7} {'median':>7} {'camera':>6} {'dropped':>8} {'age ms':>7} {'age max':>8}  "
+          "CPU ms per frame by stage")
+    for rsu_id, loads in sorted(by_rsu.items()):
+        cpu = {s: statistics.fmean(ld["cpu_ms_per_frame"].get(s, 0.0) for ld in loads) for s in STAGES}
+        ages = [ld["frame_age_ms_median"] for ld in loads if ld["frame_age_ms_median"] is not None]
+        age_max = max((ld["frame_age_ms_max"] for ld in loads if ld["frame_age_ms_max"] is not None), default=None)
+        print(f" {rsu_id:<6} {min(ld['fps_min'] for ld in loads):7.1f} "
+              f"{statistics.median(ld['fps_median'] for ld in loads):7.1f} {loads[0]['camera_fps'] or 0:6.1f} "
+              f"{sum(ld['frames_dropped'] for ld in loads):8d} "
+              f"{statistics.median(ages) if ages else float('nan'):7.0f} {age_max or float('nan'):8.0f}  "
+              + " ".join(f"{s} {v:.1f}" for s, v in cpu.items()) + f" = {sum(cpu.values()):.1f}")
+
+
+def load_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The JSON figures: rsu_fps_min (every RSU, every period, every run), per RSU the median CPU ms per stage."""
+    loads = [(rsu_id, ld) for r in runs for rsu_id, ld in (r.get("rsu_load") or {}).items()]
+    if not loads:
+        return {"rsu_fps_min": None}
+    cpu: dict[str, dict[str, float]] = {}
+    for rsu_id in sorted({rid for rid, _ in loads}):
+        mine = [ld for rid, ld in loads if rid == rsu_id]
+        cpu[rsu_id] = {s: round(statistics.median(ld["cpu_ms_per_frame"].get(s, 0.0) for ld in mine), 2)
+                       for s in STAGES}
+        cpu[rsu_id]["fps_min"] = min(ld["fps_min"] for ld in mine)
+        cpu[rsu_id]["frames_dropped"] = sum(ld["frames_dropped"] for ld in mine)
+    ages = [ld["frame_age_ms_max"] for _r, ld in loads if ld["frame_age_ms_max"] is not None]
+    return {"rsu_fps_min": min(ld["fps_min"] for _r, ld in loads), "rsu_load": cpu,
+            "rsu_frame_age_ms_max": max(ages) if ages else None}
