@@ -31,6 +31,7 @@ from typing import Any, BinaryIO
 import msgpack
 
 from protocol.keys import KeyError_, key_matches, message_type_for_key
+from protocol.runtime import stop_on_ctrl_c
 from protocol.schema_export import SCHEMA_DIR
 
 MESSAGE_ENCODING = "msgpack"
@@ -231,6 +232,7 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     from protocol.corridor import CorridorError, load_corridor
     from protocol.transport import ZenohSettings
 

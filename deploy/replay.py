@@ -30,6 +30,7 @@ from typing import Any
 from deploy.record import RecordedMessage, read_recording
 from protocol.codec import ProtocolError, decode
 from protocol.keys import KeyError_, parse_key
+from protocol.runtime import stop_on_ctrl_c
 
 DDM_INPUT_TOPICS = {"rsu": ("objects", "ev", "hazard", "health"), "vehicle": ("state", "ack")}
 
@@ -171,6 +172,7 @@ def replay_into_ddm(path: str | Path, corridor: Any, config: Any = None, *, dura
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     from protocol.transport import ZenohSettings, ZenohTransport
 
     ap = argparse.ArgumentParser(prog="iea replay", description=__doc__,

@@ -26,6 +26,7 @@ from typing import Any
 
 from deploy.demo import RunMonitor, print_summary
 from deploy.procs import ROOT, ServiceGroup, corridor_services
+from protocol.runtime import stop_on_ctrl_c
 
 ROUTER = "router"
 CLIENT_CONFIG = "zenoh-client.json5"
@@ -216,6 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     args = build_parser().parse_args(argv)
     from protocol.corridor import CorridorError, load_corridor
 

@@ -30,6 +30,7 @@ from typing import Any
 
 from deploy.view_model import CorridorPicture, corridor_plan
 from protocol import keys
+from protocol.runtime import stop_on_ctrl_c
 
 log = logging.getLogger("deploy.view")
 PAGE = Path(__file__).resolve().parent / "view" / "index.html"
@@ -207,6 +208,7 @@ def _handler(view: ViewServer) -> type[BaseHTTPRequestHandler]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     from protocol.corridor import CorridorError, load_corridor
     from protocol.transport import ZenohSettings
 

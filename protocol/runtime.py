@@ -18,3 +18,18 @@ def freeze_startup_heap() -> int:
     gc.collect()
     gc.freeze()
     return gc.get_freeze_count()
+
+
+def stop_on_ctrl_c() -> None:
+    """Make SIGINT raise KeyboardInterrupt in this process even when it started with SIGINT ignored.
+
+    A process started from a background job of a non-interactive shell (``make test &``, a CI step, ``nohup``)
+    inherits SIGINT *ignored*, and Python then installs no KeyboardInterrupt handler: a supervisor's SIGINT
+    (``iea up`` stopping its services, a test stopping ``iea up``) was silently dropped and the process lived
+    on until SIGKILL. Every CLI that stops on KeyboardInterrupt calls this first.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():  # only the main thread may set handlers
+        signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -10,6 +10,7 @@ import signal
 import sys
 
 from protocol import metrics
+from protocol.runtime import stop_on_ctrl_c
 from protocol.transport import ZenohSettings
 from vehicle.localisation import FixSourceConfig
 
@@ -174,6 +175,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     args = build_parser().parse_args(argv)
     try:
         return {"run": _cmd_run, "lockstep": _cmd_lockstep, "plot": _cmd_plot}[args.command](args)
