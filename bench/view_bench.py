@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -39,6 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from deploy.procs import stop_process_group  # noqa: E402
 from deploy.up import free_port  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -136,12 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         mem = rss_mb(view.pid)
     finally:
         for p in (page, view):
-            if p is not None and p.poll() is None:
-                os.killpg(p.pid, 15)
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, 9)
+            if p is not None:
+                stop_process_group(p, signal.SIGTERM)
         shutil.rmtree(tmp, ignore_errors=True)
     figures = {
         "demo_s": duration_s, "wall_s": round(wall, 1),

@@ -99,14 +99,7 @@ class ServiceGroup:
         p = self.procs.get(name)
         if p is None:
             return None
-        if p.poll() is None:
-            _signal_group(p, signal.SIGINT)
-            try:
-                p.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                _signal_group(p, signal.SIGKILL)
-                p.wait(timeout=10)
-        return p.returncode
+        return stop_process_group(p, signal.SIGINT, timeout_s)
 
     def stop_all(self, timeout_s: float = 10.0, keep_last: int = 0) -> None:
         """Stop every service: SIGINT to all (in reverse start order, the last ``keep_last`` - e.g. the
@@ -168,6 +161,19 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
         os.killpg(p.pid, sig)
     except ProcessLookupError:
         pass
+
+
+def stop_process_group(p: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int | None:
+    """Stop a process started in its own session (``start_new_session``) and its children: ``sig`` to its group,
+    then SIGKILL after ``timeout_s``; its exit code."""
+    if p.poll() is None:
+        _signal_group(p, sig)
+        try:
+            p.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            _signal_group(p, signal.SIGKILL)
+            p.wait(timeout=10)
+    return p.returncode
 
 
 SIM_WAIT_FOR_AV_S = 30.0

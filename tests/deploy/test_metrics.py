@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from deploy.procs import stop_process_group
 from protocol import metrics
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
@@ -116,10 +118,4 @@ def test_a_running_rsu_serves_its_stage_histogram_moving(tmp_path):
         assert _value(text, "iea_processed_fps", name="frames") is not None  # from its 1 Hz Health
         assert _value(text, "iea_health_status") is not None
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, 2)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, 9)
-                proc.wait(timeout=5)
+        stop_process_group(proc, signal.SIGINT)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from deploy.procs import stop_process_group
 from deploy.view_model import CorridorPicture, corridor_plan
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
@@ -110,10 +112,5 @@ def test_page_draws_a_live_lockstep_run_in_headless_chromium(tmp_path):
     finally:
         zenoh.close()
         for p in (browser_proc, view):
-            if p is not None and p.poll() is None:
-                os.killpg(p.pid, 15)
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, 9)
-                    p.wait(timeout=5)
+            if p is not None:
+                stop_process_group(p, signal.SIGTERM)
