@@ -110,6 +110,7 @@ class ZenohTransport(Transport):
         self.session = zenoh.open(self.settings.to_config())
         self._publishers: dict[str, Any] = {}
         self._subs: list[Any] = []
+        self._drains: list[threading.Thread] = []
         self._lock = threading.Lock()
         self._closed = False
 
@@ -158,7 +159,9 @@ class ZenohTransport(Transport):
                     log.exception("bulk subscriber callback on %s failed", key_expr)
                 time.sleep(0)  # hand the GIL over between samples: a waiting command callback runs now
 
-        threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True).start()
+        worker = threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True)
+        worker.start()
+        self._drains.append(worker)
         return self._declared(sub)
 
     def _declared(self, entity: Any) -> Subscription:
@@ -237,3 +240,10 @@ class ZenohTransport(Transport):
                 pass
         self._publishers.clear()
         self.session.close()
+        # a drain thread still waiting in recv() when the interpreter finalises would re-take the GIL there and
+        # be ended by pthread_exit inside zenoh's Rust frames, which abort the process ("FATAL: exception not
+        # rethrown", exit -6): the channels are closed now, so each thread returns; wait for it.
+        for worker in self._drains:
+            if worker is not threading.current_thread():
+                worker.join(timeout=2.0)
+        self._drains.clear()

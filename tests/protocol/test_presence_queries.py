@@ -59,6 +59,25 @@ def test_zenoh_publishers_carry_their_kind_qos(corridor_id):
         t.close()
 
 
+def test_zenoh_close_ends_the_bulk_drain_threads(corridor_id):
+    """A bulk subscription's drain thread still waiting in recv() at interpreter exit aborted the RSU (exit -6,
+    "FATAL: exception not rethrown"): close() must end every one of them."""
+    t = ZenohTransport()
+    in_callback = threading.Event()
+
+    def slow_callback(key: str, payload: bytes) -> None:  # still busy when close() is called
+        in_callback.set()
+        time.sleep(0.5)
+
+    t.subscribe_bytes(keys.sim_world_key(corridor_id), slow_callback)
+    drains = [th for th in threading.enumerate() if th.name.startswith("bulk ")]
+    assert drains and all(th.is_alive() for th in drains)
+    t.publish_bytes(keys.sim_world_key(corridor_id), b"x")
+    assert in_callback.wait(5.0)
+    t.close()
+    assert not any(th.is_alive() for th in drains)
+
+
 # ------------------------------------------------------------------------------ LocalBus primitives
 def test_localbus_tokens_history_loss_and_queries():
     bus = LocalBus()
