@@ -79,6 +79,7 @@ from protocol.messages import (
     VehicleMode,
     VehicleState,
 )
+from protocol.ranges import MAX_RATE_HZ
 from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer, TrustList, Verifier
 from protocol.transport import Transport
@@ -95,6 +96,8 @@ MAX_ALERTS = 256
 MAX_TRACKS = 4096
 """Caps on what a peer can make the DDM remember (a corridor has a handful of RSUs and AVs, tens of
 cars; a peer inventing ids gets refused beyond these)."""
+MIN_RATE_PERIOD_S = 1e-3
+"""Health reports no rates over a shorter period (published again at once, e.g. an RSU went stale)."""
 MAX_ABS_POSITION_M = 1e6
 MAX_SPEED_MPS = 1000.0
 MAX_SIZE_M = 1000.0
@@ -103,6 +106,18 @@ MAX_POS_VAR_M2 = 1e8
 a 1e16 m/s velocity overflowed the fusion's arithmetic (found by fuzzing: the KD-tree of the
 duplicate merge then raised on every step). The limits are loose on purpose: a SORT track running
 away at 110 m/s, which real RSU output contains, still passes as before."""
+
+
+RATE_NAMES = ("object_lists", "object_updates", "ev_alerts", "vehicle_states", "commands_published")
+
+
+def period_rates(counts: Counter, before: Counter, period_s: float, names: tuple[str, ...]) -> dict[str, float]:
+    """Per-second rates of ``names`` over the last health period; none over a period under 1 ms (a Health
+    published at once after another: its count over ~0 s is no rate, and 1,920 updates / 1 us broke the
+    RateHz range, which made every ddm_bench run fail at its first step)."""
+    if period_s < MIN_RATE_PERIOD_S:
+        return {}
+    return {k: min((counts[k] - before[k]) / period_s, MAX_RATE_HZ) for k in names}
 
 
 def implausible(msg) -> str | None:
@@ -492,9 +507,7 @@ class DdmService(CorridorPresence):
                 self.publish_health(now)  # at 1 Hz, and at once when an RSU goes stale or comes back
 
     def health(self, now: float) -> Health:
-        period = max(now - self._last_health_s, 1e-6)
-        rates = {k: (self.counters[k] - self._last_counts[k]) / period
-                 for k in ("object_lists", "object_updates", "ev_alerts", "vehicle_states", "commands_published")}
+        rates = period_rates(self.counters, self._last_counts, now - self._last_health_s, RATE_NAMES)
         lat = {}
         if self.decision_latency_ms:
             arr = np.fromiter(self.decision_latency_ms, float)

@@ -261,3 +261,22 @@ def test_an_ev_alert_is_decided_at_once_only_for_the_vehicles_it_can_concern(mon
     svc.step()
     assert sorted(decided[1:]) == ["av1", "av2"]
     svc.close()
+
+
+def test_health_at_the_first_step_with_full_lists_is_publishable():
+    """A Health published at once after start (or after another) has no period to rate over: its counts
+    over ~0 s once made a rate of 1.92e9/s (ddm_bench's 64 lists of 30), beyond the codec's RateHz range,
+    and the step raised (every ddm_bench run failed there). Rates over a real period are as before."""
+    from ddm_rig import det, object_list
+
+    r = Rig()
+    t0 = r.clock.now()
+    for k, rsu in enumerate(("rsu1", "rsu2", "rsu3", "rsu4", "rsu5")):  # 1,250 updates at t0
+        objs = [det(r.corridor, i, 100.0 * k + 0.4 * i, -100.0 - 4.0 * (i % 50), 13.0) for i in range(250)]
+        r.bus.publish(rsu_key(r.c, rsu, "objects"), object_list(rsu, 0, t0, objs))
+    assert r.svc.counters["object_updates"] == 1250
+    h = r.svc.publish_health(t0)  # raised a ValidationError before
+    assert "object_updates" not in h.rates_hz
+    r.clock.advance(2.0)
+    h = r.svc.publish_health(r.clock.now())
+    assert h.rates_hz["object_updates"] == 0.0
