@@ -104,6 +104,9 @@ class VehicleCore:
         self._detail_undegraded: str | None = None
         self.mrm_where = ""
         """Where the minimal-risk stop ends: at the curb, or in its lane when the curb side was occupied."""
+        self.mrm_reason = ""
+        self.last_command_s: float | None = None
+        """When the car last accepted a command (``vehicle.ev_direct``: the DDM has spoken)."""
 
     # ------------------------------------------------------------------ setup
     def lane_path(self, lane: int) -> ReferencePath:
@@ -163,9 +166,11 @@ class VehicleCore:
             return -shoulder / 2.0
         return w / 2.0 + margin
 
-    def curb_side_occupied(self, now_s: float, s_now: float, d_now: float, d_curb: float, s_stop: float) -> bool:
+    def curb_side_occupied(self, now_s: float, s_now: float, d_now: float, d_curb: float, s_stop: float,
+                           behind_m: float = CURB_CHECK_BEHIND_M) -> bool:
         """Whether the car's last picture shows an object between its side and the curb, from a little
-        behind it to its stop point (the car itself, the object nearest its own pose within 3 m, is left out)."""
+        behind it (``behind_m``) to its stop point (the car itself, the object nearest its own pose within 3 m,
+        is left out)."""
         x, y, _ = self.estimator.pose
         picture = []
         for t, objects in self.pictures.values():
@@ -180,7 +185,7 @@ class VehicleCore:
             lo, hi = d_now + half_w, d_curb + half_w
         for obj in picture:
             s, d = (float(v) for v in self.road.to_frenet(obj[0], obj[1]))
-            if s_now - CURB_CHECK_BEHIND_M <= s <= s_stop + obj[2] / 2 and d - obj[3] / 2 < hi and d + obj[3] / 2 > lo:
+            if s_now - behind_m <= s <= s_stop + obj[2] / 2 and d - obj[3] / 2 < hi and d + obj[3] / 2 > lo:
                 return True
         return False
 
@@ -189,6 +194,8 @@ class VehicleCore:
             self.watchdog.link_seen(now_s)
         blocked = self.watchdog.healthy(now_s, self.estimator.age_s(now_s))
         decisions = self.book.offer(cmd, now_s, self.estimator.pose, self.speed_mps, blocked)
+        if any(d.status == AckStatus.ACCEPTED and d.command_id == cmd.command_id for d in decisions):
+            self.last_command_s = now_s
         if decisions and decisions[-1].status == AckStatus.ACCEPTED and decisions[-1].command_id == cmd.command_id \
                 and self.book.active is cmd:
             decisions += self._engage(cmd)
@@ -196,6 +203,15 @@ class VehicleCore:
 
     def _engage(self, cmd: PathSwitchCommand) -> list[Decision]:
         self.watchdog.clear()
+        own, self.mrm_reason = self.mode == VehicleMode.MINIMAL_RISK and bool(self.mrm_reason), ""
+        if own and cmd.manoeuvre == Manoeuvre.PULL_OVER and self.path is not None and self.stop_s_m is not None:
+            # already pulling over to the curb on its own (a signed EvAlert, the command late): keep that path,
+            # whose lane change is under way (the command's, planned from where the car was, would start it
+            # again), and stop at the nearer of the two stop points
+            if cmd.stop_point is not None:
+                self.stop_s_m = min(self.stop_s_m, self.path.project(*cmd.stop_point).s_m)
+            self.mode, self.detail = VehicleMode.MANOEUVRE, f"pull_over (on its own path): {cmd.reason}"[:200]
+            return []
         if cmd.manoeuvre == Manoeuvre.RESUME:
             self._keep_lane(self.current_lane(), self.cruise_speed_mps, f"resumed ({cmd.command_id})")
             return [self.book.complete("resumed cruise")]
@@ -295,7 +311,7 @@ class VehicleCore:
         elif self.mode == VehicleMode.DRIVING and dist is not None and stopped and dist < 2.0:
             self.detail = "stopped at the end of the road"
         elif self.mode == VehicleMode.MINIMAL_RISK and stopped:
-            self.detail = f"minimal-risk stop done {self.mrm_where}: {self.watchdog.reason}"[:250]
+            self.detail = f"minimal-risk stop done {self.mrm_where}: {self.watchdog.reason or self.mrm_reason}"[:250]
         return []
 
     def _degrade(self, why: str | None) -> None:
@@ -317,31 +333,61 @@ class VehicleCore:
             out.append(self.book.abort(reason))
         decel = self.config.failsafe.mrm_decel_mps2
         x, y, _ = self.estimator.pose
-        s_now, d_now = (float(v) for v in self.road.to_frenet(x, y))
         v = max(self.speed_mps, 0.0)
-        d_curb = self.curb_offset_m()
-        shift = abs(d_now - d_curb)
-        # the quintic's peak curvature 5.77 shift / L^2 keeps the lateral acceleration at the starting speed
-        # within MRM_LAT_ACCEL_MPS2 (and the curvature within MRM_MAX_CURVATURE_1PM at a crawl)
-        kappa = min(MRM_MAX_CURVATURE_1PM, MRM_LAT_ACCEL_MPS2 / max(v * v, 1e-6))
-        change_m = max(15.0, math.sqrt(5.77 * shift / kappa))
-        stop_len = max(v * v / (2.0 * decel), change_m + 5.0) + 1.0
-        in_lane = shift >= 0.3 and self.curb_side_occupied(now_s, s_now, d_now, d_curb, s_now + stop_len)
+        curb = self._curb_stop(now_s, MRM_LAT_ACCEL_MPS2, CURB_CHECK_BEHIND_M, hold_speed=False)
         self.lane = self.current_lane()
-        where = "in its lane (the curb side is occupied)" if in_lane else "at the curb"
+        where = "in its lane (the curb side is occupied)" if curb is None else "at the curb"
         self.mrm_where = where
         self.mode, self.detail = VehicleMode.MINIMAL_RISK, f"minimal-risk stop {where}: {reason}"[:250]
         self.target_speed_mps = 0.0
-        if in_lane:
+        if curb is None:
             path = self.lane_path(self.lane)
             self.plan_decel_mps2 = decel
             self._set_path(path, min(path.length_m, path.project(x, y).s_m + v * v / (2.0 * decel) + 1.0))
             return out
-        self.plan_decel_mps2 = min(decel, max(0.5, v * v / (2.0 * stop_len)))
+        path, stop_s, self.plan_decel_mps2 = curb
         self.target_speed_mps = v  # the braking curve to the stop point sets the speed, not a step to 0
-        path = ReferencePath(offset_change_waypoints(self.road, s_now, d_now, d_curb, change_m, stop_len + 20.0))
-        self._set_path(path, min(path.length_m - 10.0, path.project(x, y).s_m + stop_len))
+        self._set_path(path, stop_s)
         return out
+
+    def direct_pull_over(self, reason: str, now_s: float, lat_accel_mps2: float, check_behind_m: float) -> bool:
+        """Pull over to the curb on the car's own authority (a signed EvAlert heard while the command is late,
+        ``vehicle.ev_direct``): the fail-safe's stop at the curb, holding the speed over the lane change;
+        only when the picture shows the curb side free (False: the car keeps driving, never stops in lane)."""
+        curb = self._curb_stop(now_s, lat_accel_mps2, check_behind_m, hold_speed=True)
+        if curb is None:
+            return False
+        path, stop_s, self.plan_decel_mps2 = curb
+        self.lane = self.current_lane()
+        self.mrm_where = "at the curb"
+        self.mode, self.detail = VehicleMode.MINIMAL_RISK, f"pull-over at the curb on its own: {reason}"[:250]
+        self.mrm_reason = reason
+        self.target_speed_mps = max(self.speed_mps, 0.0)
+        self._set_path(path, stop_s)
+        return True
+
+    def _curb_stop(self, now_s: float, lat_accel_mps2: float, check_behind_m: float,
+                   hold_speed: bool) -> tuple[ReferencePath, float, float] | None:
+        """(path, stop s on it, braking) of a stop at ``curb_offset_m``, or None when the car's picture shows
+        the curb side occupied (from ``check_behind_m`` behind the car to the stop). The quintic's peak
+        curvature 5.77 shift / L^2 keeps the lateral acceleration at the starting speed within
+        ``lat_accel_mps2`` (the curvature within MRM_MAX_CURVATURE_1PM at a crawl); ``hold_speed`` brakes
+        only after the lane change (at ``mrm_decel``), else along the whole way."""
+        decel = self.config.failsafe.mrm_decel_mps2
+        x, y, _ = self.estimator.pose
+        s_now, d_now = (float(v) for v in self.road.to_frenet(x, y))
+        v = max(self.speed_mps, 0.0)
+        d_curb = self.curb_offset_m()
+        shift = abs(d_now - d_curb)
+        kappa = min(MRM_MAX_CURVATURE_1PM, lat_accel_mps2 / max(v * v, 1e-6))
+        change_m = max(15.0, math.sqrt(5.77 * shift / kappa))
+        brake_m = v * v / (2.0 * decel)
+        stop_len = (change_m + brake_m if hold_speed else max(brake_m, change_m + 5.0)) + 1.0
+        if shift >= 0.3 and self.curb_side_occupied(now_s, s_now, d_now, d_curb, s_now + stop_len, check_behind_m):
+            return None
+        plan_decel = decel if hold_speed else min(decel, max(0.5, v * v / (2.0 * stop_len)))
+        path = ReferencePath(offset_change_waypoints(self.road, s_now, d_now, d_curb, change_m, stop_len + 20.0))
+        return path, min(path.length_m - 10.0, path.project(x, y).s_m + stop_len), plan_decel
 
 
 def planned_braking_mps2(path: ReferencePath) -> float:

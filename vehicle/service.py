@@ -13,6 +13,11 @@ scope and not replayed are offered to the command book). Each refusal is counted
 ``rejected`` as ``auth_<reason>``; the inbox is bounded (``MAX_INBOX``, overflow counted as
 ``inbox_full``).
 
+A signed EvAlert the car hears itself (issue 18, ``vehicle.ev_direct``): in a corridor whose trust list
+names RSU keys the service also subscribes to the RSUs' alerts, keeps the newest that verifies, and pulls
+over to the curb on its own when the EV is behind it in its lane, about to reach it, and no command came
+within the deadline (a cut command link); the DDM's next command takes over again.
+
 Presence (issue 21): the service declares its liveliness token ``iea/{c}/alive/vehicle/{id}``, answers
 queries on its keys (latest ``state`` and ``health``: a restarted DDM learns the active command at
 once) and watches the DDM's token: ``ddm_present`` is True while a DDM token is alive, False once the
@@ -35,7 +40,9 @@ from protocol.codec import encode
 from protocol.keys import ddm_health_key, parse_key, rsu_topic_expr, vehicle_key
 from protocol.messages import (
     AckStatus,
+    AlertState,
     CommandAck,
+    EvAlert,
     Health,
     HealthStatus,
     ObjectList,
@@ -46,10 +53,11 @@ from protocol.messages import (
     VehicleState,
 )
 from protocol.runtime import freeze_startup_heap
-from protocol.security import AuthError, TrustList
+from protocol.security import AuthError, TrustList, Verifier
 from protocol.transport import Transport
 from vehicle.commands import ANSWERED_AUTH_REASONS, CommandGate
 from vehicle.core import CoreConfig, SimulatedVehicle
+from vehicle.ev_direct import DirectAlertConfig, HeardAlert, act_on_alert
 from vehicle.localisation import GNSS, Fix, FixSourceConfig
 from vehicle.lockstep import RunRecord, record_step
 
@@ -76,8 +84,10 @@ class VehicleService:
     def __init__(self, transport: Transport, clock: Clock, corridor, vehicle_id: str, *,
                  config: CoreConfig = CoreConfig(), localisation: str = "gnss",
                  fix_source: FixSourceConfig = GNSS, seed: int = 0, timing: ServiceTiming = ServiceTiming(),
-                 record: bool = False, gate: CommandGate | None = None) -> None:
-        """``gate``: command authentication (default: from the corridor's trust list, see the module doc)."""
+                 record: bool = False, gate: CommandGate | None = None,
+                 direct_alerts: DirectAlertConfig = DirectAlertConfig()) -> None:
+        """``gate``: command authentication (default: from the corridor's trust list, see the module doc);
+        ``direct_alerts``: when the car acts on a signed EvAlert it hears itself (``vehicle.ev_direct``)."""
         if localisation not in LOCALISATION_MODES:
             raise ValueError(f"localisation must be one of {LOCALISATION_MODES}, got {localisation!r}")
         self.transport, self.clock, self.corridor = transport, clock, corridor
@@ -94,7 +104,15 @@ class VehicleService:
         self.cmd_key, self.ack_key = vehicle_key(c, vehicle_id, "cmd"), vehicle_key(c, vehicle_id, "ack")
         self.state_key, self.health_key = vehicle_key(c, vehicle_id, "state"), vehicle_key(c, vehicle_id, "health")
         self._inbox: deque[tuple[str, object, float]] = deque()
-        self.gate = gate if gate is not None else CommandGate.from_trust(TrustList.from_corridor(corridor))
+        trust = TrustList.from_corridor(corridor)
+        self.gate = gate if gate is not None else CommandGate.from_trust(trust)
+        self.direct_alerts = direct_alerts
+        self.alert_verifier = Verifier(trust) if trust.has_role("rsu") else None
+        """Checks the EvAlerts the car hears itself; None (no RSU key trusted): they never move the car."""
+        self.heard_alert: HeardAlert | None = None
+        self._first_alert_s: float | None = None
+        self.direct_pull_overs = 0
+        self.direct_held_back = 0
         self._seq = Counter()
         self.rejected: Counter = Counter()
         self.acks_sent: deque[CommandAck] = deque(maxlen=256)  # the latest, for tests and debugging
@@ -114,6 +132,8 @@ class VehicleService:
         ]
         # the RSUs' object lists: the car's picture for the fail-safe's curb check, and fixes in "rsu"/"both"
         self._subs.append(transport.subscribe(rsu_topic_expr(c, "objects"), self._on_rsu, on_reject=self._on_reject))
+        if self.alert_verifier is not None and direct_alerts.enabled:  # signed EvAlerts the car hears itself
+            self._subs.append(transport.subscribe(rsu_topic_expr(c, "ev"), self._on_alert, on_reject=self._on_reject))
         self.heartbeats_refused = Counter()
         """DDM Health not counted as a heartbeat, by reason (``auth_<reason>``): a signed corridor counts
         only a DDM Health signed by a trusted DDM key (issue 18)."""
@@ -156,6 +176,10 @@ class VehicleService:
     def _on_rsu(self, key: str, msg) -> None:
         if isinstance(msg, ObjectList) and parse_key(key).topic == "objects":
             self._queue("rsu", msg)
+
+    def _on_alert(self, key: str, msg) -> None:
+        if isinstance(msg, EvAlert):
+            self._queue("alert", (key, msg))
 
     def _on_reject(self, key: str, exc: Exception) -> None:
         self.rejected[getattr(exc, "reason", "invalid")] += 1
@@ -252,6 +276,8 @@ class VehicleService:
             elif kind == "link":
                 if self._authentic_heartbeat(msg, now_s):
                     core.on_link(now_s)
+            elif kind == "alert":
+                self._hear_alert(*msg, now_s)
             elif kind == "rsu":
                 core.on_picture(now_s, [(o.pos_x_m, o.pos_y_m, o.length_m, o.width_m) for o in msg.objects],
                                 msg.rsu_id)
@@ -272,6 +298,41 @@ class VehicleService:
             return False
         return True
 
+    def _hear_alert(self, key: str, msg: EvAlert, now_s: float) -> None:
+        """Keep an active EvAlert that verifies against the trust list's RSU keys (the others are counted)."""
+        assert self.alert_verifier is not None
+        try:
+            self.alert_verifier.check(key, msg, now_s)
+        except AuthError as exc:
+            self.rejected[f"alert_auth_{exc.reason}"] += 1
+            return
+        if msg.state != AlertState.ACTIVE:
+            return
+        prev = self.heard_alert
+        if prev is None or now_s - prev.stamp_s > self.direct_alerts.episode_gap_s or self._first_alert_s is None:
+            self._first_alert_s = now_s  # a new approach: its command deadline starts now
+        if prev is None or msg.stamp >= prev.stamp_s:
+            self.heard_alert = HeardAlert(msg.stamp, msg.pos_x_m, msg.pos_y_m, msg.vel_x_mps, msg.vel_y_mps, msg.rsu_id)
+
+    def _consider_direct_alert(self, now_s: float) -> None:
+        """Pull over on the car's own authority when a signed alert says so and the command is late."""
+        alert, core = self.heard_alert, self.sim.core
+        if alert is None or self._first_alert_s is None:
+            return
+        if now_s - alert.stamp_s > self.direct_alerts.episode_gap_s:
+            self.heard_alert = self._first_alert_s = None
+            return
+        why = act_on_alert(alert, now_s, self.corridor.road, core.estimator.pose, max(core.speed_mps, 0.0),
+                           self.vehicle_config.length_m, self._first_alert_s, core.last_command_s,
+                           core.mode == VehicleMode.DRIVING, self.direct_alerts)
+        if why is None:
+            return
+        if core.direct_pull_over(why, now_s, self.direct_alerts.lat_accel_mps2, self.direct_alerts.curb_check_behind_m):
+            self.direct_pull_overs += 1
+            log.warning("%s: pulling over on its own: %s", self.vehicle_id, why)
+        else:
+            self.direct_held_back += 1  # control steps the curb side was occupied: the car drives on
+
     def _rsu_fix(self, msg: ObjectList) -> None:
         """The RSU object nearest the predicted pose (within the gate) is this car."""
         x, y, _ = self.sim.core.estimator.pose
@@ -290,6 +351,7 @@ class VehicleService:
     def step(self, now_s: float) -> None:
         """Process queued input, advance the car to ``now_s`` at the control rate, publish what is due."""
         self._drain(now_s)
+        self._consider_direct_alert(now_s)
         dt = self.timing.control_period_s
         steps = 0
         while self._next_control_s <= now_s + 1e-9:
