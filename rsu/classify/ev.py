@@ -164,6 +164,31 @@ class EvVerdict:
     keeps none."""
 
 
+def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int, int] | None]
+                    ) -> list[tuple[int, int, int, int]]:
+    """The parts of track ``k``'s crop that belong to other vehicles, left out of its lamp band so that a lamp
+    is counted for one vehicle only: the whole crop of every vehicle nearer the camera (its box's bottom edge
+    lower in the image: it occludes this one), and, of every other vehicle whose crop overlaps this one, the
+    columns nearer its box centre than this box's (the two crops split at the midpoint between the centres).
+    Without the split, a car beside an EV counts the EV's roof bar, which its own upward-grown crop takes in."""
+    out: list[tuple[int, int, int, int]] = []
+    box = boxes[k]
+    cx = 0.5 * (box[0] + box[2])
+    for j, other in enumerate(boxes):
+        ob = bounds[j]
+        if j == k or ob is None:
+            continue
+        if other[3] > box[3]:
+            out.append(ob)
+            continue
+        ocx = 0.5 * (other[0] + other[2])
+        if ocx == cx:
+            continue
+        mid = int(round(0.5 * (cx + ocx)))
+        out.append((mid, ob[1], ob[2], ob[3]) if ocx > cx else (ob[0], ob[1], mid, ob[3]))
+    return out
+
+
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -249,9 +274,7 @@ class TrackEvClassifier:
                  occluders: Iterable[tuple[int, int, int, int]] = ()
                  ) -> tuple[LampMeasurement, LampMeasurement, float | None, np.ndarray | None]:
         """(lamp-bright, light-bar colour) measurements of the band of the crop ``bounds``, the crop score and
-        the crop. ``occluders``: the crop bounds of the tracks nearer the camera (their bottom edge lower in
-        the image), left out of this band: a nearer vehicle occludes this one, and its roof bar, seen in front
-        of the far vehicle, is not the far vehicle's (dense traffic, thesis 2.3's merged boxes)."""
+        the crop. ``occluders``: rectangles of the crop left out of the band (:func:`band_exclusions`)."""
         if bounds is None:
             return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
@@ -311,8 +334,7 @@ class TrackEvClassifier:
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                occluders = [bounds[j] for j in np.flatnonzero(boxes[:, 3] > box[3]) if bounds[j] is not None]
-                lamps, bar, score, crop = self._measure(image, bounds[k], occluders)
+                lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds))
                 state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar)
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)

@@ -1,0 +1,38 @@
+"""A lamp is counted for one vehicle only (rsu.classify.ev.band_exclusions): a car beside an EV must not take
+in the EV's roof bar, which its own upward-grown crop reaches."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rsu.classify.ev import TrackEvClassifier, band_exclusions
+
+
+def _scene():
+    image = np.zeros((240, 400, 3), np.uint8)
+    boxes = np.array([[100.0, 100.0, 180.0, 160.0],   # the EV
+                      [140.0, 100.0, 220.0, 160.0]])  # a car beside it, the same distance from the camera
+    image[88:96, 120:160] = (255, 60, 0)  # the EV's lit blue roof bar, above its box (BGR)
+    return image, boxes
+
+
+def test_car_beside_an_ev_does_not_measure_the_evs_bar():
+    image, boxes = _scene()
+    clf = TrackEvClassifier()
+    bounds = [clf.crop_bounds(b, image.shape[1], image.shape[0]) for b in boxes]
+    assert bounds[1][0] < 160 and bounds[1][1] < 96  # the car's crop does reach the bar ...
+    _, bar_shared, _, _ = clf._measure(image, bounds[1])
+    _, bar_car, _, _ = clf._measure(image, bounds[1], band_exclusions(1, boxes, bounds))
+    _, bar_ev, _, _ = clf._measure(image, bounds[0], band_exclusions(0, boxes, bounds))
+    assert bar_shared.coloured > 0.0  # ... and without the split it counts it
+    assert bar_car.coloured == 0.0
+    assert bar_ev.coloured > 0.0  # the EV keeps its own bar
+
+
+def test_a_nearer_vehicle_hides_its_whole_crop_and_a_far_one_only_its_side():
+    boxes = np.array([[100.0, 50.0, 180.0, 100.0], [90.0, 80.0, 200.0, 160.0], [150.0, 40.0, 230.0, 95.0]])
+    bounds = [(100, 38, 180, 100), (90, 60, 200, 160), (150, 27, 230, 95)]
+    out = band_exclusions(0, boxes, bounds)
+    assert (90, 60, 200, 160) in out  # box 1 is nearer (bottom 160 > 100): all of it
+    assert (165, 27, 230, 95) in out  # box 2 is farther, to the right: from the midpoint 165 of the centres 140, 190
+    assert band_exclusions(1, boxes, bounds)[0] == (100, 38, 142, 100)  # box 1 (centre 145) gives up box 0's side (centre 140)
