@@ -175,7 +175,7 @@ def corridor_faults(seed: int | None = None, quick: bool = False) -> list[FaultO
             for p in losses]
     if first_cmd is not None:
         for length in ((2.0,) if quick else OUTAGES_S):
-            row = _reseeded(f"{length:.0f} s outage at the command", "dropout", seed=seed,
+            row = _reseeded(f"{length:.0f} s radio outage", "dropout", seed=seed,
                             channel=latency_channel(0.0), outage_s=(first_cmd - 0.005, length))
             out.append(beyond_corridor_bound(row, length, base))
     out.append(_reseeded("RSU killed with the EV in view", "rsu_kill", seed=seed, kill_first_alerting_rsu=True))

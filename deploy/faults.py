@@ -3,8 +3,10 @@
 Two runners:
 
 - ``run_command_link`` (in process, lockstep): the real ``DdmService`` and ``VehicleService`` on one
-  ``SimClock`` over a ``LocalBus``; every message to and from the vehicle goes through a ``DsrcLink``
-  with the channel under test (latency + jitter, independent loss, scheduled outages). Scripted RSUs
+  ``SimClock`` over a ``LocalBus``, on a signed corridor (a DDM key and one per RSU, ``rig_keys``, as ``iea
+  up`` runs); every message to and from the vehicle goes through its radio (``VehicleRadio``: the command
+  link to the DDM and the RSUs' broadcasts, each a ``DsrcLink``) with the channel under test (latency +
+  jitter, independent loss, scheduled outages of the command link or of the whole radio). Scripted RSUs
   stand in for perception: each publishes at 15 Hz the object list of what its camera sees (the AV's
   true pose, the EV) and, from ``lights_on_s + alert_delay_s``, the EvAlert at 2 Hz. The EV drives in
   the AV's lane at constant speed. Fast (a few seconds of CPU per run) and deterministic per seed.
@@ -34,6 +36,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
 from deploy.outcome import Body, YieldTrace, out_of_strip
 from protocol.channel import ChannelModel
 from protocol.clock import SimClock
@@ -49,7 +53,8 @@ from protocol.messages import (
     PathSwitchCommand,
     VehicleMode,
 )
-from protocol.transport import DsrcLink, LocalBus
+from protocol.security import Signer, public_key_b64
+from protocol.transport import DsrcLink, LocalBus, Subscription, Transport
 
 CAMERA_VIEW_M = (18.0, 120.0)
 """What each RELLIS camera sees along x, relative to its own x (deploy/corridors/rellis.toml)."""
@@ -119,6 +124,43 @@ def _detected(corridor: Corridor, oid: int, x: float, y: float, vx: float, vy: f
         pos_cov_m2=(0.09, 0.0, 0.09), lane=None)
 
 
+class VehicleRadio(Transport):
+    """The vehicle's radio as two links: the RSUs' broadcasts (``rsu``: their object lists and EvAlerts)
+    and the command link to the DDM (``cmd``: commands, acks, the DDM's Health, the vehicle's own state).
+    A command-link outage cuts ``cmd`` only; a radio outage both."""
+
+    def __init__(self, cmd: DsrcLink, rsu: DsrcLink) -> None:
+        super().__init__()
+        self.inner, self.cmd, self.rsu = cmd, cmd, rsu  # presence and queries go over the command link
+        self.stats = cmd.stats
+
+    def _link(self, key: str) -> DsrcLink:
+        return self.rsu if "/rsu/" in key else self.cmd
+
+    def publish_bytes(self, key: str, payload: bytes) -> None:
+        self._link(key).publish_bytes(key, payload)
+
+    def subscribe_bytes(self, key_expr: str, callback: Any) -> Subscription:
+        return self._link(key_expr).subscribe_bytes(key_expr, callback)
+
+
+@functools.lru_cache(maxsize=4)
+def rig_keys(corridor_id: str, rsu_ids: tuple[str, ...]) -> tuple[Signer, dict[str, Signer], tuple[dict, ...]]:
+    """The rig's signing keys (a DDM key, one per RSU) and the trust entries naming them: the rig runs a
+    signed corridor, as ``iea up`` does (issue 18: only signed evidence moves a car)."""
+    def key(kid: str) -> tuple[Signer, str]:
+        private = Ed25519PrivateKey.generate()
+        return Signer(kid, private), public_key_b64(private.public_key())
+
+    ddm, ddm_pub = key(f"{corridor_id}-rig-ddm")
+    trust = [{"key_id": ddm.key_id, "role": "ddm", "public_key": ddm_pub, "vehicles": ["*"]}]
+    rsus = {}
+    for rsu in rsu_ids:
+        rsus[rsu], pub = key(f"{corridor_id}-rig-{rsu}")
+        trust.append({"key_id": rsus[rsu].key_id, "role": "rsu", "public_key": pub, "rsu_id": rsu})
+    return ddm, rsus, tuple(trust)
+
+
 @dataclass
 class LinkRunResult:
     outcome: FaultOutcome
@@ -128,30 +170,43 @@ class LinkRunResult:
 
 def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "latency", seed: int = 0,
                      scenario: YieldScenario = YieldScenario(), outage_after_alert: tuple[float, float] | None = None,
-                     corridor: Corridor | None = None) -> LinkRunResult:
-    """One lockstep run of the EV approach with the vehicle behind ``channel``.
+                     command_outage_after_alert: tuple[float, float] | None = None,
+                     corridor: Corridor | None = None, direct_alerts: Any = None) -> LinkRunResult:
+    """One lockstep run of the EV approach with the vehicle behind ``channel`` (its radio: the command link
+    to the DDM and the RSUs' broadcasts, ``VehicleRadio``, each through ``channel``), on a signed corridor.
 
-    ``outage_after_alert`` = (start, length): a window of total loss on the vehicle link starting that
-    long after the first EvAlert (the worst moment: the command is in flight).
+    ``outage_after_alert`` = (start, length): a window of total loss on the whole vehicle radio starting
+    that long after the first EvAlert (the worst moment: the command is in flight);
+    ``command_outage_after_alert``: the same on the command link only (the RSUs are still heard).
+    ``direct_alerts``: the vehicle's ``DirectAlertConfig`` (default: on).
     """
     from ddm.config import DdmConfig
     from ddm.service import DdmService
+    from vehicle.ev_direct import DirectAlertConfig
     from vehicle.service import VehicleService
 
     corridor = corridor or load_corridor()
+    ddm_signer, rsu_signers, trust = rig_keys(corridor.corridor_id, tuple(r.rsu_id for r in corridor.rsus))
+    corridor = dataclasses.replace(corridor, trust=trust)
     sc = scenario
     c = corridor.corridor_id
     bus = LocalBus()
     t0 = 1000.0
     clock = SimClock(t0)
     t_alert = t0 + sc.lights_on_s + sc.alert_delay_s
-    if outage_after_alert is not None:
-        start, length = outage_after_alert
-        start += t_alert - 0.005  # half a step early: the alert goes out on the step nearest t_alert
-        channel = dataclasses.replace(channel, outages=((start, start + length),))
-    ddm = DdmService(bus, clock, corridor, DdmConfig())
-    link = DsrcLink(bus, channel, seed=seed, clock=clock, threaded=False)
-    veh = VehicleService(link, clock, corridor, "av1", seed=seed)
+
+    def cut(ch: ChannelModel, window: tuple[float, float] | None) -> ChannelModel:
+        if window is None:
+            return ch
+        start = window[0] + t_alert - 0.005  # half a step early: the alert goes out on the step nearest t_alert
+        return dataclasses.replace(ch, outages=ch.outages + ((start, start + window[1]),))
+
+    cmd_channel = cut(cut(channel, outage_after_alert), command_outage_after_alert)
+    ddm = DdmService(bus, clock, corridor, DdmConfig(), signer=ddm_signer)
+    link = DsrcLink(bus, cmd_channel, seed=seed, clock=clock, threaded=False)
+    rsu_link = DsrcLink(bus, cut(channel, outage_after_alert), seed=seed + 7919, clock=clock, threaded=False)
+    veh = VehicleService(VehicleRadio(link, rsu_link), clock, corridor, "av1", seed=seed,
+                         direct_alerts=direct_alerts or DirectAlertConfig())
     vc = corridor.vehicle("av1")
     road = corridor.road
     ev_y = road.lane_centre_offset_m(1)
@@ -192,6 +247,7 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
         if ev_x - ev_len / 2 > st.x_m + vc.length_m / 2:
             events.setdefault("ev_passed_av", now)
         link.deliver_due(now)
+        rsu_link.deliver_due(now)
         if now + 1e-9 >= next_frame:  # scripted RSUs: object lists at the camera rate
             next_frame += 1.0 / sc.frame_rate_hz
             frame += 1
@@ -213,10 +269,11 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
             if rsu is not None:
                 lat, lon = corridor.to_latlon(ev_x, ev_y)
                 events.setdefault("first_alert", now)
-                bus.publish(rsu_key(c, rsu, "ev"), EvAlert(
+                k = rsu_key(c, rsu, "ev")
+                bus.publish(k, rsu_signers[rsu].sign_message(k, EvAlert(
                     src=rsu, stamp=now, alert_id=f"{rsu}-ev", state=AlertState.ACTIVE, rsu_id=rsu, object_id=2,
                     pos_x_m=ev_x, pos_y_m=ev_y, lat_deg=lat, lon_deg=lon, vel_x_mps=sc.ev_speed_mps,
-                    speed_mps=sc.ev_speed_mps, confidence=0.9, first_seen=t_alert))
+                    speed_mps=sc.ev_speed_mps, confidence=0.9, first_seen=t_alert)))
         if sent:
             events.setdefault("command_sent", sent[0].stamp)
         veh.step(now)
@@ -230,6 +287,8 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
             events.setdefault("manoeuvre", now)
         if core.mode == VehicleMode.MINIMAL_RISK:
             events.setdefault("failsafe", now)
+            if veh.direct_pull_overs:
+                events.setdefault("direct_pull_over", now)
         if core.mode in (VehicleMode.STOPPED, VehicleMode.MINIMAL_RISK) and st.vx_mps < 0.05:
             events.setdefault("stopped", now)
         if now + 1e-9 >= next_ddm:
@@ -239,6 +298,7 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
                 and ddm.commands.outstanding() == 0 and (not sent or now - sent[-1].stamp > 1.0):
             break  # the EV is well past and no command is in flight: the outcome is known
     link.close()
+    rsu_link.close()
     ddm.close()
     veh.close()
     bus.close()
@@ -264,11 +324,14 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
         "transmissions": len(sent), "acks_at_ddm": len(acks_at_ddm), "lost_commands": lost,
         "duplicate_activations": duplicates, "ddm_expired": int(ddm.counters["cmd_expired"]),
         "link": {d: dict(v) for d, v in link.counts.items()}, "modes": sorted(modes_seen),
+        "rsu_link": {d: dict(v) for d, v in rsu_link.counts.items()}, "direct_pull_overs": veh.direct_pull_overs,
     }
     outcome = f"{verdict.status}: {verdict.reason}"
     if "manoeuvre" in events and "lights_on" in events:
         outcome += f", starts +{events['manoeuvre'] - events['lights_on']:.2f} s"
-    if "failsafe" in events:
+    if "direct_pull_over" in events:
+        outcome += f", pulled over on its own on the signed EvAlert +{events['direct_pull_over'] - events['lights_on']:.2f} s"
+    elif "failsafe" in events:
         outcome += ", fail-safe stop"
     own_ok, own = True, "yield"
     if kind == "dropout":  # delivery (issue 8) AND the yield outcome (issue 18)
@@ -365,12 +428,23 @@ def latency_faults(seed: int = 0, alert_delay_s: float = MEASURED_ALERT_DELAY_S[
 
 
 def dropout_faults(seed: int = 0, alert_delay_s: float = MEASURED_ALERT_DELAY_S["p99"]) -> list[FaultOutcome]:
+    """Loss on the vehicle's radio, then 1 s / 2 s outages from the first command: of the command link only
+    (issue 8's "total loss on the command link": the RSUs' broadcasts still reach the car, which may act on a
+    signed EvAlert once its command is ``command_deadline_s`` late: the fault's least delay is the shorter of
+    the two) and of the whole radio (nothing reaches the car: the outage's length)."""
+    from vehicle.ev_direct import DirectAlertConfig
+
     sc = YieldScenario(alert_delay_s=alert_delay_s)
+    deadline = DirectAlertConfig().command_deadline_s
     out = []
     for p in LOSSES:
         out.append(_judged(_retimed(ChannelModel(latency_s=0.003, loss=p), sc, name=f"loss {p:.0%}", kind="dropout",
                                     seed=seed), 0.0, sc))  # at best the first send gets through
     for length in OUTAGES_S:
-        out.append(_judged(_retimed(ChannelModel(latency_s=0.003), sc, name=f"{length:.0f} s outage at the command",
+        out.append(_judged(_retimed(ChannelModel(latency_s=0.003), sc, name=f"{length:.0f} s command-link outage",
+                                    kind="dropout", seed=seed, command_outage_after_alert=(0.0, length)),
+                           min(length, deadline), sc))
+    for length in OUTAGES_S:
+        out.append(_judged(_retimed(ChannelModel(latency_s=0.003), sc, name=f"{length:.0f} s radio outage",
                                     kind="dropout", seed=seed, outage_after_alert=(0.0, length)), length, sc))
     return out
