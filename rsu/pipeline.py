@@ -7,7 +7,7 @@ and ``iea-rsu scan`` reports.
 Classifier hook: any callable ``(frame, tracks) -> {track_id: EvVerdict}`` (:class:`rsu.classify.ev.EvVerdict`;
 :class:`rsu.classify.ev.TrackEvClassifier` plugs in here). With an ``ev_state`` an object is published as
 ``obj_type = ev`` while its state is ``confirmed``; without one, when ``ev_score >= ev_threshold``. With a
-classifier the pipeline runs an :class:`rsu.classify.ev.EvAlertManager` on the frame times: ``active`` when a
+classifier the pipeline runs an :class:`rsu.classify.alerts.EvAlertManager` on the frame times: ``active`` when a
 track is confirmed, refreshed at 2 Hz, ``cleared`` when its lights go off or it has left the view.
 
 Hazards (issue 10): with a :class:`rsu.hazard.HazardDetector`, static objects in a lane come out as
@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from protocol.messages import DetectedObject, EvState, LightState, ObjectType
-from rsu.classify.ev import AlertEvent, EvAlertManager, EvVerdict
+from rsu.classify.alerts import AlertEvent, EvAlertManager
+from rsu.classify.ev import EvVerdict
 from rsu.detect import EV, Detector, MotionDetector
 from rsu.frames import Frame
 from rsu.hazard import HazardDetector, HazardEvent

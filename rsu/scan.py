@@ -3,7 +3,7 @@
 An operator checks a camera with it: which vehicles were recognised as emergency vehicles, when, and on
 which cues. :func:`scan_video` builds the RSU's pipeline (``rsu.build``: detector -> SORT, Framework B ->
 :class:`~rsu.classify.ev.TrackEvClassifier` with the EV-body classifier -> the pipeline's
-:class:`~rsu.classify.ev.EvAlertManager`), with no transport and no clock: frame times are the video's own.
+:class:`~rsu.classify.alerts.EvAlertManager`), with no transport and no clock: frame times are the video's own.
 A recorded clip has no calibration in the corridor file, so the corridor localiser is replaced by
 :class:`ImageOnlyLocalizer`, which reports every track: the corridor's would drop the tracks it cannot put
 inside an RSU's zone of responsibility (with another camera's geometry, most of them), and a dropped

@@ -59,7 +59,7 @@ from protocol.ranges import MAX_LATENCY_MS
 from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
-from rsu.classify.ev import AlertEvent
+from rsu.classify.alerts import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardEvent
 from rsu.overlay import CalibrationOverlay

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from protocol.messages import AlertState, DetectedObject, EvState, LightState
-from rsu.classify.ev import EvAlertManager, TrackEvClassifier, clip_box, extrapolate_box, match_lost_tracks
+from rsu.classify.alerts import EvAlertManager
+from rsu.classify.ev import TrackEvClassifier, clip_box, extrapolate_box, match_lost_tracks
 from rsu.frames import Frame
 from rsu.track import TrackSet
 

@@ -1,0 +1,106 @@
+"""EvAlert life cycle per track (issue 5; thesis 2.4): :class:`EvAlertManager` turns the per-track EV states
+that :class:`~rsu.classify.ev.TrackEvClassifier` gives into ``EvAlert`` events (pure: the caller gives the frame
+time): ``active`` when a track becomes confirmed, a refresh every ``refresh_period_s`` (2 Hz) while active,
+``cleared`` when its evidence clears (lights off) or the track has not been seen for ``leave_after_s`` (it left
+the view).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState
+from rsu.classify.ev import EvVerdict
+
+
+@dataclass(frozen=True)
+class AlertEvent:
+    """One EvAlert to publish: state, the alerting track's latest object and its evidence summary."""
+
+    state: AlertState
+    track_id: int
+    obj: DetectedObject
+    first_seen_s: float
+    confidence: float
+    frames: int
+    flash_hz: float | None
+    mean_score: float
+    clear_reason: ClearReason | None = None
+    """With ``CLEARED``: lights off (the track is still seen) or out of view (it was not seen for
+    ``leave_after_s``)."""
+    cues: tuple[EvCue, ...] = ()
+    """The cues that confirmed the track (flash, alternation, steady bar, EV body)."""
+    body_score: float | None = None
+    """The track's mean EV-body score, when the body classifier scored it."""
+
+
+@dataclass
+class _Active:
+    obj: DetectedObject
+    first_seen_s: float
+    last_seen_s: float
+    last_sent_s: float
+    confidence: float
+    frames: int
+    flash_hz: float | None
+    mean_score: float
+    cues: tuple[EvCue, ...] = ()
+    body_score: float | None = None
+
+
+@dataclass
+class EvAlertManager:
+    """EvAlert life cycle per track (see the module docstring); ``update`` once per processed frame."""
+
+    refresh_period_s: float = 0.5
+    leave_after_s: float = 1.0
+    active: dict[int, _Active] = field(default_factory=dict)
+
+    def update(self, now_s: float, objects: Iterable[DetectedObject],
+               verdicts: Mapping[int, EvVerdict]) -> list[AlertEvent]:
+        """``verdicts``: this frame's answers of the classifier hook, by track id (their evidence records)."""
+        events: list[AlertEvent] = []
+        seen: set[int] = set()
+        for obj in objects:
+            tid = int(obj.object_id)
+            seen.add(tid)
+            verdict = verdicts.get(tid)
+            info = verdict.track if verdict is not None else None
+            a = self.active.get(tid)
+            if obj.ev_state == EvState.CONFIRMED:
+                ev = info.evidence if info is not None else None
+                conf = float(obj.ev_score)
+                frames = ev.frames if ev is not None else 0
+                hz = ev.flash_hz if ev is not None else None
+                mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else conf
+                cues = ev.cues if ev is not None else ()
+                body = ev.body_score if ev is not None else None
+                if a is None:
+                    first = info.first_seen_s if info is not None else now_s
+                    a = self.active[tid] = _Active(obj, first, now_s, now_s, conf, frames, hz, mean, cues, body)
+                    events.append(self._event(AlertState.ACTIVE, tid, a))
+                else:
+                    a.obj, a.last_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score = (
+                        obj, now_s, conf, frames, hz, mean)
+                    a.cues, a.body_score = cues, body
+            elif a is not None:  # evidence cleared (lights off) or fell back
+                a.obj = obj
+                events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.LIGHTS_OFF))
+                del self.active[tid]
+        for tid, a in list(self.active.items()):
+            if tid not in seen and now_s - a.last_seen_s >= self.leave_after_s:
+                events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.OUT_OF_VIEW))
+                del self.active[tid]
+            elif now_s - a.last_sent_s >= self.refresh_period_s - 1e-9 and not any(
+                    e.track_id == tid for e in events):
+                events.append(self._event(AlertState.ACTIVE, tid, a))
+        for e in events:
+            if e.state == AlertState.ACTIVE:
+                self.active[e.track_id].last_sent_s = now_s
+        return events
+
+    @staticmethod
+    def _event(state: AlertState, tid: int, a: _Active, reason: ClearReason | None = None) -> AlertEvent:
+        return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score,
+                          reason, a.cues, a.body_score)
