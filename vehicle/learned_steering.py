@@ -1,0 +1,154 @@
+"""On-board learned steering of the Clemson comparison (issue 23; Clemson hazard navigation report ch. 3).
+
+The car's own pipeline, from its dashboard camera (66 x 200 BGR, ``sim.dashcam``) and its radar:
+
+1. hazard segmentation: a small fully convolutional net (``models/driving_seg.onnx``) gives a debris mask;
+2. threat value T_f: case 2 from the radar's (lx, ly) by eq. 2-3, case 3 from the mask by eq. 4
+   (``ddm.threat``: the same equations the DDM uses), case 1 none;
+3. the fused image of eq. 1, I = (1 - T_f) I_original + T_f I_segmented, with I_segmented the mask drawn in
+   ``SEGMENTED_BGR`` on black (so T_f also dims the rest of the image: the net sees how threatening it is);
+4. the DAVE-2-like net of the case (``models/driving_case{1,2,3}.onnx``: normalisation inside, five
+   convolutions, dense layers, one output) gives the steering angle normalised by eq. 5 over
+   [-STEER_LIMIT_RAD, +STEER_LIMIT_RAD]; ``denormalise_steer`` turns it back into a road-wheel angle.
+
+``LearnedVehicle`` is the simulated car with that steering: while the thesis core is in DRIVING it applies
+the learned angle; in any other mode (a commanded manoeuvre, a stop, the fail-safe's minimal-risk stop) or
+when no finite learned angle is there, the core's own command. Runtime needs onnxruntime only.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ddm.threat import LX_MAX_M, LY_MAX_M, fuse_image, image_threat, threat_value
+from protocol.messages import VehicleMode
+from vehicle.core import ControlOutput, SimulatedVehicle
+
+CASES = (1, 2, 3)
+STEER_LIMIT_RAD = 0.2
+"""Eq. 5's theta_max (= -theta_min): road-wheel angles beyond it are clipped (the teacher stays under 0.1)."""
+SEGMENTED_BGR = (255, 0, 255)
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+INPUT_SHAPE = (66, 200, 3)
+
+
+def normalise_steer(steer_rad):
+    """Eq. 5: theta_n = -0.5 + clip((theta - theta_min) / (theta_max - theta_min), 0, 1), in [-0.5, 0.5]."""
+    th = np.asarray(steer_rad, dtype=float)
+    return -0.5 + np.clip((th + STEER_LIMIT_RAD) / (2.0 * STEER_LIMIT_RAD), 0.0, 1.0)
+
+
+def denormalise_steer(steer_n):
+    """Inverse of eq. 5 inside the limits (rad)."""
+    return (np.asarray(steer_n, dtype=float) + 0.5) * (2.0 * STEER_LIMIT_RAD) - STEER_LIMIT_RAD
+
+
+def segmented_image(mask: np.ndarray) -> np.ndarray:
+    """I_segmented of eq. 1: the hazard pixels of ``mask`` in SEGMENTED_BGR on black (uint8, h x w x 3)."""
+    m = np.asarray(mask).astype(bool)
+    out = np.zeros((*m.shape, 3), np.uint8)
+    out[m] = SEGMENTED_BGR
+    return out
+
+
+def radar_threat(radar: tuple[float, float] | None) -> float:
+    """Eq. 2-3 on the radar's (lx, ly) with the report's limits (60 m, one lane 3.7 m); 0 without a target."""
+    return 0.0 if radar is None else float(threat_value(radar[0], radar[1], LX_MAX_M, LY_MAX_M))
+
+
+def case_input(case: int, image: np.ndarray, mask: np.ndarray | None,
+               radar: tuple[float, float] | None) -> tuple[np.ndarray, float]:
+    """The driving net's input image for ``case`` (1: the camera image; 2: eq. 1 with the radar's T_f;
+    3: eq. 1 with the image's T_f, eq. 4) and the T_f used."""
+    if case not in CASES:
+        raise ValueError(f"case must be one of {CASES}, got {case!r}")
+    if image.shape != INPUT_SHAPE or image.dtype != np.uint8:
+        raise ValueError(f"the dashcam image must be uint8 {INPUT_SHAPE}, got {image.dtype} {image.shape}")
+    if case == 1:
+        return image, 0.0
+    if mask is None:
+        raise ValueError(f"case {case} needs the hazard mask")
+    tf = radar_threat(radar) if case == 2 else image_threat(mask)
+    return fuse_image(image, segmented_image(mask), tf), tf
+
+
+def _session(path: Path):
+    import onnxruntime as ort
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: train it with '/tmp/trainenv/bin/python models/train_driving.py' "
+                                "(see models/driving.md)")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads = 1, 1
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def _batch(image: np.ndarray) -> np.ndarray:
+    """uint8 BGR (h, w, 3) -> float32 (1, 3, h, w), 0-255 (the nets normalise inside: the report's lambda layer)."""
+    return np.ascontiguousarray(image.transpose(2, 0, 1)[None].astype(np.float32))
+
+
+class HazardSegmenter:
+    """The on-board debris segmentation (``driving_seg.onnx``): image -> boolean mask."""
+
+    def __init__(self, path: Path | str = MODELS_DIR / "driving_seg.onnx", threshold: float = 0.5) -> None:
+        self.session = _session(Path(path))
+        self.threshold = threshold
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        logits = self.session.run(None, {"image": _batch(image)})[0][0, 0]
+        return logits > math.log(self.threshold / (1.0 - self.threshold))
+
+
+class LearnedSteering:
+    """Steering of one case from a dashcam image and the radar: ``__call__`` -> (road-wheel angle rad, T_f)."""
+
+    def __init__(self, case: int, models_dir: Path | str = MODELS_DIR) -> None:
+        if case not in CASES:
+            raise ValueError(f"case must be one of {CASES}, got {case!r}")
+        self.case = case
+        d = Path(models_dir)
+        self.net = _session(d / f"driving_case{case}.onnx")
+        self.segmenter = HazardSegmenter(d / "driving_seg.onnx") if case != 1 else None
+
+    def __call__(self, image: np.ndarray, radar: tuple[float, float] | None) -> tuple[float, float]:
+        mask = self.segmenter(image) if self.segmenter is not None else None
+        x, tf = case_input(self.case, image, mask, radar)
+        steer_n = float(self.net.run(None, {"image": _batch(x)})[0].reshape(-1)[0])
+        return float(denormalise_steer(steer_n)), tf
+
+
+class LearnedVehicle(SimulatedVehicle):
+    """``SimulatedVehicle`` steered by ``learned_steer_rad`` (set by the camera loop) while the core is in
+    DRIVING; the core's command otherwise. ``applied_steer_rad``: what went to the plant last step."""
+
+    learned_steer_rad: float | None = None
+    applied_steer_rad: float = 0.0
+    learned_steps: int = 0
+    """Control steps steered by the learned angle."""
+
+    @classmethod
+    def adopt(cls, sim: SimulatedVehicle) -> LearnedVehicle:
+        """Turn a running ``SimulatedVehicle`` (a service's) into a learned one, state kept."""
+        sim.__class__ = cls
+        return sim  # type: ignore[return-value]
+
+    def step(self, now_s: float, dt_s: float) -> ControlOutput:
+        st = self.plant.state
+        if self.fixes is not None:
+            for fix in self.fixes.step(now_s, st.x_m, st.y_m):
+                if self.fix_source_enabled:
+                    self.core.on_fix(fix)
+        v, w = self.odometry.measure(st.vx_mps, st.yaw_rate_rps)
+        out = self.core.control(now_s, v, w, dt_s, st.steer_rad)
+        steer = out.steer_cmd_rad
+        learned = self.learned_steer_rad
+        if out.mode == VehicleMode.DRIVING and learned is not None and math.isfinite(learned):
+            steer = float(np.clip(learned, -STEER_LIMIT_RAD, STEER_LIMIT_RAD))
+            self.learned_steps += 1
+        self.applied_steer_rad = steer
+        self.plant.step(dt_s, steer, out.accel_cmd_mps2)
+        return out
