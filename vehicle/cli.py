@@ -29,6 +29,12 @@ def _non_negative(text: str) -> float:
     return v
 
 
+def _steering(text: str) -> str:
+    if text == "thesis" or text in ("learned:1", "learned:2", "learned:3"):
+        return text
+    raise argparse.ArgumentTypeError(f"must be 'thesis' or 'learned:1', 'learned:2', 'learned:3', got {text!r}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="iea-vehicle", description=(
         "Autonomous vehicle process of the IEA corridor: follows path-switch commands from the DDM with the "
@@ -60,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--require-signed", action=argparse.BooleanOptionalAction, default=None,
                      help="refuse unsigned commands (default: on when the corridor file's [[trust]] entries name a "
                           "DDM key; commands are then verified against them whatever this flag says)")
+    run.add_argument("--steering", default="thesis", type=_steering, metavar="MODE",
+                     help="'thesis' (default: the thesis lateral controller) or 'learned:CASE' (CASE 1, 2 or 3: the "
+                          "Clemson comparison's dashcam CNN through ONNX Runtime while driving in lane; the thesis "
+                          "controller keeps commanded manoeuvres and the fail-safe; needs the simulator's world)")
     run.add_argument("-v", "--verbose", action="store_true")
     ZenohSettings.add_arguments(run)
     metrics.add_arguments(run)
@@ -127,6 +137,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
                              localisation=args.localisation, fix_source=fix, seed=args.seed,
                              record=args.record is not None, gate=gate)
     log = logging.getLogger("iea-vehicle")
+    if args.steering != "thesis":
+        from vehicle.learned_steering import attach_camera
+        try:
+            attach_camera(service, transport, int(args.steering.split(":")[1]))
+        except FileNotFoundError as exc:
+            print(f"iea-vehicle: {exc}", file=sys.stderr)
+            service.close()
+            transport.close()
+            return 2
+        log.info("steering: %s (dashcam CNN while driving in lane; thesis controller for manoeuvres and fail-safe)",
+                 args.steering)
     if gate.active:
         log.info("commands verified against %d trusted key(s); unsigned commands %s", len(trust.keys),
                  "refused" if gate.require_signed else "accepted")

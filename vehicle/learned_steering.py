@@ -152,3 +152,71 @@ class LearnedVehicle(SimulatedVehicle):
         self.applied_steer_rad = steer
         self.plant.step(dt_s, steer, out.accel_cmd_mps2)
         return out
+
+
+class CameraLoop:
+    """The vehicle process's learned steering (``iea-vehicle run --steering learned:CASE``): the simulator's
+    world snapshots (``iea/{c}/sim/world``) give the scene; every ``period_s`` the dashcam is rendered at
+    the car's true pose (``sim.dashcam``: the camera is on the car), the radar measures the debris
+    (``sim.driving.simulated_radar``), and ``steering`` sets ``vehicle.learned_steer_rad``. Without a
+    snapshot newer than ``stale_s`` the learned angle is withdrawn and the thesis controller steers."""
+
+    def __init__(self, vehicle: LearnedVehicle, road, steering, vehicle_id: str, period_s: float = 0.1,
+                 stale_s: float = 0.5, seed: int = 0) -> None:
+        from sim.dashcam import DashCamera
+
+        self.vehicle, self.steering, self.vehicle_id = vehicle, steering, vehicle_id
+        self.camera = DashCamera(road, seed=seed)
+        self.period_s, self.stale_s = period_s, stale_s
+        self.rng = np.random.default_rng(seed)
+        self.snapshot = None
+        self.snapshot_at_s = -math.inf
+        self.frames = 0
+        self.last_threat = 0.0
+
+    def on_world(self, snapshot, now_s: float) -> None:
+        self.snapshot, self.snapshot_at_s = snapshot, now_s
+
+    def tick(self, now_s: float) -> float | None:
+        """One camera frame: the learned angle set (rad), or None when the world is stale."""
+        from protocol.messages import ActorKind
+        from sim.driving import simulated_radar
+
+        snap = self.snapshot
+        if snap is None or now_s - self.snapshot_at_s > self.stale_s:
+            self.vehicle.learned_steer_rad = None
+            return None
+        st = self.vehicle.truth
+        actors = [a for a in snap.actors if a.actor_id != self.vehicle_id]
+        img = self.camera.render(st.x_m, st.y_m, st.yaw_rad, actors, snap.sim_time_s, frame_index=self.frames)
+        debris = [a for a in actors if a.kind == ActorKind.DEBRIS]
+        radar = simulated_radar(st.x_m, st.y_m, st.yaw_rad, debris, self.rng, self.vehicle.core.config.params.length_m)
+        steer, self.last_threat = self.steering(img, radar)
+        self.vehicle.learned_steer_rad = steer
+        self.frames += 1
+        return steer
+
+
+def attach_camera(service, transport, case: int, models_dir: Path | str = MODELS_DIR) -> CameraLoop:
+    """Give a ``vehicle.service.VehicleService`` the learned steering of ``case``: its car becomes a
+    ``LearnedVehicle``, a ``CameraLoop`` listens to the simulator's world and runs in a daemon thread."""
+    import threading
+
+    from protocol.keys import sim_world_key
+
+    steering = LearnedSteering(case, models_dir)
+    vehicle = LearnedVehicle.adopt(service.sim)
+    loop = CameraLoop(vehicle, service.corridor.road, steering, service.vehicle_id)
+    clock = service.clock
+    sub = transport.subscribe(sim_world_key(service.corridor.corridor_id), lambda _k, msg: loop.on_world(msg, clock.now()))
+    service._subs.append(sub)  # closed with the service
+
+    def run() -> None:
+        while not service._stop.is_set():
+            t0 = clock.now()
+            loop.tick(t0)
+            clock.sleep(max(0.0, loop.period_s - (clock.now() - t0)))
+        vehicle.learned_steer_rad = None
+
+    threading.Thread(target=run, name="learned-steering", daemon=True).start()
+    return loop
