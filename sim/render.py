@@ -37,9 +37,11 @@ from sim.bodies import (
 )
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
+from sim.render_effects import halo_numbers, line_kernel
 from sim.scenery import LIGHTING, render_scenery
 
 MIN_VISIBLE_FRACTION = 0.3
+POOL_LOCAL_M = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])  # headlight pool, ahead of the bumper
 CLASS_VEHICLE = 0
 CLASS_EV = 1
 CLASS_NAMES = ("vehicle", "ev")
@@ -105,37 +107,45 @@ class Renderer:
         out.sort(key=lambda t: -t[0])
         return out
 
-    def _draw_headlight_pool(self, img: np.ndarray, a: Actor, strength: float) -> None:
-        """Light thrown on the road ahead of a vehicle by its headlights (dusk and night)."""
-        c, s_ = math.cos(a.heading_rad), math.sin(a.heading_rad)
-        fx, fy = a.pos_x_m + c * a.length_m / 2, a.pos_y_m + s_ * a.length_m / 2
-        local = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])
-        pts = np.column_stack([fx + local[:, 0] * c - local[:, 1] * s_, fy + local[:, 0] * s_ + local[:, 1] * c,
-                               np.zeros(4)])
-        uv, depth = self.cam.project(pts)
-        if np.any(depth <= NEAR_M):
-            return
-        x1, y1 = np.floor(uv.min(axis=0)).astype(int) - 6
-        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 7
+    def _pool_quads(self, actors: list[Actor]) -> tuple[np.ndarray, np.ndarray]:
+        """Headlight pools of ``actors`` projected in one product: pixel quads (N, 4, 2) and whether each is in
+        front of the camera (N,). The pool: a trapezoid on the road from 0.5 to 18 m ahead of the front bumper."""
+        cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
+                       for a in actors]).reshape(-1, 5)
+        c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
+        fx, fy = px + c * length / 2, py + s_ * length / 2
+        lx, ly = POOL_LOCAL_M[:, 0], POOL_LOCAL_M[:, 1]
+        pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
+        uv, depth = self.cam.project(pts.reshape(-1, 3))
+        return uv.reshape(-1, 4, 2), (depth.reshape(-1, 4) > NEAR_M).all(axis=1)
+
+    def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, colour: tuple) -> None:
+        """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
+        ``uv`` (4, 2) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added to the image."""
+        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
+        x1, y1, x2, y2 = x1 - 6, y1 - 6, x2 + 7, y2 + 7
         ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
         if ox2 - ox1 < 2 or oy2 - oy1 < 2:
             return
+        # the canvas is the pool's box cut to the image and the blur's reach (3 px): the same pixels in the image
+        x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
-        col = tuple(int(v * strength) for v in (70, 95, 110))
-        cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), col, cv2.LINE_AA, 4)
+        cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
         pool = cv2.blur(pool, (7, 7))
-        img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1])
+        roi = img[oy1:oy2, ox1:ox2]
+        cv2.add(roi, pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
 
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners (N, 3) projected along the sun onto z = 0, darkened
         (v * round(256 (1 - strength)) >> 8, as a LUT, where the anti-aliased polygon covers more than half)."""
         ground = corners[:, :2] - corners[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
         hull = cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
-        uv, depth = self.cam.project(np.column_stack([hull, np.zeros(len(hull))]))
-        if np.any(depth <= NEAR_M):
+        h = hull @ self.cam.KR[:, :2].T - self.cam.KR @ self.cam.C  # (x, y, 0) projected
+        if np.any(h[:, 2] <= NEAR_M):
             return
-        x1, y1 = np.floor(uv.min(axis=0)).astype(int)
-        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        uv = h[:, :2] / h[:, 2:]
+        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
+        x2, y2 = x2 + 1, y2 + 1
         x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
         if x2 - x1 < 2 or y2 - y1 < 2:
             return
@@ -218,7 +228,12 @@ class Renderer:
         lamp_pts: dict[tuple[str, str], list] = {}
         drawn = []
         cast = L["sun"] > 0.05 and self.shadows
-        for _dist, a in self._ordered(snapshot):
+        ordered = [a for _dist, a in self._ordered(snapshot)]
+        pools = L["running_lights"]
+        if pools:
+            pool_uv, pool_ok = self._pool_quads(ordered)
+            pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
+        for i_a, a in enumerate(ordered):
             model, pose, rot, uv, depth = self._pose(a)
             n_corner = 8 * len(model.parts)
             if np.any(depth[:n_corner] <= NEAR_M):
@@ -228,13 +243,13 @@ class Renderer:
             x_hi, y_hi = cu.max(axis=0)
             if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
                 continue  # (shadows may reach into the image from a little outside)
-            drawn.append((a, model, pose, rot, uv, x_lo, x_hi))
+            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi))
             if cast:
                 corners_w = model.points[:n_corner] @ rot.T + (a.pos_x_m, a.pos_y_m, 0.0)
                 self._draw_shadow(img, corners_w, sun, 0.45 * L["sun"] / 0.55)
-            if L["running_lights"] and a.kind.value != "debris":
-                self._draw_headlight_pool(img, a, 1.0 if lighting == "night" else 0.4)
-        for a, model, pose, rot, uv, x_lo, x_hi in drawn:
+            if pools and pool_ok[i_a] and a.kind.value != "debris":
+                self._draw_headlight_pool(img, pool_uv[i_a], pool_colour)
+        for a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi in drawn:
             if x_hi < 0 or x_lo >= self.w:
                 continue
             parts, decals = model.parts, model.decals
@@ -248,9 +263,9 @@ class Renderer:
             shade = L["ambient"] + L["sun"] * np.maximum(0.0, n_w @ sun)
             shade = np.where(model.glass, 0.6 + 0.5 * shade * np.where(model.top, 1.3, 1.0), shade)
             colours = np.clip(model.base_bgr * shade[..., None] * gain, 0, 255).tolist()
-            corner16 = uv16[:n_corner].reshape(len(parts), 8, 2)
+            face16 = np.ascontiguousarray(uv16[:n_corner].reshape(len(parts), 8, 2)[:, FACE_IDX])  # (P, faces, 4, 2)
             for p_i, f_i in zip(*np.nonzero(vis), strict=True):
-                cv2.fillConvexPoly(img, corner16[p_i, FACE_IDX[f_i]], colours[p_i][f_i], cv2.LINE_AA, 4)
+                cv2.fillConvexPoly(img, face16[p_i, f_i], colours[p_i][f_i], cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
@@ -290,7 +305,7 @@ class Renderer:
                     else:
                         glows.append((puv, colour, strength))
             if blur_px is not None:
-                self._motion_blur(img, uv[:n_corner], blur_px)
+                self._motion_blur(img, (x_lo, y_lo, x_hi, y_hi), blur_px)
         glows.extend(tuple(v) for v in lamp_pts.values())
         if glows:
             self._draw_glows(img, glows, L["glow"])
@@ -300,29 +315,18 @@ class Renderer:
             img = self._add_noise(img, lighting, frame_index)
         return img
 
-    def _motion_blur(self, img: np.ndarray, uv: np.ndarray, vec: np.ndarray) -> None:
-        """Blur a vehicle's ROI along its image motion during the exposure."""
+    def _motion_blur(self, img: np.ndarray, bounds: tuple[float, float, float, float], vec: np.ndarray) -> None:
+        """Blur a vehicle's ROI (``bounds``: x_lo, y_lo, x_hi, y_hi of its corners' pixels) along its image
+        motion during the exposure: a normalised line kernel of ceil(|vec|) + 1 samples (at most 26)."""
         n = int(min(25, math.ceil(float(np.hypot(*vec)))))
         pad = n + 2
-        x1 = max(0, int(uv[..., 0].min()) - pad)
-        x2 = min(self.w, int(uv[..., 0].max()) + pad)
-        y1 = max(0, int(uv[..., 1].min()) - pad)
-        y2 = min(self.h, int(uv[..., 1].max()) + pad)
+        x1, x2 = max(0, int(bounds[0]) - pad), min(self.w, int(bounds[2]) + pad)
+        y1, y2 = max(0, int(bounds[1]) - pad), min(self.h, int(bounds[3]) + pad)
         if x2 - x1 < 3 or y2 - y1 < 3:
             return
-        k = np.zeros((2 * n + 1, 2 * n + 1), np.float32)
-        direction = vec / max(1e-6, float(np.hypot(*vec)))
-        for i in range(n + 1):
-            x, y = np.round(n + direction * (i - n / 2)).astype(int)
-            k[np.clip(y, 0, 2 * n), np.clip(x, 0, 2 * n)] += 1.0
-        k /= k.sum()
-        rows, cols = np.flatnonzero(k.any(axis=1)), np.flatnonzero(k.any(axis=0))
-        # the line's bounding box only, anchored at the kernel's centre: the same correlation with a kernel
-        # OpenCV applies directly instead of by DFT (a 51 x 51 kernel cost 4 ms a frame at night)
-        k = k[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+        k, anchor = line_kernel(vec)
         roi = img[y1:y2, x1:x2]
-        roi[:] = cv2.filter2D(roi, -1, k, anchor=(n - int(cols[0]), n - int(rows[0])),
-                              borderType=cv2.BORDER_REPLICATE)
+        roi[:] = cv2.filter2D(roi, -1, k, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
 
     def _glow_sprite(self, r: int, colour: tuple, with_core: bool, core_r: int) -> np.ndarray:
         """Cached halo sprite (4r+1 square): a Gaussian falloff times the lamp colour, optional hot core."""
@@ -340,20 +344,19 @@ class Renderer:
         return sprite
 
     def _draw_glows(self, img: np.ndarray, glows, scale: float) -> None:
-        """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only."""
-        for puv, colour, strength in glows:
-            cx, cy = puv.mean(axis=0)
-            size = max(2.0, float(np.ptp(puv[:, 0])), float(np.ptp(puv[:, 1])))
-            r = int(min(60, max(3, size * 0.55 * scale)))
-            col = tuple(int(c * min(1.0, strength * (0.6 + 0.25 * scale))) for c in colour)
-            sprite = self._glow_sprite(r, col, strength >= 1.0, max(1, int(size / 12)))
-            x1, y1 = int(round(cx)) - 2 * r, int(round(cy)) - 2 * r
+        """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only (the halos'
+        numbers: ``sim.render_effects.halo_numbers``)."""
+        for cx, cy, r, col, hot, core in halo_numbers(glows, scale):
+            sprite = self._glow_cache.get((r, col, hot, core))
+            if sprite is None:
+                sprite = self._glow_sprite(r, col, hot, core)
+            x1, y1 = cx - 2 * r, cy - 2 * r
             x2, y2 = x1 + 4 * r + 1, y1 + 4 * r + 1
             ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
             if ox2 <= ox1 or oy2 <= oy1:
                 continue
-            sub = sprite[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1]
-            img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], sub)
+            roi = img[oy1:oy2, ox1:ox2]
+            cv2.add(roi, sprite[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
 
     def _exposure_lut(self, t_s: float, lighting: str) -> np.ndarray:
         """Auto-exposure drift: a slow gain oscillation and a gamma, as a 256-entry LUT."""
@@ -373,9 +376,8 @@ class Renderer:
         pos, neg = self._noise[lighting]
         r = np.random.default_rng((self.seed, frame_index))
         dx, dy = (int(v) for v in r.integers(0, self._pad, 2))
-        p = pos[dy:dy + self.h, dx:dx + self.w]
-        n = neg[dy:dy + self.h, dx:dx + self.w]
-        return cv2.subtract(cv2.add(img, p), n)
+        cv2.add(img, pos[dy:dy + self.h, dx:dx + self.w], dst=img)
+        return cv2.subtract(img, neg[dy:dy + self.h, dx:dx + self.w], dst=img)
 
     # ------------------------------------------------------------------ labels
     def labels(self, snapshot: WorldSnapshot, min_visible_fraction: float = MIN_VISIBLE_FRACTION,

@@ -1,6 +1,7 @@
 """The straightforward renderer of issue 17 (each actor's parts built, transformed and shaded from scratch per
 frame, each cast shadow darkened with numpy), kept as the reference that ``sim.render.Renderer``'s cached fast path
-is tested and benchmarked against (issue 19: same pixels within noise). Not used by the corridor."""
+is tested and benchmarked against (issue 19: same pixels within noise), headlight pools and lamp halos included.
+Not used by the corridor."""
 
 from __future__ import annotations
 
@@ -193,6 +194,43 @@ class ReferenceRenderer(Renderer):
         k /= k.sum()
         roi = img[y1:y2, x1:x2]
         roi[:] = cv2.filter2D(roi, -1, k, borderType=cv2.BORDER_REPLICATE)
+
+    def _draw_headlight_pool(self, img: np.ndarray, a: Actor, strength: float) -> None:
+        """Light thrown on the road ahead of a vehicle by its headlights (dusk and night)."""
+        c, s_ = math.cos(a.heading_rad), math.sin(a.heading_rad)
+        fx, fy = a.pos_x_m + c * a.length_m / 2, a.pos_y_m + s_ * a.length_m / 2
+        local = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])
+        pts = np.column_stack([fx + local[:, 0] * c - local[:, 1] * s_, fy + local[:, 0] * s_ + local[:, 1] * c,
+                               np.zeros(4)])
+        uv, depth = self.cam.project(pts)
+        if np.any(depth <= NEAR_M):
+            return
+        x1, y1 = np.floor(uv.min(axis=0)).astype(int) - 6
+        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 7
+        ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
+        if ox2 - ox1 < 2 or oy2 - oy1 < 2:
+            return
+        pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
+        col = tuple(int(v * strength) for v in (70, 95, 110))
+        cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), col, cv2.LINE_AA, 4)
+        pool = cv2.blur(pool, (7, 7))
+        img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1])
+
+    def _draw_glows(self, img: np.ndarray, glows, scale: float) -> None:
+        """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only."""
+        for puv, colour, strength in glows:
+            cx, cy = puv.mean(axis=0)
+            size = max(2.0, float(np.ptp(puv[:, 0])), float(np.ptp(puv[:, 1])))
+            r = int(min(60, max(3, size * 0.55 * scale)))
+            col = tuple(int(c * min(1.0, strength * (0.6 + 0.25 * scale))) for c in colour)
+            sprite = self._glow_sprite(r, col, strength >= 1.0, max(1, int(size / 12)))
+            x1, y1 = int(round(cx)) - 2 * r, int(round(cy)) - 2 * r
+            x2, y2 = x1 + 4 * r + 1, y1 + 4 * r + 1
+            ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
+            if ox2 <= ox1 or oy2 <= oy1:
+                continue
+            sub = sprite[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1]
+            img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], sub)
 
     def _blur_vector(self, a: Actor, exposure_s: float) -> np.ndarray | None:
         if a.speed_mps < 0.5:
