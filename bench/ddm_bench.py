@@ -238,7 +238,7 @@ def latency(cor: Corridor, frames, cars, t0: float, n_rounds: int) -> dict:
             n += 1
         # a new round: every AV back to normal (as after its RESUME), so the next alert is a new decision
         for vid, _, _ in pairs:
-            svc.responses.pop(vid, None)
+            svc.decider.forget_response(vid)
     lat = np.array(svc.decision_latency_ms)
     e2e_a = np.array(e2e)
     if not len(lat) or not len(e2e_a):

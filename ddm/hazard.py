@@ -21,19 +21,20 @@ largest reported (conservative). A source leaves on ``clear`` or when it has not
   again every cycle; RESUME (back to cruise in the lane the car is in) once every hazard it responded
   to is passed by ``pass_margin_m`` or cleared.
 
-``HazardResponse`` is the per-vehicle memory of what was commanded (``commit`` when a command is issued).
-The EV policy has precedence: the service runs this policy only while the EV policy has nothing to do.
+Its decisions are ``ddm.decision.Decision``s ``about="hazard"``, its memory per vehicle a
+``ddm.decision.Response`` (``commit`` when a command is issued). The EV policy has precedence: the decider
+(:mod:`ddm.decider`) runs this policy only while the EV policy has nothing to do.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
 from ddm.config import DdmConfig
+from ddm.decision import Decision, Ego, Response
 from ddm.geometry import RoadFrame
 from ddm.paths import (
     MIN_PLAN_SPEED_MPS,
@@ -44,12 +45,10 @@ from ddm.paths import (
     polyline_curvature,
     quintic_offset,
 )
-from ddm.policy import Ego, gap_check
+from ddm.policy import gap_check
 from ddm.threat import LX_MAX_M, av_hazard_distances, threat_value
 from ddm.world import Track
 from protocol.messages import HazardAlert, HazardState, Manoeuvre
-
-HazardAction = Literal["none", "hold"] | Manoeuvre
 
 
 @dataclass(frozen=True)
@@ -195,30 +194,6 @@ class HazardBook:
 
 
 # ----------------------------------------------------------------------------------------------- policy
-@dataclass
-class HazardResponse:
-    """What the DDM has commanded one vehicle about hazards."""
-
-    phase: Literal["normal", "avoiding", "stopping"] = "normal"
-    manoeuvre: Manoeuvre | None = None
-    target_lane: int | None = None
-    hazard_ids: set[int] = field(default_factory=set)
-    since_s: float = 0.0
-
-    def commit(self, decision: HazardDecision, now: float) -> None:
-        m = decision.manoeuvre
-        if m is None:
-            return
-        if m == Manoeuvre.RESUME:
-            self.phase, self.manoeuvre, self.target_lane, self.hazard_ids = "normal", None, None, set()
-        else:
-            self.phase = "avoiding" if m == Manoeuvre.LANE_CHANGE else "stopping"
-            self.manoeuvre, self.target_lane = m, decision.target_lane
-            if decision.hazard_id is not None:
-                self.hazard_ids.add(decision.hazard_id)
-        self.since_s = now
-
-
 @dataclass(frozen=True)
 class HazardThreat:
     hazard_id: int
@@ -233,26 +208,6 @@ class HazardThreat:
     blocks: bool
     clearance_m: float
     """Lateral clearance (side to side) if the AV kept its lane centre."""
-
-
-@dataclass(frozen=True)
-class HazardDecision:
-    action: HazardAction
-    reason: str
-    hazard_id: int | None = None
-    threat: float = 0.0
-    target_lane: int | None = None
-    stop_s_m: float | None = None
-    """Road s of the AV centre's stop (STOP_IN_LANE)."""
-    path: PlannedPath | None = None
-    ego_s_m: float = 0.0
-    ego_d_m: float = 0.0
-    ego_heading_error_rad: float = 0.0
-    ego_speed_mps: float = 0.0
-
-    @property
-    def manoeuvre(self) -> Manoeuvre | None:
-        return self.action if isinstance(self.action, Manoeuvre) else None
 
 
 def lateral_clearance(d_av: float, w_av: float, d_hz: float, w_hz: float) -> float:
@@ -330,8 +285,8 @@ def plan_stop_at(frame: RoadFrame, s0: float, d0: float, heading_error_rad: floa
 
 
 def decide_hazard(ego: Ego, hazards: list[HazardTrack], others: list[Track], frame: RoadFrame,
-                  ddm_cfg: DdmConfig, cfg: HazardConfig, response: HazardResponse,
-                  cruise_speed_mps: float) -> HazardDecision:
+                  ddm_cfg: DdmConfig, cfg: HazardConfig, response: Response,
+                  cruise_speed_mps: float) -> Decision:
     """One vehicle's hazard response (module docstring); a decision with a manoeuvre carries its path."""
     s_arr, d_arr = frame.to_frenet(ego.x_m, ego.y_m)
     s_e, d_e = float(s_arr[0]), float(d_arr[0])
@@ -339,7 +294,7 @@ def decide_hazard(ego: Ego, hazards: list[HazardTrack], others: list[Track], fra
     v_e = max(ego.speed_mps * math.cos(h_err), 0.0)
     lane_raw = int(frame.lane_of(d_e))
     lane_e = lane_raw if lane_raw >= 0 else (0 if d_e < 0 else frame.lanes - 1)
-    base = dict(ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=v_e)
+    base = dict(about="hazard", ego_s_m=s_e, ego_d_m=d_e, ego_heading_error_rad=h_err, ego_speed_mps=v_e)
     lane_d = frame.lane_centre_offset(lane_e)
     if response.phase == "avoiding" and response.target_lane is not None:
         lane_d = frame.lane_centre_offset(response.target_lane)  # what blocks is judged in the lane it goes to
@@ -353,7 +308,7 @@ def decide_hazard(ego: Ego, hazards: list[HazardTrack], others: list[Track], fra
         return (f"hazard {t.hazard_id} {t.lx_m:.0f} m ahead, {t.ly_m:.1f} m off the centre line, "
                 f"T_f {t.threat:.2f}, clearance in lane {t.clearance_m:.1f} m")
 
-    def try_lane_change(t: HazardThreat) -> tuple[HazardDecision | None, str]:
+    def try_lane_change(t: HazardThreat) -> tuple[Decision | None, str]:
         why = []
         cands = [ln for ln in (lane_e + 1, lane_e - 1) if 0 <= ln < frame.lanes]
         cands.sort(key=lambda ln: -abs(frame.lane_centre_offset(ln) - t.d_m))  # the side away from it first
@@ -375,55 +330,55 @@ def decide_hazard(ego: Ego, hazards: list[HazardTrack], others: list[Track], fra
             if not ok:
                 why.append(gap_why)
                 continue
-            return HazardDecision(Manoeuvre.LANE_CHANGE, f"change to lane {ln} around it ({gap_why}, passes with "
-                                  f"{pc:.1f} m): {describe(t)}", t.hazard_id, t.threat, ln, None, path, **base), ""
+            return Decision(Manoeuvre.LANE_CHANGE, f"change to lane {ln} around it ({gap_why}, passes with "
+                            f"{pc:.1f} m): {describe(t)}", hazard_id=t.hazard_id, threat=t.threat,
+                            target_lane=ln, path=path, **base), ""
         return None, "; ".join(why) or "no neighbouring lane"
 
-    def stop(t: HazardThreat, why: str) -> HazardDecision:
+    def stop(t: HazardThreat, why: str) -> Decision:
         s_stop = t.s_m - t.length_m / 2.0 - cfg.stop_gap_m - ego.length_m / 2.0
         path = plan_stop_at(frame, s_e, d_e, h_err, v_e, lane_d, s_stop, ddm_cfg, cfg.max_stop_decel_mps2)
-        return HazardDecision(Manoeuvre.STOP_IN_LANE, f"{why}; slow and stop {cfg.stop_gap_m:.0f} m before it "
-                              f"({path.decel_mps2:.1f} m/s^2): {describe(t)}", t.hazard_id, t.threat, lane_e,
-                              s_stop, path, **base)
+        return Decision(Manoeuvre.STOP_IN_LANE, f"{why}; slow and stop {cfg.stop_gap_m:.0f} m before it "
+                        f"({path.decel_mps2:.1f} m/s^2): {describe(t)}", hazard_id=t.hazard_id, threat=t.threat,
+                        target_lane=lane_e, stop_s_m=s_stop, path=path, **base)
 
     acting = [t for t in threats if t.blocks and t.threat > cfg.threat_threshold]
     if response.phase == "normal":
         if not acting:
             if threats:
                 t = threats[0]
-                return HazardDecision("none", f"no action: {describe(t)}", t.hazard_id, t.threat, **base)
-            return HazardDecision("none", "no hazard ahead", **base)
+                return Decision("none", f"no action: {describe(t)}", hazard_id=t.hazard_id, threat=t.threat, **base)
+            return Decision("none", "no hazard ahead", **base)
         t = acting[0]
         dec, why = try_lane_change(t)
         return dec if dec is not None else stop(t, why)
 
-    mine = [t for t in threats if t.hazard_id in response.hazard_ids]
+    mine = [t for t in threats if t.hazard_id in response.cause_ids]
     if response.phase == "stopping":
         if acting:
             t = acting[0]
             dec, _why = try_lane_change(t)
             if dec is not None:
                 return dec
-            if t.hazard_id not in response.hazard_ids:  # a nearer hazard than the one it stops for
+            if t.hazard_id not in response.cause_ids:  # a nearer hazard than the one it stops for
                 return stop(t, "another hazard")
-            return HazardDecision("hold", f"keep stopping: {describe(t)}", t.hazard_id, t.threat,
-                                  response.target_lane, **base)
+            return Decision("hold", f"keep stopping: {describe(t)}", hazard_id=t.hazard_id, threat=t.threat,
+                            target_lane=response.target_lane, **base)
         if any(t.blocks for t in mine):
             t = next(t for t in mine if t.blocks)
-            return HazardDecision("hold", f"stopped before {describe(t)}", t.hazard_id, t.threat,
-                                  response.target_lane, **base)
+            return Decision("hold", f"stopped before {describe(t)}", hazard_id=t.hazard_id, threat=t.threat,
+                            target_lane=response.target_lane, **base)
     else:  # avoiding: the lane change is under way
-        new = [t for t in acting if t.hazard_id not in response.hazard_ids]
+        new = [t for t in acting if t.hazard_id not in response.cause_ids]
         if new:
             t = new[0]
             dec, why = try_lane_change(t)
             return dec if dec is not None else stop(t, why)
         if mine:
             t = mine[0]
-            return HazardDecision("hold", f"passing {describe(t)}", t.hazard_id, t.threat, response.target_lane,
-                                  **base)
-    gone = sorted(response.hazard_ids - known)
+            return Decision("hold", f"passing {describe(t)}", hazard_id=t.hazard_id, threat=t.threat,
+                            target_lane=response.target_lane, **base)
+    gone = sorted(response.cause_ids - known)
     what = f"hazard {', '.join(map(str, gone))} cleared" if gone else "hazard passed"
     path = plan_resume(frame, s_e, d_e, h_err, v_e, lane_d, cruise_speed_mps, ddm_cfg)
-    return HazardDecision(Manoeuvre.RESUME, f"resume in lane {lane_e}: {what}", None, 0.0, lane_e, None, path,
-                          **base)
+    return Decision(Manoeuvre.RESUME, f"resume in lane {lane_e}: {what}", target_lane=lane_e, path=path, **base)

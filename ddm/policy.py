@@ -34,19 +34,19 @@ Gap check (lane change / merge into lane L): every other track in lane L needs a
 clearance of at least ``gap_min_m + gap_time_s * v_follower + max(0, v_follower - v_leader) * t_change``
 (the headway the follower needs plus what the speed difference eats during the manoeuvre).
 
-``decide`` is stateless except for ``Response``, the per-vehicle memory of what was commanded, which
-the caller updates when a command is issued (``Response.commit``).
+``decide`` is stateless except for ``ddm.decision.Response``, the per-vehicle memory of what was commanded,
+which the decider updates when a command is issued (``Response.commit``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
 
 from ddm.config import DdmConfig
+from ddm.decision import Decision, Ego, Response
 from ddm.geometry import RoadFrame
 from ddm.paths import (
     PlannedPath,
@@ -60,70 +60,10 @@ from ddm.paths import (
     stop_offset_m,
 )
 from ddm.world import Track
-from protocol.messages import Manoeuvre, VehicleMode
+from protocol.messages import Manoeuvre
 
-Action = Literal["none", "hold"] | Manoeuvre
 SELF_RADIUS_M = 2.0
 """A track whose centre is this close to the AV's is the AV itself (two cars' centres never are)."""
-
-
-@dataclass(frozen=True)
-class Ego:
-    vehicle_id: str
-    x_m: float
-    y_m: float
-    heading_rad: float
-    speed_mps: float
-    length_m: float = 4.9
-    width_m: float = 1.9
-    mode: VehicleMode = VehicleMode.DRIVING
-    active_command_id: str | None = None
-    track_id: int | None = None
-
-
-@dataclass
-class Response:
-    """What the DDM has commanded one vehicle (its memory between decisions)."""
-
-    phase: Literal["normal", "yielding"] = "normal"
-    manoeuvre: Manoeuvre | None = None
-    target_lane: int | None = None
-    ev_track_ids: set[int] = field(default_factory=set)
-    slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
-    since_s: float = 0.0
-    ev_near_s: float = 0.0
-    """Last time an EV was behind the AV or passing it (the caller updates it from ``Decision.ev_near``)."""
-    ev_last: tuple[float, float, float] | None = None
-    """(station m, speed along the road m/s, time s) of the nearest EV behind when last seen (the caller
-    updates it from ``Decision.ev_s_m``/``ev_speed_mps``): a lost EV is assumed to drive on."""
-    stop_s_m: float | None = None
-    """PULL_OVER: station up to which the command plans for the lane ahead to be free: its stop, or the room
-    behind a vehicle ahead it already allowed for (then it creeps). The caller sets it with ``note_stop``
-    once it has planned the path; a vehicle that turns up in lane 0 later is checked against it."""
-
-    def note_stop(self, decision: Decision, stop_distance_m: float | None) -> None:
-        """Remember how far the commanded pull-over counts on an empty lane (station along the road)."""
-        if decision.manoeuvre == Manoeuvre.PULL_OVER and stop_distance_m is not None:
-            room = stop_distance_m if decision.stop_within_m is None else min(stop_distance_m, decision.stop_within_m)
-            self.stop_s_m = decision.ego_s_m + room
-
-    def commit(self, decision: Decision, now: float) -> None:
-        m = decision.manoeuvre
-        if m is None:
-            return
-        self.stop_s_m = None
-        if m == Manoeuvre.RESUME:
-            self.phase, self.manoeuvre, self.target_lane = "normal", None, None
-            self.ev_track_ids = set()
-            self.slow_because = ""
-            self.ev_last = None
-        else:
-            self.phase, self.manoeuvre, self.target_lane = "yielding", m, decision.target_lane
-            if decision.ev_track_id is not None:
-                self.ev_track_ids.add(decision.ev_track_id)
-            self.slow_because = decision.slow_because
-            self.ev_near_s = now
-        self.since_s = now
 
 
 @dataclass(frozen=True)
@@ -138,32 +78,6 @@ class Threat:
     closing_mps: float
     time_to_pass_s: float
     triggered: bool
-
-
-@dataclass(frozen=True)
-class Decision:
-    action: Action
-    reason: str
-    target_lane: int | None = None
-    ev_track_id: int | None = None
-    time_to_pass_s: float | None = None
-    ev_gap_m: float | None = None
-    slow_because: Literal["gap", "too_late", "ev_in_lane0", ""] = ""
-    stop_within_m: float | None = None
-    """PULL_OVER: stop within this distance (room behind a leader in the target lane)."""
-    ev_s_m: float | None = None
-    """Station of the EV the decision is about (behind the AV)."""
-    ev_speed_mps: float | None = None
-    ev_near: bool = False
-    """An EV is behind the AV (within ``ev_lookbehind_m``) or passing it (ahead by < ``pass_margin_m``)."""
-    ego_s_m: float = 0.0
-    ego_d_m: float = 0.0
-    ego_heading_error_rad: float = 0.0
-    ego_speed_mps: float = 0.0
-
-    @property
-    def manoeuvre(self) -> Manoeuvre | None:
-        return self.action if isinstance(self.action, Manoeuvre) else None
 
 
 def _wrap(a: float) -> float:
@@ -423,7 +337,7 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             t = threats[0]
             return Decision("hold", f"EV track {t.track_id} still behind", ev_track_id=t.track_id,
                             ev_s_m=t.s_m, ev_speed_mps=t.speed_mps, **base)
-        still_seen = any(o.track_id in response.ev_track_ids for o in others)  # seen, not an EV any more
+        still_seen = any(o.track_id in response.cause_ids for o in others)  # seen, not an EV any more
         if now is not None and response.ev_last is not None and not still_seen:
             # the EV we yield to is out of sight (an RSU died, tracks switched): it drives on at its
             # last speed; hold until it must be pass_margin_m ahead (within ev_predict_s)
@@ -442,8 +356,8 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             ok, why = gap_check(s_e, v_e, v_e, ego.length_m, target, traffic, frame, lc / 6.0, cfg)
             if not ok:
                 return Decision("hold", f"waiting to resume: {why}", target_lane=target, **base)
-        gone = [tid for tid in sorted(response.ev_track_ids) if tid not in ev_ids]
-        passed = [f"{tid} ({ahead[tid]:.0f} m ahead)" for tid in sorted(response.ev_track_ids) if tid in ahead]
+        gone = [tid for tid in sorted(response.cause_ids) if tid not in ev_ids]
+        passed = [f"{tid} ({ahead[tid]:.0f} m ahead)" for tid in sorted(response.cause_ids) if tid in ahead]
         why = []
         if passed:
             why.append(f"EV track {', '.join(passed)} passed")

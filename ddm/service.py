@@ -1,4 +1,4 @@
-"""DDM service: the imperative shell around the world model, the EV policy and the command manager.
+"""DDM service: the imperative shell around the world model and the decider (transport, clock, checks).
 
 Subscribes to every RSU topic (``iea/{c}/rsu/*/objects``, ``ev``, ``hazard``, ``health``; the bulk object lists apart) and to every vehicle's
 ``state`` and ``ack``; publishes ``PathSwitchCommand`` on ``iea/{c}/vehicle/{v}/cmd`` and ``Health``
@@ -10,10 +10,11 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   from the alert's arrival to the command's publication, measured and reported in ``Health``.
 - Boundary checks beyond the codec: the RSU / vehicle id inside a message must match its key, and
   object lists stamped in the future are refused; each refusal is counted by reason.
+- Decisions (:class:`ddm.decider.Decider`): per-vehicle response memory, rollback, EV-over-hazard
+  arbitration and adoption live in the decider; the service hands it the inputs and the time and
+  publishes the commands it has due.
 - Restart: for ``startup_listen_s`` after start the service only listens. A vehicle that reports an
-  active command the service does not know (issued by its predecessor) has it adopted: the service
-  treats the vehicle as yielding, sends nothing that contradicts it while an EV approaches, and
-  supersedes it with RESUME once no EV needs yielding to.
+  active command the service does not know (issued by its predecessor) has it adopted by the decider.
 - Security (issue 9): with a ``signer`` every ``PathSwitchCommand`` is signed on publication
   (``protocol.security.SecureTransport``; deterministic, so retransmissions are identical); when the
   corridor trusts RSU keys, EvAlerts/HazardAlerts must carry a valid RSU signature (refusals counted
@@ -22,12 +23,8 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   (refusals counted as ``*_limit``), and numbers nothing physical produces (``MAX_ABS_POSITION_M``...)
   are kept from the fusion: such alerts and vehicle states are refused (``implausible``), such
   objects dropped from their list (``implausible_object``).
-- Rejected or expired commands are logged with their reason, the vehicle's response memory is
-  rolled back, and the decision is re-planned after ``replan_backoff_s``.
-- Hazards (issue 10): ``HazardAlert``s of every RSU are fused in a :class:`ddm.hazard.HazardBook`; while
-  the EV policy has nothing to do for a vehicle (no EV to yield to, not yielding), the hazard policy
-  (:func:`ddm.hazard.decide_hazard`) may command a lane change around a hazard, a stop before it, or a
-  resume. An EV command supersedes a hazard command (EV > hazard).
+- Hazards (issue 10): ``HazardAlert``s of every RSU are fused in a :class:`ddm.hazard.HazardBook`, which
+  the decider reads (EV > hazard).
 - Presence and state (issue 21, ``protocol.presence``, ``ddm.catchup``): the service declares its
   liveliness token and watches the RSUs' and vehicles'; an RSU whose token is lost is stale at once
   (not after ``rsu_stale_s`` of silence), a vehicle whose token is lost gets no decisions. It answers
@@ -39,9 +36,7 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
 
 from __future__ import annotations
 
-import copy
 import logging
-import math
 import threading
 import time
 from collections import Counter, deque
@@ -49,11 +44,11 @@ from collections import Counter, deque
 import numpy as np
 
 from ddm.catchup import CorridorPresence
-from ddm.commands import CommandManager, CommandState
+from ddm.commands import CommandState
 from ddm.config import DdmConfig
+from ddm.decider import Decider
 from ddm.geometry import RoadFrame
-from ddm.hazard import HazardBook, HazardConfig, HazardDecision, HazardResponse, decide_hazard
-from ddm.policy import Decision, Ego, Response, decide, plan
+from ddm.hazard import HazardBook, HazardConfig
 from ddm.world import CorridorWorld
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
@@ -76,7 +71,6 @@ from protocol.messages import (
     HealthStatus,
     ObjectList,
     Role,
-    VehicleMode,
     VehicleState,
 )
 from protocol.ranges import MAX_RATE_HZ
@@ -86,10 +80,6 @@ from protocol.transport import Transport
 
 log = logging.getLogger("ddm")
 
-NEIGHBOUR_RADIUS_M = 150.0
-"""Tracks within this distance of an AV are considered for its gap checks."""
-ALERT_RADIUS_MARGIN_M = 50.0
-"""An EV alert is decided at once for vehicles within the EV look-behind + this of it (it may be passing)."""
 MAX_VEHICLES = 64
 MAX_RSUS = 64
 MAX_ALERTS = 256
@@ -169,16 +159,14 @@ class DdmService(CorridorPresence):
         self.world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in corridor.rsus))
         now = clock.now()
         self.started_s = now
-        self.commands = CommandManager(cfg, source_id=ddm_id, seq_base=int(now * 1000))
-        self.responses: dict[str, Response] = {}
-        self._rollback: dict[str, Response] = {}  # command id -> response before it was committed
-        self._replan_after: dict[str, float] = {}
-        self._last_reason: dict[str, tuple[str, int | None]] = {}
-        self._issued_in_call = False
-        self.cruise_speed = {v.vehicle_id: v.cruise_speed_mps for v in corridor.vehicles}
-        self.vehicle_width = {v.vehicle_id: v.width_m for v in corridor.vehicles}
         self.rejected: Counter = Counter()
         self.counters: Counter = Counter()
+        self.hazard_config = hazard_config or HazardConfig()
+        self.hazards = HazardBook(self.frame, self.hazard_config)
+        self.decider = Decider(self.world, self.hazards, corridor, self.frame, cfg, self.hazard_config,
+                               ddm_id=ddm_id, started_s=now, counters=self.counters)
+        self.commands = self.decider.commands
+        """The decider's command manager (read by Health, the state answer and the runners)."""
         self.decision_latency_ms: deque[float] = deque(maxlen=20000)
         self._period_latency: list[float] = []
         self._health_timer = RateTimer(cfg.health_period_s)
@@ -191,17 +179,10 @@ class DdmService(CorridorPresence):
         self._cmd_keys: dict[str, str] = {}
         self._health_key = ddm_health_key(c)
         self._step_time_s = 0.0
-        self.hazard_config = hazard_config or HazardConfig()
-        self.hazards = HazardBook(self.frame, self.hazard_config)
-        self.hazard_responses: dict[str, HazardResponse] = {}
-        self._hazard_rollback: dict[str, HazardResponse] = {}
-        self._last_hazard_reason: dict[str, tuple[str, int | None]] = {}
         self.listen_until_s = now + cfg.startup_listen_s
         self.presence = presence.PresenceBook()
         self.stale_now: set[str] = set()
         self.last_health: Health | None = None
-        self.ev_aware_s: float | None = None
-        """Clock time of the first decision made with an EV in the picture (restart -> EV-aware)."""
         self.catch_up_replies: dict[str, int] = {}
         self._last_seq: dict[str, int] = {}
         # subscribe last: a Zenoh callback may run (on its own thread) as soon as this returns
@@ -245,7 +226,7 @@ class DdmService(CorridorPresence):
                 self._reject("implausible", f"{key}: {why}")
                 return
         with self._lock:
-            if node not in self.world._rsu_index and len(self.world.rsu_ids) >= MAX_RSUS:
+            if not self.world.knows_rsu(node) and len(self.world.rsu_ids) >= MAX_RSUS:
                 self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
                 return
             if isinstance(msg, ObjectList):
@@ -299,47 +280,11 @@ class DdmService(CorridorPresence):
                 self._reject("vehicle_limit", f"{key}: already {MAX_VEHICLES} vehicles")
                 return
             if not first:
-                self._check_relink(msg.vehicle_id, now - self.world.vehicles[msg.vehicle_id].received_s, now)
+                self.decider.check_relink(msg.vehicle_id, now - self.world.vehicles[msg.vehicle_id].received_s)
             self.world.ingest_vehicle_state(msg, now)
             self.counters["vehicle_states"] += 1
             if first:
-                self._maybe_adopt(msg, now)
-
-    def _check_relink(self, vid: str, silent_s: float, now: float) -> None:
-        """The vehicle is heard again after ``silent_s`` without state (a radio outage) while its command is
-        still unacknowledged: the retransmissions carry a path planned from where the car was, which it
-        has driven past (it rejects a path that starts behind it). Plan again from its fresh state now,
-        instead of waiting for the next retransmission, the rejection and the re-plan backoff."""
-        if silent_s < self.config.relink_gap_s:
-            return
-        cur = self.commands.state_of(vid)
-        if cur is None or cur.state != CommandState.SENT:
-            return
-        before = self._rollback.pop(cur.command_id, None)
-        if before is not None:
-            self.responses[vid] = before
-        before_hz = self._hazard_rollback.pop(cur.command_id, None)
-        if before_hz is not None:
-            self.hazard_responses[vid] = before_hz
-        self._replan_after.pop(vid, None)
-        self.counters["cmd_replanned_after_outage"] += 1
-        log.warning("%s heard again after %.1f s with command %s unacknowledged: planning it again from the "
-                    "car's fresh state", vid, silent_s, cur.command_id)
-
-    def _maybe_adopt(self, vs: VehicleState, now: float) -> None:
-        """A vehicle executing a command this DDM never issued (a predecessor did): adopt it."""
-        cid = vs.active_command_id
-        if cid is None or self.commands.state_of(vs.vehicle_id) is not None:
-            return
-        self.commands.adopt(vs.vehicle_id, cid)
-        resp = self.responses.setdefault(vs.vehicle_id, Response())
-        if vs.mode in (VehicleMode.MANOEUVRE, VehicleMode.STOPPED):
-            resp.phase, resp.manoeuvre, resp.since_s = "yielding", None, now
-            # a restarted DDM has not heard the EV yet: no RESUME before the RSUs' alerts (2 Hz) have
-            # had ev_alert_timeout_s to reach it
-            resp.ev_near_s = now + self.config.ev_alert_timeout_s
-        log.info("vehicle %s executes command %s (mode %s) from a previous DDM: adopted", vs.vehicle_id, cid,
-                 vs.mode.value)
+                self.decider.adopt(msg, now)
 
     def _on_ack(self, key: str, msg: CommandAck) -> None:
         node = parse_key(key).node
@@ -350,144 +295,39 @@ class DdmService(CorridorPresence):
         with self._lock:
             self.counters["acks"] += 1
             self._count_missed(key, msg.seq)
-            self.commands.on_ack(msg, now)
-            self._process_events(now)
+            self.decider.on_ack(msg, now)
 
     # ------------------------------------------------------------------ decisions
-    def _process_events(self, now: float) -> None:
-        for ev in self.commands.drain_events():
-            self.counters[f"cmd_{ev.kind}"] += 1
-            if ev.kind in ("rejected", "expired"):
-                level = logging.WARNING
-                before = self._rollback.pop(ev.command_id, None)
-                if before is not None:
-                    self.responses[ev.vehicle_id] = before
-                before_hz = self._hazard_rollback.pop(ev.command_id, None)
-                if before_hz is not None:
-                    self.hazard_responses[ev.vehicle_id] = before_hz
-                self._replan_after[ev.vehicle_id] = now + self.config.replan_backoff_s
-                log.log(level, "command %s to %s %s: %s; re-planning", ev.command_id, ev.vehicle_id, ev.kind, ev.detail)
-            elif ev.kind in ("issued", "superseded", "accepted", "completed", "adopted"):
-                if ev.kind != "issued":
-                    self._rollback.pop(ev.command_id, None)
-                    self._hazard_rollback.pop(ev.command_id, None)
-                log.info("command %s to %s %s%s", ev.command_id, ev.vehicle_id, ev.kind,
-                         f": {ev.detail}" if ev.detail else "")
+    @property
+    def ev_aware_s(self) -> float | None:
+        """Clock time of the first decision made with an EV in the picture (restart -> EV-aware)."""
+        return self.decider.ev_aware_s
 
-    def _ego(self, vid: str) -> Ego | None:
-        rec = self.world.vehicles.get(vid)
-        if rec is None or self.clock.now() - rec.received_s > self.config.vehicle_state_timeout_s:
-            return None
-        if not self.presence.is_alive("vehicle", vid) and vid in self.presence.lost("vehicle"):
-            return None  # its session is gone: nothing it would receive
-        s = rec.state
-        return Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
-                   s.active_command_id, rec.track_id)
+    def unreachable_vehicles(self) -> set[str]:
+        """Vehicles whose session is gone (liveliness token lost): nothing they would receive."""
+        return {v for v in self.presence.lost("vehicle") if not self.presence.is_alive("vehicle", v)}
 
     def _decide_all(self, now: float, t0: float | None = None, near: tuple[float, float] | None = None) -> None:
-        """Decide for every vehicle; ``near`` (an EV alert's position): only for the vehicles within
-        ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it (the alert path stays short with many vehicles)."""
+        """The decider decides (``near``: an EV alert's position, for the vehicles it can concern), then
+        the due commands are published; an alert's decision latency (``t0``: its callback's entry) is
+        measured to the publication."""
         if now < self.listen_until_s:
             return
-        evs = None
-        radius = self.config.ev_lookbehind_m + ALERT_RADIUS_MARGIN_M
-        for vid in list(self.world.vehicles):
-            if now < self._replan_after.get(vid, -1.0):
-                continue
-            ego = self._ego(vid)
-            if ego is None:
-                continue
-            if near is not None and math.hypot(ego.x_m - near[0], ego.y_m - near[1]) > radius:
-                continue
-            if evs is None:
-                evs = self.world.ev_tracks(now)
-            resp = self.responses.setdefault(vid, Response())
-            if not evs and resp.phase == "normal":
-                self._decide_hazard(vid, ego, now)  # nothing to yield to, nothing to resume from
-                continue
-            others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
-            decision = decide(ego, evs, others, self.frame, self.config, resp, now)
-            if evs and self.ev_aware_s is None:
-                self.ev_aware_s = now
-                log.info("first EV-aware decision %.3f s after start (%s)", now - self.started_s, decision.action)
-            if decision.ev_near:
-                resp.ev_near_s = now
-            if decision.ev_s_m is not None and decision.ev_speed_mps is not None:
-                resp.ev_last = (decision.ev_s_m, decision.ev_speed_mps, now)
-            what = (str(decision.action), decision.ev_track_id)
-            if what != self._last_reason.get(vid):
-                log.info("%s: %s (%s)", vid, decision.action, decision.reason)
-                if log.isEnabledFor(logging.DEBUG):
-                    log.debug("%s at (%.1f, %.1f), track %s; tracks near: %s", vid, ego.x_m, ego.y_m, ego.track_id,
-                              ", ".join(f"{o.track_id}:({o.x_m:.1f}, {o.y_m:.1f}) {o.obj_type} lane {o.lane}"
-                                        for o in others) or "none")
-            self._last_reason[vid] = what
-            if decision.manoeuvre is not None:
-                self._command(vid, decision, resp, now)
-                self.counters["decisions"] += 1
-                self.hazard_responses.pop(vid, None)  # the EV command supersedes any hazard command
-            elif resp.phase == "normal" and decision.action == "none":
-                self._decide_hazard(vid, ego, now, others)
+        issued = self.decider.decide(now, self.unreachable_vehicles(), near)
         self._send_due(now)
-        if t0 is not None and self._issued_in_call:
+        if t0 is not None and issued:
             ms = (time.perf_counter() - t0) * 1000.0
             self.decision_latency_ms.append(ms)
             metrics.observe_stages({"decision": ms / 1000.0})
             self._period_latency.append(ms)
-        self._issued_in_call = False
-
-    def _command(self, vid: str, decision: Decision, resp: Response, now: float) -> None:
-        path = plan(decision, self.frame, self.config, self.vehicle_width.get(vid, 1.9),
-                    self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
-        self._issued_in_call = True
-        self._issue(vid, decision, path, resp, self._rollback, now)
-        resp.note_stop(decision, path.stop_distance_m)  # where the pull-over counts on an empty lane
-
-    def _issue(self, vid: str, decision: Decision | HazardDecision, path, memory: Response | HazardResponse,
-               rollback: dict, now: float) -> None:
-        """Issue a decision's command and commit it to the vehicle's policy memory; the memory as it was
-        is kept in ``rollback`` (by command id) to restore if the command is rejected or expires."""
-        target_lane = decision.target_lane if decision.target_lane is not None else 0
-        cmd = self.commands.issue(
-            vid, now, manoeuvre=decision.manoeuvre, reason=decision.reason, target_lane=target_lane,
-            waypoints=path.waypoints, speed_profile_mps=path.speeds_mps, target_speed_mps=path.target_speed_mps,
-            stop_point=path.stop_point,
-        )
-        rollback[cmd.command_id] = copy.deepcopy(memory)
-        memory.commit(decision, now)
-        self._process_events(now)
-
-    def _decide_hazard(self, vid: str, ego: Ego, now: float, others: list | None = None) -> None:
-        """The hazard policy for one vehicle the EV policy leaves alone (``others``: the tracks near it,
-        when the EV policy already looked them up)."""
-        active = self.hazards.active()
-        hresp = self.hazard_responses.setdefault(vid, HazardResponse())
-        if not active and hresp.phase == "normal":
-            return
-        if others is None:
-            others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
-        d = decide_hazard(ego, active, others, self.frame, self.config, self.hazard_config, hresp,
-                          self.cruise_speed.get(vid, self.corridor.road.speed_limit_mps))
-        what = (str(d.action), d.hazard_id)
-        if what != self._last_hazard_reason.get(vid):
-            log.info("%s: hazard %s (%s)", vid, d.action, d.reason)
-        self._last_hazard_reason[vid] = what
-        if d.manoeuvre is not None:
-            self._command_hazard(vid, d, hresp, now)
-            self.counters["hazard_decisions"] += 1
-
-    def _command_hazard(self, vid: str, d: HazardDecision, hresp: HazardResponse, now: float) -> None:
-        assert d.path is not None
-        self._issue(vid, d, d.path, hresp, self._hazard_rollback, now)
 
     def _send_due(self, now: float) -> None:
-        for cmd in self.commands.on_tick(now):
+        for cmd in self.decider.due_commands(now):
             key = self._cmd_keys.get(cmd.vehicle_id)
             if key is None:
                 key = self._cmd_keys[cmd.vehicle_id] = vehicle_key(self.corridor_id, cmd.vehicle_id, "cmd")
             self.transport.publish(key, cmd)
             self.counters["commands_published"] += 1
-        self._process_events(now)
 
     # ------------------------------------------------------------------ loop
     def step(self, now: float | None = None) -> None:

@@ -573,6 +573,9 @@ class CorridorWorld:
     def rsu_ids(self) -> list[str]:
         return list(self._rsu_names)
 
+    def knows_rsu(self, rsu_id: str) -> bool:
+        return rsu_id in self._rsu_index
+
     # ------------------------------------------------------------------ reading
     def is_ev_mask(self, slots: np.ndarray, now: float) -> np.ndarray:
         by_objects = (self.ev_obj_until[slots] > now) & ~self.ev_suppressed[slots]

@@ -9,17 +9,16 @@ import pytest
 from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
+from ddm.decision import Ego, Response
 from ddm.geometry import RoadFrame
 from ddm.hazard import (
     HazardBook,
     HazardConfig,
-    HazardResponse,
     HazardTrack,
     assess_hazards,
     decide_hazard,
     path_clearance,
 )
-from ddm.policy import Ego
 from ddm.world import Track
 from protocol.corridor import load_corridor
 from protocol.messages import HazardAlert, Manoeuvre, ObjectType
@@ -53,7 +52,7 @@ def ego(x: float = 100.0, lane: int = 1, v: float = 13.4) -> Ego:
 
 
 def decide(e, hazards, others=(), resp=None):
-    return decide_hazard(e, hazards, list(others), FRAME, DCFG, HCFG, resp or HazardResponse(), CRUISE)
+    return decide_hazard(e, hazards, list(others), FRAME, DCFG, HCFG, resp or Response(), CRUISE)
 
 
 # ------------------------------------------------------------------------------------------------ fusion
@@ -121,7 +120,7 @@ def test_both_lanes_blocked_stops():
 
 def test_stopping_then_gap_opens_then_hazard_cleared():
     h = hz(1, 150.0, 1)
-    resp = HazardResponse()
+    resp = Response()
     d = decide(ego(), [h], [trk(7, 100.0, 0, 13.0)], resp)
     resp.commit(d, 0.0)
     assert resp.phase == "stopping"
@@ -135,9 +134,9 @@ def test_stopping_then_gap_opens_then_hazard_cleared():
 
 def test_avoiding_holds_until_passed_then_resumes():
     h = hz(1, 150.0, 1)
-    resp = HazardResponse()
+    resp = Response()
     resp.commit(decide(ego(), [h]), 0.0)
-    assert resp.phase == "avoiding" and resp.hazard_ids == {1}
+    assert resp.phase == "avoiding" and resp.cause_ids == {1}
     assert decide(ego(x=140.0, lane=0), [h], [], resp).action == "hold"
     d = decide(ego(x=160.0, lane=0), [h], [], resp)  # rear bumper 157.55 > far edge 150.6 + 5
     assert d.action == Manoeuvre.RESUME and d.target_lane == 0 and "passed" in d.reason
@@ -220,7 +219,7 @@ def test_service_rejects_a_hazard_alert_from_the_wrong_rsu_key():
 
 def test_a_second_hazard_beside_the_first_does_not_repeat_the_lane_change():
     box, rock = hz(1, 150.0, 1), hz(2, 153.7, 1, y_off=0.6, length=0.6, width=0.5)
-    resp = HazardResponse()
+    resp = Response()
     d = decide(ego(), [box, rock])
     assert d.action == Manoeuvre.LANE_CHANGE and d.target_lane == 0
     resp.commit(d, 0.0)

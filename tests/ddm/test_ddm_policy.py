@@ -10,8 +10,9 @@ import pytest
 from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
+from ddm.decision import Ego, Response
 from ddm.geometry import RoadFrame
-from ddm.policy import Ego, Response, decide, gap_check, plan
+from ddm.policy import decide, gap_check, plan
 from ddm.world import Track
 from protocol.corridor import load_corridor
 from protocol.messages import Manoeuvre, ObjectType
