@@ -242,9 +242,7 @@ class DdmTarget(_BusTarget):
 
     def sizes(self) -> dict[str, int]:
         w, s = self.svc.world, self.svc
-        return {"tracks": w.track_count, "track_slots": int(len(w.alive)), "alerts": len(w.alerts),
-                "vehicles": len(w.vehicles), "rsus": len(w.rsu_ids), "bindings": sum(len(m) for m in w._maps),
-                "bind_seen": sum(len(m) for m in w._bind_seen), **s.decider.sizes(),
+        return {**w.sizes(), **s.decider.sizes(),
                 "decision_latencies": len(s.decision_latency_ms),
                 "period_latencies": len(s._period_latency)}
 

@@ -37,7 +37,8 @@ from ddm.decision import Concern, Decision, Ego, Response
 from ddm.geometry import RoadFrame
 from ddm.hazard import HazardBook, HazardConfig, decide_hazard
 from ddm.policy import decide, plan
-from ddm.world import CorridorWorld, Track
+from ddm.tracks import Track
+from ddm.world import CorridorWorld
 from protocol.corridor import Corridor
 from protocol.messages import CommandAck, PathSwitchCommand, VehicleMode, VehicleState
 

@@ -47,7 +47,7 @@ from ddm.paths import (
 )
 from ddm.policy import gap_check
 from ddm.threat import LX_MAX_M, av_hazard_distances, threat_value
-from ddm.world import Track
+from ddm.tracks import Track
 from protocol.messages import HazardAlert, HazardState, Manoeuvre
 
 

@@ -59,7 +59,7 @@ from ddm.paths import (
     plan_stop_holding_speed,
     stop_offset_m,
 )
-from ddm.world import Track
+from ddm.tracks import Track
 from protocol.messages import Manoeuvre
 
 SELF_RADIUS_M = 2.0

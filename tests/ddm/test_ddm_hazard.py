@@ -19,7 +19,7 @@ from ddm.hazard import (
     decide_hazard,
     path_clearance,
 )
-from ddm.world import Track
+from ddm.tracks import Track
 from protocol.corridor import load_corridor
 from protocol.messages import HazardAlert, Manoeuvre, ObjectType
 

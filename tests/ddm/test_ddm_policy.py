@@ -13,7 +13,7 @@ from ddm.config import DdmConfig
 from ddm.decision import Ego, Response
 from ddm.geometry import RoadFrame
 from ddm.policy import decide, gap_check, plan
-from ddm.world import Track
+from ddm.tracks import Track
 from protocol.corridor import load_corridor
 from protocol.messages import Manoeuvre, ObjectType
 
