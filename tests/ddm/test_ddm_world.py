@@ -184,3 +184,15 @@ def test_tracks_time_out_and_slots_are_reused_without_id_reuse():
                                                     det(COR, 100 + k, 10.0 * k, 6.0, 10.0)]), t)
         w.maintain(t + 2.0)
     assert w.track_count == 0 and w.stats.new_tracks == 10
+
+
+def test_the_track_store_grows_and_keeps_every_track():
+    """7 objects into room for 2: the columns double to 8 slots and every track keeps its state."""
+    w = CorridorWorld(DdmConfig(), capacity=2)
+    w.ingest_objects(object_list("rsu1", 0, 1.0, [det(COR, k, 5.0 * k, lane_y(k % 2), 10.0 + k) for k in range(7)]),
+                     1.0)
+    tracks = w.tracks(1.0)
+    assert w.sizes()["track_slots"] == 8 and [t.track_id for t in tracks] == list(range(1, 8))
+    assert [round(t.x_m, 6) for t in tracks] == [5.0 * k for k in range(7)]
+    assert [round(t.vx_mps, 6) for t in tracks] == [10.0 + k for k in range(7)]
+    assert all(t.rsus == ("rsu1",) for t in tracks)

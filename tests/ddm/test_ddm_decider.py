@@ -1,0 +1,135 @@
+"""The decider alone (no service, no bus, no clock): an EvAlert in the world reaches a command through it;
+rollback, EV over hazard and adoption after a restart."""
+
+from __future__ import annotations
+
+from ddm_rig import lane_y
+
+from ddm.commands import CommandState
+from ddm.config import DdmConfig
+from ddm.decider import Decider
+from ddm.geometry import RoadFrame
+from ddm.hazard import HazardBook, HazardConfig
+from ddm.world import CorridorWorld
+from protocol.corridor import load_corridor
+from protocol.messages import (
+    AckStatus,
+    AlertState,
+    CommandAck,
+    EvAlert,
+    HazardAlert,
+    Manoeuvre,
+    VehicleMode,
+    VehicleState,
+)
+
+CORRIDOR = load_corridor()
+T0 = 100.0
+
+
+def setup(cfg: DdmConfig | None = None) -> tuple[Decider, CorridorWorld, HazardBook]:
+    cfg = cfg or DdmConfig()
+    frame = RoadFrame(CORRIDOR.road)
+    world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in CORRIDOR.rsus))
+    hazards = HazardBook(frame, HazardConfig())
+    return Decider(world, hazards, CORRIDOR, frame, cfg, HazardConfig(), ddm_id="ddm", started_s=T0), world, hazards
+
+
+def av_state(t: float, x: float = 20.0, *, mode: VehicleMode = VehicleMode.DRIVING, active: str | None = None,
+             speed: float = 13.4) -> VehicleState:
+    return VehicleState(src="av1", stamp=t, vehicle_id="av1", pos_x_m=x, pos_y_m=lane_y(1), lat_deg=30.6,
+                        lon_deg=-96.4, heading_rad=0.0, speed_mps=speed, mode=mode, active_command_id=active)
+
+
+def ev_alert(t: float, x: float = -30.0, state: AlertState = AlertState.ACTIVE) -> EvAlert:
+    return EvAlert(src="rsu1", stamp=t, alert_id="rsu1-ev-7", state=state, rsu_id="rsu1", object_id=7, pos_x_m=x,
+                   pos_y_m=lane_y(1), lat_deg=30.6, lon_deg=-96.4, vel_x_mps=20.0, speed_mps=20.0, lane=1,
+                   confidence=0.9, first_seen=t - 1.0)
+
+
+def hazard_alert(t: float, x: float) -> HazardAlert:
+    return HazardAlert(src="rsu1", stamp=t, hazard_id="rsu1-hz-1", state="persist", rsu_id="rsu1", pos_x_m=x,
+                       pos_y_m=lane_y(1), lat_deg=30.6, lon_deg=-96.4, length_m=1.2, width_m=0.9, confidence=0.8,
+                       first_seen=t)
+
+
+def test_an_ev_alert_in_the_world_becomes_a_pull_over_command_through_the_decider():
+    decider, world, _ = setup()
+    world.ingest_vehicle_state(av_state(T0), T0)
+    assert decider.decide(T0) == 0 and decider.due_commands(T0) == []  # nothing to yield to
+    world.ingest_ev_alert(ev_alert(T0), T0)  # 50 m behind in the AV's lane, closing at 6.6 m/s
+    assert decider.decide(T0, near=(-30.0, lane_y(1))) == 1
+    (cmd,) = decider.due_commands(T0)
+    assert cmd.vehicle_id == "av1" and cmd.manoeuvre == Manoeuvre.PULL_OVER and cmd.target_lane == 0
+    mem = decider.memory["av1"].ev
+    assert mem.phase == "yielding" and mem.manoeuvre == Manoeuvre.PULL_OVER and mem.cause_ids
+    assert mem.stop_s_m is not None  # the pull-over's planned room, noted after planning
+    assert decider.counters["decisions"] == 1 and decider.counters["cmd_issued"] == 1
+    assert decider.ev_aware_s == T0
+
+
+def test_an_alert_far_from_the_vehicle_is_left_to_the_next_step():
+    decider, world, _ = setup()
+    world.ingest_vehicle_state(av_state(T0, x=400.0), T0)
+    world.ingest_ev_alert(ev_alert(T0), T0)
+    assert decider.decide(T0, near=(-30.0, lane_y(1))) == 0 and "av1" not in decider.memory
+
+
+def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_again():
+    cfg = DdmConfig()
+    decider, world, _ = setup(cfg)
+    world.ingest_vehicle_state(av_state(T0), T0)
+    world.ingest_ev_alert(ev_alert(T0), T0)
+    decider.decide(T0)
+    (cmd,) = decider.due_commands(T0)
+    decider.on_ack(CommandAck(src="av1", stamp=T0 + 0.05, command_id=cmd.command_id, vehicle_id="av1",
+                              status=AckStatus.REJECTED, reason="path starts behind the car"), T0 + 0.05)
+    mem = decider.memory["av1"]
+    assert mem.ev.phase == "normal" and mem.ev.manoeuvre is None and not mem.ev.cause_ids  # as before it
+    assert mem.replan_after_s == T0 + 0.05 + cfg.replan_backoff_s and decider.counters["cmd_rejected"] == 1
+    t = T0 + 0.1
+    world.ingest_vehicle_state(av_state(t, x=21.3), t)
+    world.ingest_ev_alert(ev_alert(t, x=-28.0), t)
+    assert decider.decide(t) == 0  # inside the backoff
+    t = T0 + 0.6
+    world.ingest_vehicle_state(av_state(t, x=28.0), t)
+    world.ingest_ev_alert(ev_alert(t, x=-18.0), t)
+    assert decider.decide(t) == 1  # planned anew
+    assert decider.commands.state_of("av1").state == CommandState.SENT
+    assert decider.commands.state_of("av1").command_id != cmd.command_id
+
+
+def test_an_ev_command_supersedes_a_hazard_command_and_resets_the_hazard_memory():
+    decider, world, hazards = setup()
+    world.ingest_vehicle_state(av_state(T0), T0)
+    hazards.ingest(hazard_alert(T0, 60.0), T0)  # 40 m ahead in the AV's lane
+    assert decider.decide(T0) == 0  # a hazard command: not an EV command
+    (hz_cmd,) = decider.due_commands(T0)
+    assert hz_cmd.manoeuvre in (Manoeuvre.LANE_CHANGE, Manoeuvre.STOP_IN_LANE)
+    assert decider.memory["av1"].hazard.phase in ("avoiding", "stopping")
+    assert decider.counters["hazard_decisions"] == 1
+    world.ingest_ev_alert(ev_alert(T0 + 0.05), T0 + 0.05)
+    assert decider.decide(T0 + 0.05) == 1
+    (ev_cmd,) = decider.due_commands(T0 + 0.05)
+    assert ev_cmd.supersedes == hz_cmd.command_id
+    mem = decider.memory["av1"]
+    assert mem.ev.phase == "yielding" and mem.hazard.phase == "normal" and not mem.hazard.cause_ids
+
+
+def test_a_command_from_a_previous_ddm_is_adopted_and_not_resumed_before_the_evs_can_be_heard():
+    cfg = DdmConfig()
+    decider, world, _ = setup(cfg)
+    vs = av_state(T0, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0)
+    world.ingest_vehicle_state(vs, T0)
+    decider.adopt(vs, T0)
+    assert decider.commands.state_of("av1").state == CommandState.ADOPTED
+    assert decider.memory["av1"].ev.phase == "yielding"
+    t = T0 + cfg.ev_alert_timeout_s  # no EV heard: still holding
+    world.ingest_vehicle_state(av_state(t, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0), t)
+    decider.decide(t)
+    assert decider.due_commands(t) == []
+    t = T0 + cfg.ev_alert_timeout_s + cfg.resume_hold_s + 0.1
+    world.ingest_vehicle_state(av_state(t, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0), t)
+    decider.decide(t)
+    (cmd,) = decider.due_commands(t)
+    assert cmd.manoeuvre == Manoeuvre.RESUME and decider.memory["av1"].ev.phase == "normal"
