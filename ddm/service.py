@@ -206,6 +206,7 @@ class DdmService(CorridorPresence):
         log.debug("rejected input (%s): %s", reason, detail)
 
     def _on_rsu(self, key: str, msg) -> None:
+        """An RSU's message: checked at the boundary, then routed (EvAlerts decided at once)."""
         t0 = time.perf_counter()
         try:
             node = parse_key(key).node
@@ -213,6 +214,28 @@ class DdmService(CorridorPresence):
             self._reject("key", key)
             return
         now = self.clock.now()
+        msg = self._plausible(key, msg)
+        if msg is None:
+            return
+        with self._lock:
+            if not self.world.knows_rsu(node) and len(self.world.rsu_ids) >= MAX_RSUS:
+                self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
+            elif isinstance(msg, Health):
+                self.world.ingest_rsu_health(node, now)
+            elif isinstance(msg, ObjectList | EvAlert | HazardAlert) and msg.rsu_id != node:
+                self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
+            elif isinstance(msg, ObjectList):
+                self._on_objects(key, msg, now)
+            elif isinstance(msg, EvAlert):
+                self._on_ev_alert(key, msg, now, t0)
+            elif isinstance(msg, HazardAlert):
+                self._count_missed(key, msg.seq)
+                self.hazards.ingest(msg, now)
+                self.counters["hazard_alerts"] += 1
+
+    def _plausible(self, key: str, msg):
+        """The message without the objects whose numbers cannot be real; None (refused) for an alert whose
+        numbers cannot be."""
         if isinstance(msg, ObjectList):  # drop the impossible objects, keep the rest of the frame
             bad = implausible_objects(msg)
             if bad:
@@ -224,45 +247,29 @@ class DdmService(CorridorPresence):
             why = implausible(msg)
             if why is not None:
                 self._reject("implausible", f"{key}: {why}")
-                return
-        with self._lock:
-            if not self.world.knows_rsu(node) and len(self.world.rsu_ids) >= MAX_RSUS:
-                self._reject("rsu_limit", f"{key}: already {MAX_RSUS} RSUs")
-                return
-            if isinstance(msg, ObjectList):
-                if msg.rsu_id != node:
-                    self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
-                    return
-                if msg.measurement_time > now + self.config.max_future_s:
-                    self._reject("future_stamp", f"{key} measurement_time {msg.measurement_time} > now {now}")
-                    return
-                if self.world.track_count >= MAX_TRACKS:
-                    self._reject("track_limit", f"{key}: already {MAX_TRACKS} tracks")
-                    return
-                self.world.ingest_objects(msg, now)
-                self.counters["object_lists"] += 1
-                self.counters["object_updates"] += len(msg.objects)
-            elif isinstance(msg, EvAlert):
-                if msg.rsu_id != node:
-                    self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
-                    return
-                if msg.alert_id not in self.world.alerts and len(self.world.alerts) >= MAX_ALERTS:
-                    self._reject("alert_limit", f"{key}: already {MAX_ALERTS} alerts")
-                    return
-                self._count_missed(key, msg.seq)
-                self.world.ingest_ev_alert(msg, now)
-                self.counters["ev_alerts"] += 1
-                # decide at once for the vehicles this EV can concern; the others at the next loop step
-                self._decide_all(now, t0=t0, near=(msg.pos_x_m, msg.pos_y_m))
-            elif isinstance(msg, Health):
-                self.world.ingest_rsu_health(node, now)
-            elif isinstance(msg, HazardAlert):
-                if msg.rsu_id != node:
-                    self._reject("rsu_mismatch", f"{key} carries rsu_id {msg.rsu_id}")
-                    return
-                self._count_missed(key, msg.seq)
-                self.hazards.ingest(msg, now)
-                self.counters["hazard_alerts"] += 1
+                return None
+        return msg
+
+    def _on_objects(self, key: str, msg: ObjectList, now: float) -> None:
+        if msg.measurement_time > now + self.config.max_future_s:
+            self._reject("future_stamp", f"{key} measurement_time {msg.measurement_time} > now {now}")
+        elif self.world.track_count >= MAX_TRACKS:
+            self._reject("track_limit", f"{key}: already {MAX_TRACKS} tracks")
+        else:
+            self.world.ingest_objects(msg, now)
+            self.counters["object_lists"] += 1
+            self.counters["object_updates"] += len(msg.objects)
+
+    def _on_ev_alert(self, key: str, msg: EvAlert, now: float, t0: float) -> None:
+        """Into the world, then decided at once for the vehicles this EV can concern (the others at the
+        next loop step); ``t0``: the callback's entry, for the decision latency."""
+        if msg.alert_id not in self.world.alerts and len(self.world.alerts) >= MAX_ALERTS:
+            self._reject("alert_limit", f"{key}: already {MAX_ALERTS} alerts")
+            return
+        self._count_missed(key, msg.seq)
+        self.world.ingest_ev_alert(msg, now)
+        self.counters["ev_alerts"] += 1
+        self._decide_all(now, t0=t0, near=(msg.pos_x_m, msg.pos_y_m))
 
     def _on_vehicle_state(self, key: str, msg: VehicleState) -> None:
         node = parse_key(key).node
