@@ -41,7 +41,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+
+from rsu import track_scalar
+from rsu.track_assoc import _associate, associate, iou_matrix  # noqa: F401  (re-exported)
 
 DIM_X = 7
 
@@ -122,86 +124,6 @@ def x_to_boxes(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
-    """IoU of every box in ``boxes_a`` (N, 4) with every box in ``boxes_b`` (M, 4): (N, M)."""
-    a, b = np.asarray(boxes_a, dtype=np.float64).T.copy(), np.asarray(boxes_b, dtype=np.float64).T.copy()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return _iou(a, _areas(a), b, _areas(b))
-
-
-def _areas(boxes_cm: np.ndarray) -> np.ndarray:
-    """Areas (x2 - x1) (y2 - y1) of (4, N) coordinate-major boxes."""
-    wh = boxes_cm[2:4] - boxes_cm[0:2]
-    return wh[0] * wh[1]
-
-
-def _iou(boxes_a: np.ndarray, areas_a: np.ndarray, boxes_b: np.ndarray, areas_b: np.ndarray) -> np.ndarray:
-    """IoU (N, M) of coordinate-major boxes (4, N), (4, M) with their areas (x2 - x1) (y2 - y1); the
-    reference's arithmetic: max(0, min(x2) - max(x1)) max(0, min(y2) - max(y1)) / (a + b - inter).
-
-    Coordinate-major (contiguous rows): the (2, N, M) operations run long unit-stride inner loops,
-    several times faster than broadcasting (N, 4) views."""
-    a, b = boxes_a[:, :, None], boxes_b[:, None, :]
-    wh = np.minimum(a[2:4], b[2:4])
-    wh -= np.maximum(a[0:2], b[0:2])
-    np.maximum(wh, 0.0, out=wh)
-    inter = wh[0] * wh[1]
-    union = areas_a[:, None] + areas_b
-    union -= inter
-    inter /= union
-    return inter
-
-
-_EMPTY_INDEX = np.empty(0, dtype=np.intp)
-
-
-def associate(det_boxes: np.ndarray, trk_boxes: np.ndarray, iou_threshold: float
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Match detections to predicted track boxes (reference ``associate_detections_to_trackers``).
-
-    Returns (matched detection indices, matched track indices, unmatched detection indices), the
-    unmatched detections in the reference's order (never assigned first, then assigned with an IoU
-    below the threshold), which fixes the order in which new tracks, and so their ids, are created.
-
-    Shortcut, the reference's own: when every detection and every track has at most one IoU above
-    the threshold and there is at least one such pair (the reference's test ``above.sum(1).max() == 1
-    and above.sum(0).max() == 1``; here: the above pairs' rows are distinct and their columns are
-    distinct, which is the same condition), those pairs are the matches, no Hungarian step. This is
-    part of the published algorithm, not an optimisation that Hungarian would reproduce: with IoU
-    d0-t1 0.318, d0-t0 0.238, d1-t1 0.267 and threshold 0.3 the shortcut matches d0-t1, whereas the
-    optimal assignment {d0-t0, d1-t1} (0.505 > 0.318) is filtered to no match at all. Taking it under
-    exactly the reference's condition gives exactly the reference's matches and unmatched order (the
-    pairs come from ``nonzero`` in row order, as the reference's ``np.where``). Otherwise: Hungarian on
-    -IoU, pairs with IoU < threshold undone (tests: ``test_associate_*``).
-    """
-    a = np.asarray(det_boxes, dtype=np.float64).T.copy()
-    b = np.asarray(trk_boxes, dtype=np.float64).T.copy()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return _associate(a, _areas(a), b, iou_threshold)
-
-
-def _associate(det_cm: np.ndarray, det_areas: np.ndarray, trk_cm: np.ndarray, iou_threshold: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``associate`` on (4, N) and (4, M) coordinate-major boxes; callers hold np.errstate."""
-    n_det, n_trk = det_cm.shape[1], trk_cm.shape[1]
-    if n_trk == 0 or n_det == 0:
-        return _EMPTY_INDEX, _EMPTY_INDEX, np.arange(n_det)
-    iou = _iou(det_cm, det_areas, trk_cm, _areas(trk_cm))
-    rows, cols = (iou > iou_threshold).nonzero()
-    k = len(rows)
-    free = np.ones(n_det, dtype=bool)
-    if k and len(set(rows.tolist())) == k and len(set(cols.tolist())) == k:
-        free[rows] = False  # unambiguous: every pair is above the threshold
-        return rows, cols, np.flatnonzero(free)
-    rows, cols = linear_sum_assignment(-iou)
-    keep = iou[rows, cols] >= iou_threshold
-    free[rows] = False
-    if keep.all():
-        return rows, cols, np.flatnonzero(free)
-    low_rows = rows.compress(~keep)
-    return rows.compress(keep), cols.compress(keep), np.concatenate([np.flatnonzero(free), low_rows])
-
-
 @dataclass(slots=True)
 class TrackSet:
     """Tracks reported on one frame (arrays of equal length M, in the reference's output order)."""
@@ -267,6 +189,24 @@ _NEW_ROW = np.zeros((1, _NCOL))
 _NEW_ROW[0, _P00] = np.diag(P0)[0:4]
 _NEW_ROW[0, _P11] = np.diag(P0)[4:7]
 _NEW_ROW[0, _ONE] = 1.0
+assert (_AGE, _TSU, _HITS, _STREAK, _ID, _CLASS, _DET, _SCORE, _NCOL) == (
+    track_scalar.AGE, track_scalar.TSU, track_scalar.HITS, track_scalar.STREAK, track_scalar.ID,
+    track_scalar.CLASS, track_scalar.DET, track_scalar.SCORE, track_scalar.NCOL), "rsu.track_scalar's row layout"
+SCALAR_MAX_ROWS = 48
+"""Live tracks + detections up to which a frame runs on Python floats (``rsu.track_scalar``: the densities an RSU
+sees, where numpy's per-call cost dominates); above it, on the table with array operations. Measured with
+``bench/rsu_bench.py``'s streams: at 20 targets the scalar step costs ~60 us of CPU, the array step ~75 us; at 100,
+~375 and ~205 us."""
+
+
+def _scalar_trackset(out: list[tuple]) -> TrackSet:
+    """``TrackSet`` of ``rsu.track_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
+    detection, hits, age)."""
+    if not out:
+        return TrackSet.empty()
+    a = np.array(out)
+    ints = a[:, 7:12].astype(np.int64)
+    return TrackSet(ints[:, 0], a[:, 0:4], ints[:, 1], a[:, 6], ints[:, 2], ints[:, 3], ints[:, 4], a[:, 4:6])
 
 
 class SortTracker:
@@ -284,28 +224,39 @@ class SortTracker:
         self._ids = id_source if id_source is not None else itertools.count(1)
         self.frame_count = 0
         self._t = np.zeros((0, _NCOL))
+        self._rows: list[list[float]] | None = None
+        """The same table as Python lists while frames run on ``rsu.track_scalar`` (then ``_t`` is stale)."""
 
     def __len__(self) -> int:
         """Number of live tracks (reported or not)."""
-        return len(self._t)
+        return len(self._rows) if self._rows is not None else len(self._t)
+
+    def _table(self) -> np.ndarray:
+        """(T, _NCOL) rows of the live tracks (a copy while they are held as lists)."""
+        return self._t if self._rows is None else np.array(self._rows, dtype=np.float64).reshape(-1, _NCOL)
+
+    def _to_arrays(self) -> None:
+        if self._rows is not None:
+            self._t, self._rows = self._table(), None
 
     @property
     def x(self) -> np.ndarray:
         """(T, 7) states of the live tracks."""
-        return self._t[:, _X]
+        return self._table()[:, _X]
 
     @property
     def track_ids(self) -> np.ndarray:
-        return self._t[:, _ID].astype(np.int64)
+        return self._table()[:, _ID].astype(np.int64)
 
     @property
     def time_since_update(self) -> np.ndarray:
-        return self._t[:, _TSU].astype(np.int64)
+        return self._table()[:, _TSU].astype(np.int64)
 
     @property
     def covariance(self) -> np.ndarray:
         """(T, 7, 7) state covariance of every live track (as filterpy would hold it)."""
-        return block_to_full_covariance(self._t[:, _P00], self._t[:, _P01], self._t[:, _P11])
+        t = self._table()
+        return block_to_full_covariance(t[:, _P00], t[:, _P01], t[:, _P11])
 
     def _predict(self) -> np.ndarray:
         """Advance every track one frame; drop tracks whose box became invalid. Returns (4, T) boxes.
@@ -322,6 +273,11 @@ class SortTracker:
         if bad.any():
             t[bad, 2] = old[bad, 2]
             t[bad, 6] = 0.0
+        return self._predicted_boxes()
+
+    def _predicted_boxes(self) -> np.ndarray:
+        """(4, T) boxes of the predicted tracks; tracks whose box is not a number are dropped."""
+        t = self._t
         boxes = _x_to_boxes_cm(t)
         if np.isnan(boxes.sum()):  # the reference drops tracks whose predicted box is not a number
             good = ~np.isnan(boxes).any(axis=0)
@@ -349,7 +305,10 @@ class SortTracker:
 
     def update(self, boxes: np.ndarray, scores: np.ndarray | None = None,
                class_ids: np.ndarray | None = None) -> TrackSet:
-        """Process one frame of detections (N, 4) xyxy; returns the tracks reported on this frame."""
+        """Process one frame of detections (N, 4) xyxy; returns the tracks reported on this frame.
+
+        Up to ``SCALAR_MAX_ROWS`` live tracks + detections (and detections with a finite, positive size) the frame
+        runs on Python floats (``rsu.track_scalar``), otherwise with array operations; same tracks either way."""
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
         n = len(boxes)
         if scores is not None:
@@ -357,8 +316,26 @@ class SortTracker:
         if class_ids is not None:
             class_ids = np.asarray(class_ids).reshape(n)
         self.frame_count += 1
+        if len(self) + n <= SCALAR_MAX_ROWS and track_scalar.valid_detections(dets := boxes.tolist()):
+            if self._rows is None:
+                self._rows = self._t.tolist()
+            res = track_scalar.step(self._rows, dets, None if scores is None else scores.tolist(),
+                                    None if class_ids is None else class_ids.tolist(), self._ids,
+                                    self.iou_threshold, self.frame_count <= self.min_hits, self.min_hits,
+                                    self.max_age, iou_matrix)
+            if res is not None:
+                self._rows = res[0]
+                return _scalar_trackset(res[1])
+            self._to_arrays()  # a predicted box is not finite: the frame goes on with arrays, predicted
+            return self._update_arrays(boxes, scores, class_ids, predicted=True)
+        self._to_arrays()
+        return self._update_arrays(boxes, scores, class_ids, predicted=False)
+
+    def _update_arrays(self, boxes: np.ndarray, scores: np.ndarray | None, class_ids: np.ndarray | None,
+                       predicted: bool) -> TrackSet:
+        """``update`` with array operations over the table (``predicted``: the tracks were advanced already)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            predicted = self._predict()
+            predicted = self._predicted_boxes() if predicted else self._predict()
             boxes_cm = boxes.T.copy()
             z_cm = _boxes_to_z_cm(boxes_cm)  # z_cm[2] = w h is also the box area
             det, trk, new = _associate(boxes_cm, z_cm[2], predicted, self.iou_threshold)

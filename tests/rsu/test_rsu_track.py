@@ -43,6 +43,34 @@ def test_same_tracks_as_reference(seed, max_age, min_hits, iou_threshold):
     assert _run_both(frames, max_age, min_hits, iou_threshold) > 500
 
 
+@pytest.mark.parametrize("scalar_max_rows", [0, 12, 10**6])
+@pytest.mark.parametrize("seed", [3, 4])
+def test_scalar_and_array_steps_give_the_reference_tracks(monkeypatch, seed, scalar_max_rows):
+    """Every frame on arrays (0), on Python floats (10**6), or switching between them as the density crosses 12
+    live tracks + detections (issue 19: the scalar step for the densities an RSU sees)."""
+    import rsu.track as track
+
+    monkeypatch.setattr(track, "SCALAR_MAX_ROWS", scalar_max_rows)
+    frames = synthetic_scene(n_frames=150, n_targets=8, seed=seed, miss_prob=0.15, false_pos_per_frame=1.0,
+                             mean_life_frames=30.0)
+    assert _run_both(frames, 1, 3, 0.3) > 300
+    assert _run_both(frames, 3, 1, 0.5) > 300
+
+
+def test_degenerate_detections_and_boxes_take_the_array_step(monkeypatch):
+    """A zero-height detection (numpy's inf ratio) runs the frame with arrays, as before, and the tracker goes on."""
+    boxes = [np.array([[10.0, 10.0, 50.0, 40.0], [100.0, 100.0, 140.0, 100.0]])] * 3 + [
+        np.array([[12.0, 10.0, 52.0, 40.0]])] * 3
+    frames = [SimpleNamespace(det_boxes=b, det_scores=np.ones(len(b))) for b in boxes]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ours, ref = SortTracker(1, 1, 0.3), ReferenceSort(1, 1, 0.3)
+        for f in frames:
+            a = ours.update(f.det_boxes, f.det_scores).as_mot()
+            b = ref.update(np.hstack([f.det_boxes, f.det_scores[:, None]]))
+            np.testing.assert_array_equal(a[:, 4], b[:, 4])
+            np.testing.assert_allclose(a[:, :4], b[:, :4], rtol=0, atol=1e-6)
+
+
 @pytest.mark.skipif(not HAVE_FILTERPY, reason="filterpy not installed: reference with filterpy's KalmanFilter skipped")
 def test_same_tracks_as_reference_with_filterpy():
     frames = synthetic_scene(n_frames=100, n_targets=20, seed=7, miss_prob=0.1, false_pos_per_frame=0.5)
