@@ -123,6 +123,13 @@ def assess_evs(ego_s: float, ego_v_long: float, ego_len: float, evs: list[Track]
     return threats, ahead
 
 
+ENTER_FRACTION = 0.3
+"""When the AV's body starts to enter the target lane, as a fraction of its lane change (quintic from one lane
+centre to the next: the near side of a 1.9 m wide car crosses the line at 24 % of the shift, 35 % of the time)."""
+MIN_START_GAP_M = 1.0
+"""Whatever the speeds, a pull-over does not start with a follower closer than this behind the AV's rear."""
+
+
 class GapCheck(tuple):
     """``(ok, explanation)`` of ``gap_check``; ``blocker_speed_mps`` is the speed along the road of the
     vehicle that makes the gap unsafe (None when the gap is safe)."""
@@ -174,7 +181,8 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
     ``stopping``: the AV will stop in that lane (pull-over), so a leader only has to leave it room
     to stop behind it even if the leader brakes too: clearance + v_l^2 / (2 comfort) >= gap_min +
     v_AV^2 / (2 max_decel); the room left is returned (``room_ahead_m``) to place the stop point. A
-    follower needs a gap that does not close during the change and room to stop behind the AV's stop
+    follower needs a gap that does not close during the change (a slower one: ``gap_min_m`` by the time the
+    AV's body enters its lane, ``ENTER_FRACTION``) and room to stop behind the AV's stop
     (``av_stop_m`` ahead: a held-speed pull-over's lane change and comfort stop; default the shortest stop
     at ``max_decel_mps2``)."""
     cand = [o for o in others if o.track_id not in exclude]
@@ -207,8 +215,11 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             v_f = max(v_f, 0.0)
             av_stop = ego_v * ego_v / (2.0 * cfg.max_decel_mps2) if av_stop_m is None else av_stop_m
             follower_stop_m = v_f * cfg.gap_time_s + v_f * v_f / (2.0 * cfg.comfort_decel_mps2)
-            need = max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s,
-                       cfg.gap_min_m + follower_stop_m - av_stop)
+            # a slower follower drops back while the AV crosses: gap_min is needed when the AV's body enters
+            # the lane (ENTER_FRACTION of the change; issue 18, e2e seed 7), not when the change starts
+            grows = max(0.0, v_l - v_f) * ENTER_FRACTION * change_time_s
+            need = max(cfg.gap_min_m + max(0.0, v_f - v_l) * change_time_s - grows,
+                       cfg.gap_min_m + follower_stop_m - av_stop, MIN_START_GAP_M)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
                             f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role)
