@@ -291,10 +291,6 @@ class CorridorLockstep:
         return m
 
 
-def run_lockstep(config: LockstepConfig | None = None, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    return CorridorLockstep(config).run(progress)
-
-
 def ev_lights_on(scenario: Scenario, duration_s: float | None = None) -> bool | None:
     """Whether the scenario's EV switches its lights on within the run (None: the scenario has no EV)."""
     if scenario.ev is None:

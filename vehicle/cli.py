@@ -10,6 +10,7 @@ import signal
 import sys
 
 from protocol import metrics
+from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.runtime import stop_on_ctrl_c
 from protocol.transport import ZenohSettings
 from vehicle.localisation import FixSourceConfig
@@ -70,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="'thesis' (default: the thesis lateral controller) or 'learned:CASE' (CASE 1, 2 or 3: the "
                           "Clemson comparison's dashcam CNN through ONNX Runtime while driving in lane; the thesis "
                           "controller keeps commanded manoeuvres and the fail-safe; needs the simulator's world)")
-    run.add_argument("-v", "--verbose", action="store_true")
+    add_log_level_argument(run)
     ZenohSettings.add_arguments(run)
     metrics.add_arguments(run)
 
@@ -100,8 +101,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from vehicle.failsafe import FailsafeConfig
     from vehicle.service import VehicleService
 
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    configure_logging(args.parser, args)
     corridor = load_corridor(args.corridor)
     if args.corridor_id:
         corridor = dataclasses.replace(corridor, corridor_id=args.corridor_id)
@@ -197,7 +197,9 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.parser = parser
     try:
         return {"run": _cmd_run, "lockstep": _cmd_lockstep, "plot": _cmd_plot}[args.command](args)
     except ValueError as exc:  # bad settings (zenoh endpoints, corridor file)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -221,7 +221,3 @@ def compute_metrics(sc: Scenario, sim: SimulatedVehicle, rec: RunRecord, acks: l
         "max_decel_mps2": float(max(0.0, -c["accel_mps2"].min())),
         "duration_s": float(t[-1]),
     }
-
-
-def with_fix(sc: Scenario, **changes) -> Scenario:
-    return replace(sc, fix_source=replace(sc.fix_source or GNSS, **changes))
