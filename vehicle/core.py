@@ -105,8 +105,6 @@ class VehicleCore:
         self.mrm_where = ""
         """Where the minimal-risk stop ends: at the curb, or in its lane when the curb side was occupied."""
         self.mrm_reason = ""
-        self.last_command_s: float | None = None
-        """When the car last accepted a command (``vehicle.ev_direct``: the DDM has spoken)."""
 
     # ------------------------------------------------------------------ setup
     def lane_path(self, lane: int) -> ReferencePath:
@@ -194,8 +192,6 @@ class VehicleCore:
             self.watchdog.link_seen(now_s)
         blocked = self.watchdog.healthy(now_s, self.estimator.age_s(now_s))
         decisions = self.book.offer(cmd, now_s, self.estimator.pose, self.speed_mps, blocked)
-        if any(d.status == AckStatus.ACCEPTED and d.command_id == cmd.command_id for d in decisions):
-            self.last_command_s = now_s
         if decisions and decisions[-1].status == AckStatus.ACCEPTED and decisions[-1].command_id == cmd.command_id \
                 and self.book.active is cmd:
             decisions += self._engage(cmd)

@@ -8,9 +8,10 @@ car then acts on its own, on evidence it can trust, and only when it must:
   unsigned corridor never moves a car this way, nor does an unsigned or forged alert);
 - the EV is **behind the car in the car's own lane** (Frenet s, d on the corridor's road), driving on at
   the alert's speed since the alert's stamp;
-- **no command** was accepted since the first such alert of this approach, for ``command_deadline_s``
-  (the DDM answers an alert within about 0.13 s over Zenoh, median, issue 8: a command later than the
-  deadline is late), and the car is cruising (a DDM manoeuvre in progress is never overridden);
+- **nothing from the DDM** since the first such alert of this approach, for ``command_deadline_s``: no
+  command and no signed heartbeat (the DDM answers an alert within about 0.13 s over Zenoh, median, issue 8:
+  a command later than the deadline is late; a DDM heard alive after the alert that sends nothing is waiting
+  on purpose, for a gap in lane 0); and the car is cruising (a DDM manoeuvre is never overridden);
 - the EV will come within its **following distance** of the car (2 m + 1 s x its speed, the yield
   judge's reach, ``deploy/outcome.py``) within ``reach_horizon_s``: an EV far behind or not closing
   leaves the DDM time; the DDM may be holding the car at speed on purpose (a car beside it in lane 0).
@@ -78,18 +79,19 @@ def time_to_reach_s(gap_m: float, ev_speed_mps: float, car_speed_mps: float, cfg
 
 
 def act_on_alert(alert: HeardAlert, now_s: float, road, car_pose: tuple[float, float, float], car_speed_mps: float,
-                 car_length_m: float, first_alert_s: float, last_command_s: float | None, cruising: bool,
+                 car_length_m: float, first_alert_s: float, last_ddm_heard_s: float | None, cruising: bool,
                  cfg: DirectAlertConfig = DirectAlertConfig()) -> str | None:
     """Why the car should pull over on its own now (see the module docstring), or None.
 
-    ``first_alert_s``: when this approach's first signed alert was heard; ``last_command_s``: when the car
-    last accepted a command (None: never); ``cruising``: the car is in DRIVING mode."""
+    ``first_alert_s``: when this approach's first signed alert was heard; ``last_ddm_heard_s``: when the car
+    last heard the DDM (a command that passed its gate or a signed heartbeat; None: never); ``cruising``: the
+    car is in DRIVING mode."""
     if not cfg.enabled or not cruising:
         return None
     if now_s - first_alert_s < cfg.command_deadline_s:
         return None
-    if last_command_s is not None and last_command_s >= first_alert_s:
-        return None  # the DDM has spoken during this approach: it is in charge
+    if last_ddm_heard_s is not None and last_ddm_heard_s > first_alert_s:
+        return None  # the DDM was heard during this approach: it is in charge
     age = now_s - alert.stamp_s
     if age > cfg.alert_max_age_s:
         return None
@@ -105,7 +107,6 @@ def act_on_alert(alert: HeardAlert, now_s: float, road, car_pose: tuple[float, f
     t_reach = time_to_reach_s(gap, v_ev, car_speed_mps, cfg)
     if t_reach > cfg.reach_horizon_s:
         return None
-    late = "none" if last_command_s is None or last_command_s < first_alert_s else f"{last_command_s:.2f}"
     return (f"signed EvAlert from {alert.rsu_id}: EV {gap:.0f} m behind in lane {lane_car}, {v_ev:.1f} m/s, "
-            f"within its following distance in {t_reach:.1f} s; no command {now_s - first_alert_s:.2f} s after "
-            f"the first alert (deadline {cfg.command_deadline_s:.2f} s, last command {late})")
+            f"within its following distance in {t_reach:.1f} s; nothing from the DDM {now_s - first_alert_s:.2f} s "
+            f"after the first alert (deadline {cfg.command_deadline_s:.2f} s)")

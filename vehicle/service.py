@@ -15,8 +15,8 @@ scope and not replayed are offered to the command book). Each refusal is counted
 
 A signed EvAlert the car hears itself (issue 18, ``vehicle.ev_direct``): in a corridor whose trust list
 names RSU keys the service also subscribes to the RSUs' alerts, keeps the newest that verifies, and pulls
-over to the curb on its own when the EV is behind it in its lane, about to reach it, and no command came
-within the deadline (a cut command link); the DDM's next command takes over again.
+over to the curb on its own when the EV is behind it in its lane, about to reach it, and nothing came from
+the DDM (no command, no heartbeat) within the deadline (a cut command link); the DDM's next command takes over.
 
 Presence (issue 21): the service declares its liveliness token ``iea/{c}/alive/vehicle/{id}``, answers
 queries on its keys (latest ``state`` and ``health``: a restarted DDM learns the active command at
@@ -323,7 +323,7 @@ class VehicleService:
             self.heard_alert = self._first_alert_s = None
             return
         why = act_on_alert(alert, now_s, self.corridor.road, core.estimator.pose, max(core.speed_mps, 0.0),
-                           self.vehicle_config.length_m, self._first_alert_s, core.last_command_s,
+                           self.vehicle_config.length_m, self._first_alert_s, core.watchdog.last_link_s,
                            core.mode == VehicleMode.DRIVING, self.direct_alerts)
         if why is None:
             return

@@ -77,7 +77,7 @@ def test_time_to_reach_is_the_gap_beyond_the_following_distance_over_the_closing
 
 def test_an_ev_closing_behind_in_the_cars_lane_with_the_command_late_moves_the_car():
     why = _act(_alert_at(100.0, 1))  # 30 m behind, 3.6 m/s faster, 0.4 s after the first alert
-    assert why is not None and "rsu1" in why and "lane 1" in why and "no command" in why
+    assert why is not None and "rsu1" in why and "lane 1" in why and "nothing from the DDM" in why
 
 
 @pytest.mark.parametrize("case", ["before_deadline", "ddm_spoke", "other_lane", "ahead", "far", "not_closing",
@@ -85,7 +85,7 @@ def test_an_ev_closing_behind_in_the_cars_lane_with_the_command_late_moves_the_c
 def test_the_car_leaves_it_to_the_ddm_unless_every_condition_holds(case):
     a = _alert_at(100.0, 1)
     kw = {"before_deadline": dict(now=10.0 + CFG.command_deadline_s - 0.05),
-          "ddm_spoke": dict(last_cmd=10.1),  # a command accepted after the first alert: the DDM is in charge
+          "ddm_spoke": dict(last_cmd=10.1),  # a command or heartbeat after the first alert: the DDM is in charge
           "manoeuvring": dict(cruising=False)}.get(case, {})
     if case == "other_lane":
         a = _alert_at(100.0, 0)
@@ -98,7 +98,7 @@ def test_the_car_leaves_it_to_the_ddm_unless_every_condition_holds(case):
     elif case == "stale_alert":
         kw = dict(now=10.0 + CFG.alert_max_age_s + 0.1)
     assert _act(a, **kw) is None
-    assert _act(_alert_at(100.0, 1), last_cmd=9.0) is not None  # a command before this approach does not count
+    assert _act(_alert_at(100.0, 1), last_cmd=10.0) is not None  # heard before or with the first alert: silent since
 
 
 # ---------------------------------------------------------------------------------------------- the service
@@ -227,6 +227,14 @@ def _pull_over(car: Car, now: float, command_id: str = "c1") -> PathSwitchComman
                             waypoints=[(float(x), float(y)) for x, y in wp], target_speed_mps=13.4,
                             stop_point=(float(sx), float(sy)), issued_at=now, valid_until=now + 5.0)
     return DDM.sign_message(vehicle_key(C, "av1", "cmd"), cmd)
+
+
+def test_a_ddm_heard_alive_after_the_alert_is_left_to_wait_for_its_gap():
+    """A signed DDM heartbeat after the first alert and no command: the DDM is waiting on purpose."""
+    car = Car()
+    car.run(0.9)  # the first alert at 1000.9, the DDM's heartbeat at 1001.0, the deadline at 1001.2
+    car.send_alerts(2.0)
+    assert car.svc.direct_pull_overs == 0 and car.svc.sim.core.mode == VehicleMode.DRIVING
 
 
 def test_a_command_in_time_is_followed_and_the_car_does_not_act_on_its_own():
