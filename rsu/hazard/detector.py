@@ -59,6 +59,7 @@ class HazardStats:
     off_lane: int = 0
     too_large: int = 0
     unlocalised: int = 0
+    cut_by_border: int = 0
     ghosts: int = 0
     too_small: int = 0
     vehicle_parts: int = 0
@@ -105,6 +106,11 @@ class HazardDetector:
             if area < cfg.min_area_px:
                 continue
             self.stats.components += 1
+            if y + h >= e.shape[0]:
+                # cut by the image's bottom edge: its ground contact is out of view (the lowest pixels are the
+                # border, not where it stands), so it cannot be placed; a vehicle stopping half in view is one
+                self.stats.cut_by_border += 1
+                continue
             ev = e[y:y + h, x:x + w][sel]
             strong = int(np.count_nonzero(ev >= cfg.on_s)) >= cfg.on_pixels_min
             cols = np.flatnonzero(sel.any(axis=0))

@@ -155,6 +155,25 @@ def test_untracked_static_object_on_the_shoulder_is_not_a_hazard(scene):
     assert events == [] and det.stats.off_lane > 0
 
 
+def test_static_object_cut_by_the_bottom_edge_is_not_placed(scene):
+    """An object whose image reaches the bottom border (a vehicle stopped half in view) has its ground contact out
+    of view: not a hazard, however long it stands; the same object fully in view is one (issue 19)."""
+    corridor, rsu, base, loc = scene
+    h = rsu.camera.height_px
+    rng = np.random.default_rng(5)
+    events = {}
+    lane_y = {x: float(corridor.road.pose_at(100.0 + x, corridor.road.lane_centre_offset_m(1))[1]) for x in (116, 118)}
+    cut, in_view = patch_box(rsu, 116.0, lane_y[116]), patch_box(rsu, 118.0, lane_y[118])
+    assert cut[1] < h < cut[3] and in_view[3] < h - 10  # 16 m and 18 m ahead of rsu3
+    for name, box in (("cut", cut), ("in view", in_view)):
+        det = detector(corridor, rsu, loc, base, **FAST)
+        events[name] = run(det, [frame_with(base, [box], noise=rng) for _ in range(30)])
+        if name == "cut":
+            assert det.stats.cut_by_border > 0
+    assert events["cut"] == []
+    assert any(e.state == HazardState.APPEAR for _, e in events["in view"])
+
+
 def test_ghost_of_an_object_that_left_is_absorbed(scene):
     corridor, rsu, base, loc = scene
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
