@@ -1,0 +1,33 @@
+"""bench/detector_size_bench.py (issue 19, point 3): the project detector re-declared at another input size runs
+through the RSU's OnnxDetector; at the shipped size it is the shipped model."""
+
+import numpy as np
+import pytest
+
+from bench.detector_size_bench import anchors, input_hw, resized_model
+from rsu.detect import PROJECT_MODEL, OnnxDetector
+
+pytest.importorskip("onnx", reason="the onnx package (dev extra) is needed to re-declare the model's input size")
+
+
+def test_input_sizes_hold_the_letterboxed_frame_in_multiples_of_32():
+    assert input_hw(0.5) == (384, 640) and anchors((384, 640)) == 5040  # the shipped model
+    assert input_hw(0.4) == (288, 512) and input_hw(0.3) == (224, 384)
+    with pytest.raises(ValueError):
+        input_hw(0.0)
+
+
+def test_resized_model_detects_like_the_shipped_one_at_its_size_and_runs_smaller(tmp_path):
+    rng = np.random.default_rng(0)
+    image = np.clip(110 + rng.normal(0, 8, (720, 1280, 3)), 0, 255).astype(np.uint8)
+    image[400:470, 500:640] = (40, 60, 160)  # a car-sized block
+    shipped = OnnxDetector(PROJECT_MODEL, score_threshold=0.01)
+    same = OnnxDetector(resized_model(PROJECT_MODEL, (384, 640), tmp_path), score_threshold=0.01)
+    a, b = shipped.detect(image), same.detect(image)
+    np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-3)
+    np.testing.assert_allclose(a.scores, b.scores, atol=1e-5)
+    small = OnnxDetector(resized_model(PROJECT_MODEL, (224, 384), tmp_path), score_threshold=0.01)
+    assert small.input_hw == (224, 384)
+    blob = np.full((1, 3, 224, 384), 114.0, np.float32)
+    assert small.raw_output(blob).shape == (anchors((224, 384)), 7)
+    small.detect(image)  # decodes with its own grid
