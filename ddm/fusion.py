@@ -12,12 +12,13 @@
   older than a track's state (out of sequence) is moved forward to the track's time with its own velocity
   and its variance inflated.
 - Merge: two tracks closer than ``merge_distance_m`` with compatible velocities (unless one is too young
-  to know its velocity), not both seen by one RSU, are one car (:func:`duplicate_pairs`, :func:`mergeable`).
+  to know its velocity), not both seen by one RSU, are one car (:func:`duplicates`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from operator import attrgetter
 
@@ -228,23 +229,25 @@ def label(store: TrackStore, ri: int, objs: list[DetectedObject], st: np.ndarray
 
 
 # ---------------------------------------------------------------------------------------------- merge
-def duplicate_pairs(store: TrackStore, now: float, cfg: DdmConfig) -> list[tuple[int, int]]:
-    """Slot pairs of live tracks predicted within ``merge_distance_m`` of each other at ``now``."""
+def duplicates(store: TrackStore, now: float, cfg: DdmConfig) -> Iterator[tuple[int, int]]:
+    """(keep, drop) slots of close tracks that are one car: predicted within ``merge_distance_m`` at
+    ``now``, both alive, velocities within ``gate_speed_mps`` (unless one is younger than
+    ``velocity_settle_s``: position decides), no RSU sees both; the older id keeps. Judged a pair at a
+    time: the caller merges each (``TrackStore.absorb``, then deletes ``drop``) before the next."""
     live = store.live_slots()
     if len(live) < 2:
-        return []
-    px, py, _, _ = predicted(store.cols, live, now, cfg.accel_noise_m2ps4)
-    pairs = cKDTree(np.column_stack([px, py])).query_pairs(cfg.merge_distance_m, output_type="ndarray")
-    return [(int(live[a]), int(live[b])) for a, b in pairs.tolist()]
-
-
-def mergeable(store: TrackStore, sa: int, sb: int, now: float, cfg: DdmConfig) -> bool:
-    """Two close tracks are one car: both alive, velocities within ``gate_speed_mps`` (unless one is
-    younger than ``velocity_settle_s``: position decides), and no RSU sees both."""
+        return
     c = store.cols
-    if not (c.alive[sa] and c.alive[sb]):
-        return False
-    young = min(now - c.first_s[sa], now - c.first_s[sb]) < cfg.velocity_settle_s
-    if not young and math.hypot(c.vx_mps[sa] - c.vx_mps[sb], c.vy_mps[sa] - c.vy_mps[sb]) > cfg.gate_speed_mps:
-        return False
-    return not (store.rsus_of(sa) & store.rsus_of(sb))
+    px, py, _, _ = predicted(c, live, now, cfg.accel_noise_m2ps4)
+    pairs = cKDTree(np.column_stack([px, py])).query_pairs(cfg.merge_distance_m, output_type="ndarray")
+    alive, first_s, vx, vy, gid = c.alive, c.first_s, c.vx_mps, c.vy_mps, c.gid  # changed in place only
+    for a, b in pairs.tolist():
+        sa, sb = int(live[a]), int(live[b])
+        if not (alive[sa] and alive[sb]):
+            continue
+        young = min(now - first_s[sa], now - first_s[sb]) < cfg.velocity_settle_s
+        if not young and math.hypot(vx[sa] - vx[sb], vy[sa] - vy[sb]) > cfg.gate_speed_mps:
+            continue
+        if store.share_an_rsu(sa, sb):
+            continue  # one RSU sees both: two cars
+        yield (sa, sb) if gid[sa] < gid[sb] else (sb, sa)

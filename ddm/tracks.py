@@ -248,9 +248,10 @@ class TrackStore:
             if b is not None:
                 self._keys_of_slot.get(b[0], set()).discard((ri, oid))
 
-    def rsus_of(self, slot: int) -> set[int]:
-        """Indexes of the RSUs whose objects are bound to the track."""
-        return {ri for ri, _ in self._keys_of_slot.get(slot, ())}
+    def share_an_rsu(self, slot_a: int, slot_b: int) -> bool:
+        """Objects of one RSU are bound to both tracks (that RSU sees two cars)."""
+        keys = self._keys_of_slot
+        return bool({ri for ri, _ in keys.get(slot_a, ())} & {ri for ri, _ in keys.get(slot_b, ())})
 
     # ------------------------------------------------------------------ reading
     def records(self, slots: np.ndarray, now: float, is_ev: np.ndarray) -> list[Track]:

@@ -268,15 +268,11 @@ class CorridorWorld:
             self.vehicles[vehicle].track_id = None
 
     def _merge_duplicates(self, now: float) -> None:
-        """Close tracks that are one car (``fusion.mergeable``): the older id keeps them."""
-        gid = self.store.cols.gid
-        for sa, sb in fusion.duplicate_pairs(self.store, now, self.config):
-            if not fusion.mergeable(self.store, sa, sb, now, self.config):
-                continue
-            keep, drop = (sa, sb) if gid[sa] < gid[sb] else (sb, sa)
+        """Close tracks that are one car (``fusion.duplicates``): the older id keeps them."""
+        for keep, drop in fusion.duplicates(self.store, now, self.config):
             aid = self.store.absorb(keep, drop)
             if aid is not None and aid in self.alerts:
-                self.alerts[aid].track_id = int(gid[keep])
+                self.alerts[aid].track_id = int(self.store.cols.gid[keep])
             self._delete(drop)
             self.stats.merged += 1
 
