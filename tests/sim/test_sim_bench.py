@@ -14,3 +14,4 @@ def test_sim_bench_quick_prints_json_figures_last():
     assert figures["render_fps_1280x720"] > 0 and figures["world_steps_per_s"] > 0
     assert figures["vehicles_in_view"] == 20
     assert 0 < figures["render_ms"] < figures["render_ms_reference"]  # the cached path is the cheaper one
+    assert figures["render_ms_max"] == max(figures["render_ms"], figures["render_ms_dusk"], figures["render_ms_night"])
