@@ -72,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--test-episodes", type=int, default=8, help="held-out episodes (the bench's seeds 2000..)")
     p.add_argument("--stride-s", type=float, default=0.2, help="sim time between recorded frames (default 0.2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the augmentation and sensor noise")
+    p.add_argument("--episode-offset", type=int, default=0,
+                   help="train seeds start here, val at 1000 + it (a second export on other roads)")
+    p.add_argument("--late-triggers", default="", metavar="M,M",
+                   help="train/val episodes cycle through the DDM's trigger and these late ones (m to the debris): "
+                        "demonstrations of avoiding debris seen late")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     sub.add_parser("list", help="list the scenarios")
     for p in sub.choices.values():
@@ -111,7 +116,10 @@ def main(argv: list[str] | None = None) -> int:
             from sim.export_driving import DrivingExportConfig, export_driving
             counts = export_driving(DrivingExportConfig(
                 out=args.out, train_episodes=args.train_episodes, val_episodes=args.val_episodes,
-                test_episodes=args.test_episodes, stride_s=args.stride_s, seed=args.seed), progress=not args.quiet)
+                test_episodes=args.test_episodes, stride_s=args.stride_s, seed=args.seed,
+                episode_offset=args.episode_offset,
+                late_triggers_m=tuple(float(v) for v in args.late_triggers.split(",") if v.strip())),
+                progress=not args.quiet)
             print(" ".join(f"{k}={v}" for k, v in counts.items()))
             return 0
         print("\n".join(list_scenarios()))

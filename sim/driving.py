@@ -170,9 +170,12 @@ def blocking_threat(sc: DrivingScenario, s_car: float, d_car: float, hazards: li
 
 
 def run(sc: DrivingScenario, driver: str, camera_steering: CameraSteering | None = None, seed: int = 0,
-        sim: SimulatedVehicle | None = None, max_duration_s: float = 40.0) -> Trace:
+        sim: SimulatedVehicle | None = None, max_duration_s: float = 40.0, late_trigger_m: float | None = None) -> Trace:
     """Drive ``sc`` with ``driver`` in {"teacher", "iea", "camera"}; for "camera", ``sim`` is the car to drive
-    (a ``LearnedVehicle``) and ``camera_steering`` is called every CAMERA_PERIOD_S."""
+    (a ``LearnedVehicle``) and ``camera_steering`` is called every CAMERA_PERIOD_S. ``late_trigger_m``: the
+    teacher waits until the debris is this close (centre to centre along the road) before it steers away
+    (training data only: demonstrations of a late avoidance, the states a learned car that saw the debris late
+    is in)."""
     if driver not in ("teacher", "iea", "camera"):
         raise ValueError(f"driver must be teacher, iea or camera, got {driver!r}")
     if driver == "camera" and (camera_steering is None or sim is None):
@@ -208,7 +211,8 @@ def run(sc: DrivingScenario, driver: str, camera_steering: CameraSteering | None
                 ex, ey, _ = sim.core.estimator.pose
                 s_car, d_car = (float(v[0]) for v in frame.to_frenet(ex, ey))
             threat_used = blocking_threat(sc, s_car, d_car, seen, params)
-            if threat_used > THREAT_THRESHOLD:
+            late = late_trigger_m is not None and all(h[0] - s_car > late_trigger_m for h in seen)
+            if threat_used > THREAT_THRESHOLD and not late:
                 cmd = _lane_change(sc, frame, cfg, s_car, d_car, now, sim.core.vehicle_id)
                 pending = (now + (COMMAND_LATENCY_S if driver == "iea" else 0.0), cmd)
                 commanded = True

@@ -50,6 +50,11 @@ class DrivingExportConfig:
     stride_s: float = 0.2
     seed: int = 0
     """Seed of the augmentation and of the sensors' noise."""
+    episode_offset: int = 0
+    """Train seeds start at this (val at 1000 + it): a second export with other roads."""
+    late_triggers_m: tuple[float, ...] = ()
+    """Train/val debris episodes cycle through the DDM's trigger and these late ones (``sim.driving.run``'s
+    ``late_trigger_m``): demonstrations of avoiding debris seen late."""
 
     def __post_init__(self) -> None:
         for name in ("train_episodes", "val_episodes", "test_episodes"):
@@ -57,6 +62,11 @@ class DrivingExportConfig:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.train_episodes + self.val_episodes + self.test_episodes == 0:
             raise ValueError("nothing to export: give at least one episode")
+        if not 0 <= self.episode_offset < 1000 - max(self.train_episodes, self.val_episodes):
+            raise ValueError(f"episode_offset must keep train and val seeds under 1000 and 2000 (the test seeds), "
+                             f"got {self.episode_offset}")
+        if any(not 5.0 <= t <= 60.0 for t in self.late_triggers_m):
+            raise ValueError(f"late_triggers_m must be in [5, 60] m, got {self.late_triggers_m}")
         if not 0.1 <= self.stride_s <= 5.0 or abs(self.stride_s / 0.1 - round(self.stride_s / 0.1)) > 1e-6:
             raise ValueError(f"stride_s must be a multiple of 0.1 s in [0.1, 5], got {self.stride_s}")
 
@@ -80,10 +90,11 @@ def augment(image: np.ndarray, mask: np.ndarray, steer_rad: float, rng: np.rando
     return img, msk, steer_rad, flip
 
 
-def episode_frames(seed: int, with_debris: bool, stride_s: float, rng: np.random.Generator) -> list[dict]:
+def episode_frames(seed: int, with_debris: bool, stride_s: float, rng: np.random.Generator,
+                   late_trigger_m: float | None = None) -> list[dict]:
     """The three cameras' frames of one teacher episode."""
     sc = make_scenario(seed, with_debris)
-    trace = run(sc, "teacher", seed=seed).arrays()
+    trace = run(sc, "teacher", seed=seed, late_trigger_m=late_trigger_m).arrays()
     cam, actors = DashCamera(sc.road, seed=sc.seed), sc.actors()
     every = int(round(stride_s / 0.1))
     out = []
@@ -127,9 +138,10 @@ def export_driving(cfg: DrivingExportConfig, progress: bool = True) -> dict[str,
     for split, n in (("train", cfg.train_episodes), ("val", cfg.val_episodes), ("test", cfg.test_episodes)):
         frames: list[dict] = []
         for k in range(n):
-            seed = SPLIT_SEED_BASE[split] + k
+            seed = SPLIT_SEED_BASE[split] + k + (cfg.episode_offset if split != "test" else 0)
             with_debris = split == "test" or k % 4 != 3
-            ep = episode_frames(seed, with_debris, cfg.stride_s, rng)
+            triggers = (None, *cfg.late_triggers_m) if split != "test" else (None,)
+            ep = episode_frames(seed, with_debris, cfg.stride_s, rng, triggers[k % len(triggers)])
             if split != "test":
                 for f in list(ep):
                     img, msk, steer, flip = augment(f["image"], f["mask"], f["steer"], rng)
