@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import signal
 import sys
-import threading
 
 from ddm.config import DdmConfig
 from protocol import metrics
@@ -50,45 +47,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(parser, args, stream=sys.stderr)
-    from ddm.service import DdmService
-    from protocol.clock import WallClock
-    from protocol.corridor import CorridorError, load_corridor
-    from protocol.keys import all_rsus_expr
-    from protocol.security import TrustList, load_signer
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from ddm.build import DdmOptions, run_ddm
+    from protocol.corridor import CorridorError
+    from protocol.transport import ZenohSettings
 
     try:
-        corridor = load_corridor(args.corridor)
-        config = DdmConfig(rate_hz=args.rate_hz, startup_listen_s=args.startup_listen_s)
-        settings = ZenohSettings.from_args(args)
-        all_rsus_expr(args.corridor_id or corridor.corridor_id)  # a corridor id that cannot be a key chunk fails here
-        trust = TrustList.from_corridor(corridor)
-        signer = load_signer(args.key, args.key_id, trust) if args.key else None
+        options = DdmOptions(
+            corridor_file=args.corridor, corridor_id=args.corridor_id, ddm_id=args.ddm_id,
+            config=DdmConfig(rate_hz=args.rate_hz, startup_listen_s=args.startup_listen_s), key=args.key,
+            key_id=args.key_id, verify_alerts=args.verify_alerts, zenoh=ZenohSettings.from_args(args))
         metrics.serve_from_args(args, "ddm", "ddm")
-    except (CorridorError, ValueError) as exc:
+        return run_ddm(options)
+    except (CorridorError, ValueError, FileNotFoundError) as exc:
         print(f"iea-ddm: {exc}", file=sys.stderr)
         return 2
-    log = logging.getLogger("ddm")
-    if signer is not None:
-        log.info("signing commands with key %r", signer.key_id)
-        if signer.key_id not in trust.keys:
-            log.warning("key %r is not in the corridor's trust list: vehicles will refuse its commands", signer.key_id)
-    elif trust.has_role("ddm"):
-        log.warning("the corridor trusts DDM keys but no --key was given: vehicles will refuse unsigned commands")
-    else:
-        log.warning("commands are NOT signed (no --key)")
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    transport = ZenohTransport(settings)
-    service = DdmService(transport, WallClock(), corridor, config, corridor_id=args.corridor_id, ddm_id=args.ddm_id,
-                         signer=signer, verify_alerts=args.verify_alerts)
-    try:
-        service.run(stop)
-    finally:
-        service.close()
-        transport.close()
-    return 0
 
 
 if __name__ == "__main__":

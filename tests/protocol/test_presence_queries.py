@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from ddm.build import DdmOptions, build_ddm
 from ddm.service import DdmService
 from deploy import status
 from protocol import keys, presence, qos
@@ -224,7 +225,7 @@ def _stub(spawn, endpoint: str, corridor_id: str):
 def test_killed_rsu_known_stale_from_its_token_over_zenoh(spawn, router, corridor_id):
     stub = _stub(spawn, router, corridor_id)
     t = ZenohTransport(ZenohSettings(mode="client", connect=[router]))
-    ddm = DdmService(t, WallClock(), load_corridor(), corridor_id=corridor_id)
+    ddm = build_ddm(DdmOptions(corridor_id=corridor_id), t, WallClock())
     try:
         assert _wait(lambda: len(ddm.presence.alive.get("rsu", ())) == 4, 10.0) is not None
         t_kill = time.perf_counter()
@@ -244,7 +245,7 @@ def test_late_ddm_ev_aware_at_once_over_zenoh(spawn, router, corridor_id):
     time.sleep(0.5)  # an alert repeat (2 Hz) is not what the late DDM waits for
     t0 = time.time()
     t = ZenohTransport(ZenohSettings(mode="client", connect=[router]))
-    ddm = DdmService(t, WallClock(), load_corridor(), corridor_id=corridor_id)
+    ddm = build_ddm(DdmOptions(corridor_id=corridor_id), t, WallClock())
     try:
         assert _wait(lambda: ddm.ev_aware_s is not None, 5.0, step=ddm.step) is not None
         assert ddm.catch_up_replies.get("ev") == 1  # learned from the RSU's answer, not a repeat

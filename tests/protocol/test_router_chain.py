@@ -12,10 +12,9 @@ import time
 
 import pytest
 
-from ddm.service import DdmService
+from ddm.build import DdmOptions, build_ddm
 from protocol import keys
 from protocol.clock import WallClock
-from protocol.corridor import load_corridor
 from protocol.transport import ZenohSettings, ZenohTransport
 from tests.protocol.test_presence_queries import ROOT, _acl_checks, _free_port, _wait, _wait_line
 
@@ -53,7 +52,7 @@ def test_two_routers_in_a_chain_with_acl_on_both(spawn, tmp_path, corridor_id, a
     commands: list = []
     watcher.subscribe(keys.vehicle_key(corridor_id, "av1", "cmd"), lambda _k, m: commands.append(m))
     t = join(core_ep, "ddm")
-    ddm = DdmService(t, WallClock(), load_corridor(corridor_file), corridor_id=corridor_id)
+    ddm = build_ddm(DdmOptions(corridor_file=str(corridor_file), corridor_id=corridor_id), t, WallClock())
     try:
         assert ddm.catch_up_replies.get("ev") == 1 and ddm.ev_aware_s is not None  # through both routers
         assert ddm.presence.alive.get("rsu") == {"rsu1", "rsu2", "rsu3", "rsu4"}
