@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import logging
-import signal
 import sys
 
 from protocol import metrics
 from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.runtime import stop_on_ctrl_c
 from protocol.transport import ZenohSettings
-from vehicle.localisation import FixSourceConfig
 
 
 def _positive(text: str) -> float:
@@ -92,81 +88,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from protocol.clock import WallClock
-    from protocol.corridor import CorridorError, load_corridor
-    from protocol.security import TrustList
-    from protocol.transport import ZenohTransport
-    from vehicle.commands import CommandGate
-    from vehicle.core import CoreConfig
-    from vehicle.failsafe import FailsafeConfig
-    from vehicle.service import VehicleService
+    from vehicle.build import VehicleOptions, run_vehicle
 
     configure_logging(args.parser, args)
-    corridor = load_corridor(args.corridor)
-    if args.corridor_id:
-        corridor = dataclasses.replace(corridor, corridor_id=args.corridor_id)
+    options = VehicleOptions(
+        corridor_file=args.corridor, corridor_id=args.corridor_id, vehicle_id=args.vehicle, start_s_m=args.start_s,
+        start_lane=args.start_lane, cruise_speed_mps=args.speed, localisation=args.localisation,
+        gnss_sigma_m=args.gnss_sigma, gnss_rate_hz=args.gnss_rate, gnss_latency_s=args.gnss_latency,
+        link_timeout_s=args.link_timeout, localisation_stale_s=args.localisation_stale, seed=args.seed,
+        record=args.record is not None, require_signed=args.require_signed, steering=args.steering,
+        zenoh=ZenohSettings.from_args(args))
+    metrics.serve_from_args(args, "vehicle", args.vehicle)
     try:
-        vc = corridor.vehicle(args.vehicle)
-        corridor = corridor.with_vehicle(
-            args.vehicle, start_s_m=vc.start_s_m if args.start_s is None else args.start_s,
-            start_lane=vc.start_lane if args.start_lane is None else args.start_lane,
-            cruise_speed_mps=vc.cruise_speed_mps if args.speed is None else args.speed)
-    except KeyError as exc:
+        return run_vehicle(options, args.duration, args.record)
+    except KeyError as exc:  # an unknown vehicle
         print(f"iea-vehicle: {exc.args[0]}", file=sys.stderr)
         return 2
-    except CorridorError as exc:
+    except FileNotFoundError as exc:  # the learned steering's model
         print(f"iea-vehicle: {exc}", file=sys.stderr)
         return 2
-    trust = TrustList.from_corridor(corridor)
-    gate = CommandGate.from_trust(trust, args.require_signed)
-    if args.require_signed and not gate.active:
-        print("iea-vehicle: --require-signed needs [[trust]] entries with role = 'ddm' in the corridor file",
-              file=sys.stderr)
-        return 2
-    settings = ZenohSettings.from_args(args)
-    try:
-        metrics.serve_from_args(args, "vehicle", args.vehicle)
-    except ValueError as exc:
-        print(f"iea-vehicle: {exc}", file=sys.stderr)
-        return 2
-    config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=args.link_timeout,
-                                                localisation_stale_s=args.localisation_stale))
-    fix = FixSourceConfig("gnss", args.gnss_sigma, args.gnss_rate, args.gnss_latency)
-    transport = ZenohTransport(settings)
-    service = VehicleService(transport, WallClock(), corridor, args.vehicle, config=config,
-                             localisation=args.localisation, fix_source=fix, seed=args.seed,
-                             record=args.record is not None, gate=gate)
-    log = logging.getLogger("iea-vehicle")
-    if args.steering != "thesis":
-        from vehicle.learned_steering import attach_camera
-        try:
-            attach_camera(service, transport, int(args.steering.split(":")[1]))
-        except FileNotFoundError as exc:
-            print(f"iea-vehicle: {exc}", file=sys.stderr)
-            service.close()
-            transport.close()
-            return 2
-        log.info("steering: %s (dashcam CNN while driving in lane; thesis controller for manoeuvres and fail-safe)",
-                 args.steering)
-    if gate.active:
-        log.info("commands verified against %d trusted key(s); unsigned commands %s", len(trust.keys),
-                 "refused" if gate.require_signed else "accepted")
-    else:
-        log.warning("no DDM key in the corridor's trust list: commands are NOT authenticated")
-    signal.signal(signal.SIGTERM, lambda *_: service.stop())
-    log.info("vehicle %s on corridor %s: publishing %s", args.vehicle,
-                                          corridor.corridor_id, service.state_key)
-    try:
-        service.run(args.duration)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        service.close()
-        transport.close()
-        if args.record and service.record is not None:
-            from vehicle.record import write_run
-            write_run(args.record, service.record)
-    return 0
 
 
 def _cmd_lockstep(args: argparse.Namespace) -> int:
