@@ -9,6 +9,7 @@ COPY ddm ./ddm
 COPY vehicle ./vehicle
 COPY sim ./sim
 COPY deploy ./deploy
+COPY scenario ./scenario
 COPY models ./models
 RUN pip install .
 USER nobody

@@ -140,7 +140,7 @@ def one_lockstep_run(seed: int, duration_s: float, ddm_config: Any = None) -> di
         ddm_log.propagate = propagate
     m["ddm_decisions"] = [d for _, d in decisions.records[:2]]
     add_hops(m, runner.monitor.events, decisions.records)
-    return m  # m["yield"]: the one yield judge's verdict (deploy/outcome.py), from the run monitor
+    return m  # m["yield"]: the one yield judge's verdict (scenario/outcome.py), from the run monitor
 
 
 def print_distribution(title: str, runs: list[dict[str, Any]]) -> dict[str, dict[str, float | None]]:

@@ -3,7 +3,7 @@
 ``deploy/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
 on one SimClock; one fault per run. Slower than the rig of ``deploy/faults.py`` (every camera frame is
 rendered: ~2-3x the scenario time on a loaded 2-core machine) but end to end. Every row passes only on
-its own criterion AND the one yield judge's verdict (``deploy/outcome.py``, from the run monitor's ground
+its own criterion AND the one yield judge's verdict (``scenario/outcome.py``, from the run monitor's ground
 truth). A row that failed is *beyond the bound* when the fault alone delays the command by more than the
 perfect-link run of the same seed had to spare (its margin): a shift of that run's manoeuvre (the same EV
 speed and lane change) by the fault's delay could not clear the lane in time. A perfect-link run that
@@ -82,7 +82,7 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     runner.bus.subscribe(keys.ddm_health_key(c), lambda k, m: health_stale.append((runner.clock.now(), list(m.stale))))
     m = runner.run()
 
-    verdict = m.get("yield")  # the one yield judge (deploy/outcome.py), from the run monitor's ground truth
+    verdict = m.get("yield")  # the one yield judge (scenario/outcome.py), from the run monitor's ground truth
     yield_ok = bool(verdict and verdict["passed"])
     outcome = "no yield verdict" if not verdict else f"{verdict['status']}: {verdict['reason']}"
     margin = None if not verdict else verdict["margin_s"]

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from deploy.outcome import YieldTrace
+from scenario.outcome import YieldTrace
 from deploy.procs import ServiceGroup, child_env, corridor_services
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,7 +63,7 @@ class RunMonitor:
     road: Any = None
     """The corridor road (protocol.corridor.Road): lanes in road coordinates; None: y is the lateral offset."""
     trace: YieldTrace | None = None
-    """The AV's and the EV's ground truth for the one yield judge (``deploy.outcome.judge_yield``)."""
+    """The AV's and the EV's ground truth for the one yield judge (``scenario.outcome.judge_yield``)."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def mark(self, name: str, t: float) -> None:
@@ -127,7 +127,7 @@ class RunMonitor:
             return
         if ev is not None and ev.pos_x_m > av.pos_x_m + av.length_m / 2 + ev.length_m / 2:
             self.mark("ev_passed_av", snap.stamp)
-        if self.road is not None:  # the yield judge reads the EV's lane from its own path (deploy/outcome.py)
+        if self.road is not None:  # the yield judge reads the EV's lane from its own path (scenario/outcome.py)
             if self.trace is None:
                 self.trace = YieldTrace(road=self.road)
             self.trace.on_snapshot(snap, self.road)
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     m = run_demo(args.scenario, args.duration_s, Path(args.runs), detector=args.detector, signed=not args.unsigned,
                  record=not args.no_record)
     print_summary(m)
-    from deploy.outcome import judge_run
+    from scenario.outcome import judge_run
     from sim.scenario import load_scenario
 
     sc = load_scenario(args.scenario)

@@ -13,7 +13,7 @@ Two runners:
 - the process-level faults (an RSU killed, the DDM killed and restarted, the router restarted) run
   the corridor's real processes over Zenoh on loopback: see ``deploy/process_faults.py``.
 
-Outcome of an EV-yield run (issue 18): the one yield judge, ``deploy.outcome.judge_yield``, on ground truth:
+Outcome of an EV-yield run (issue 18): the one yield judge, ``scenario.outcome.judge_yield``, on ground truth:
 pass only when the AV's body is out of the EV's lane before the EV is within its following distance of
 it (2 m + 1 s x its speed), with no collision; stopped in the lane, blocked and "the EV never reached the
 AV" are failures. Every row passes only on its own criterion AND that outcome.
@@ -38,7 +38,7 @@ from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from deploy.outcome import Body, YieldTrace, out_of_strip
+from scenario.outcome import Body, YieldTrace, out_of_strip
 from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.corridor import Corridor, load_corridor

@@ -305,7 +305,7 @@ def scenario_main(argv: list[str] | None = None) -> int:
     import argparse
     import json
 
-    from deploy.outcome import judge_run
+    from scenario.outcome import judge_run
     from sim.scenario import ScenarioError, list_scenarios
 
     ap = argparse.ArgumentParser(

@@ -4,7 +4,7 @@ Each function starts the corridor as ``iea up`` does (a router on a free loopbac
 DDM, the RSUs with ``--source sim`` and the simulator running ``rellis_ev_yield``, all as processes),
 breaks one thing, and returns a ``FaultOutcome`` measured from what a client of the router heard
 (the simulator's ground truth only scores the run). Every row passes only on its own criterion below AND
-the one yield judge's verdict of the run (``deploy/outcome.py``: out of the EV's lane before it reached
+the one yield judge's verdict of the run (``scenario/outcome.py``: out of the EV's lane before it reached
 the AV):
 
 - ``rsu_killed``: the RSU that raised the first EvAlert is SIGKILLed at once (the EV is in its view).

@@ -181,7 +181,7 @@ class Up:
         return "up: " + " ".join(parts)
 
     def metrics(self) -> dict[str, Any]:
-        m = self.monitor.metrics()  # m["yield"]: the one yield judge's verdict (deploy/outcome.py)
+        m = self.monitor.metrics()  # m["yield"]: the one yield judge's verdict (scenario/outcome.py)
         m["restarts"] = dict(self.group.restarts)
         m["exit_codes"] = self.group.exited()
         return m

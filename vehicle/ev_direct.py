@@ -13,7 +13,7 @@ car then acts on its own, on evidence it can trust, and only when it must:
   a command later than the deadline is late; a DDM heard alive after the alert that sends nothing is waiting
   on purpose, for a gap in lane 0); and the car is cruising (a DDM manoeuvre is never overridden);
 - the EV will come within its **following distance** of the car (2 m + 1 s x its speed, the yield
-  judge's reach, ``deploy/outcome.py``) within ``reach_horizon_s``: an EV far behind or not closing
+  judge's reach, ``scenario/outcome.py``) within ``reach_horizon_s``: an EV far behind or not closing
   leaves the DDM time; the DDM may be holding the car at speed on purpose (a car beside it in lane 0).
 
 The manoeuvre is the fail-safe's stop at the curb (``VehicleCore.direct_pull_over``), holding the speed

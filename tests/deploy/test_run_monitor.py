@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from deploy.demo import RunMonitor
-from deploy.outcome import judge_run
+from scenario.outcome import judge_run
 from protocol import keys
 from protocol.corridor import load_corridor
 from protocol.messages import Actor, LightBar, ObjectList, WorldSnapshot

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from deploy.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
-from deploy.outcome import judge_run
+from scenario.outcome import judge_run
 from protocol.messages import ClearReason
 
 

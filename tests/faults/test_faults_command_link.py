@@ -3,7 +3,7 @@
 The real DdmService and VehicleService on one SimClock; every message to and from the vehicle passes a
 DsrcLink with the channel under test; scripted RSUs report the EV approach (deploy/faults.py) with the
 first EvAlert at the measured p99 alert delay. Each row passes only on its own criterion AND the one
-yield judge (deploy/outcome.py); a row that cannot pass physically is listed beyond its computed bound.
+yield judge (scenario/outcome.py); a row that cannot pass physically is listed beyond its computed bound.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The one yield judge (deploy/outcome.py, issue 18): pass only out of the EV's lane before the EV is within
+"""The one yield judge (scenario/outcome.py, issue 18): pass only out of the EV's lane before the EV is within
 its following distance; stopped in the lane, blocked, never reached and collisions fail."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from deploy.outcome import Body, YieldParams, YieldTrace, judge_run, judge_yield
+from scenario.outcome import Body, YieldParams, YieldTrace, judge_run, judge_yield
 
 AV = (5.0, 2.0)  # length, width
 EV = (6.5, 2.4)
@@ -87,7 +87,7 @@ def test_heading_turns_the_body_across_the_lane():
     turned = Body(0.0, 2.6, *AV, 10.0, heading_error_rad=math.radians(10))
     v1 = judge_yield([], YieldParams())
     assert v1.status == "no_lights"
-    from deploy.outcome import out_of_strip
+    from scenario.outcome import out_of_strip
 
     assert out_of_strip(straight, (3.7, 7.4)) and not out_of_strip(turned, (3.7, 7.4))
 
