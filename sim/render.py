@@ -37,7 +37,7 @@ from sim.bodies import (
 )
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
-from sim.render_effects import halo_numbers, line_kernel
+from sim.render_effects import halo_numbers, line_kernel, shade_faces
 from sim.scenery import LIGHTING, render_scenery
 
 MIN_VISIBLE_FRACTION = 0.3
@@ -184,16 +184,24 @@ class Renderer:
             model.off_bgr[lighting] = cols
         return cols
 
-    def _pose(self, a: Actor):
-        """Project the actor's body model: (model, rot, uv (N, 2), depth (N,)) with one 3x3 product."""
-        model = self._model(a)
-        c, s = math.cos(a.heading_rad), math.sin(a.heading_rad)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        m = self.cam.KR @ rot
-        tvec = self.cam.KR @ (np.array([a.pos_x_m, a.pos_y_m, 0.0]) - self.cam.C)
-        h = model.points @ m.T + tvec
+    def _pose_all(self, actors: list[Actor]) -> list[tuple]:
+        """Per actor (model, (m, tvec), rot, uv (N, 2), depth (N,)): its body model posed and projected, every actor's
+        points in one batched product (m = K R rot, tvec = K R (position - C))."""
+        if not actors:
+            return []
+        models = [self._model(a) for a in actors]
+        rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in
+                         ((math.cos(a.heading_rad), math.sin(a.heading_rad)) for a in actors)])
+        m = self.cam.KR @ rots  # (A, 3, 3)
+        tvec = (np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]) - self.cam.C) @ self.cam.KR.T  # (A, 3)
+        counts = [len(md.points) for md in models]
+        idx = np.repeat(np.arange(len(actors)), counts)
+        h = np.einsum("nij,nj->ni", m[idx], np.concatenate([md.points for md in models])) + tvec[idx]
         depth = h[:, 2]
-        return model, (m, tvec), rot, h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None], depth
+        uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
+        ends = np.cumsum(counts).tolist()
+        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], depth[e - n:e])
+                for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
 
     @staticmethod
     def _blur_from_pose(a: Actor, pose: tuple[np.ndarray, np.ndarray], exposure_s: float) -> np.ndarray | None:
@@ -223,7 +231,6 @@ class Renderer:
         C = self.cam.C
         sun = np.array(L["sun_dir"], dtype=float)
         sun /= np.linalg.norm(sun)
-        gain = L["scene_gain"]
         glows: list[tuple[np.ndarray, tuple, float]] = []
         lamp_pts: dict[tuple[str, str], list] = {}
         drawn = []
@@ -233,8 +240,7 @@ class Renderer:
         if pools:
             pool_uv, pool_ok = self._pool_quads(ordered)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
-        for i_a, a in enumerate(ordered):
-            model, pose, rot, uv, depth = self._pose(a)
+        for i_a, (a, (model, pose, rot, uv, depth)) in enumerate(zip(ordered, self._pose_all(ordered), strict=True)):
             n_corner = 8 * len(model.parts)
             if np.any(depth[:n_corner] <= NEAR_M):
                 continue
@@ -249,20 +255,17 @@ class Renderer:
                 self._draw_shadow(img, corners_w, sun, 0.45 * L["sun"] / 0.55)
             if pools and pool_ok[i_a] and a.kind.value != "debris":
                 self._draw_headlight_pool(img, pool_uv[i_a], pool_colour)
-        for a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi in drawn:
-            if x_hi < 0 or x_lo >= self.w:
-                continue
+        drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
+        vis_all, colours_all, first_part = shade_faces(
+            [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
+        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi) in enumerate(drawn):
             parts, decals = model.parts, model.decals
             n_corner = 8 * len(parts)
             blur_px = self._blur_from_pose(a, pose, L["exposure_s"]) if self.blur_enabled else None
             uv16 = np.round(uv * 16).astype(np.int32)
             cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
-            n_w = model.normals @ rot.T
-            fc_w = model.centres @ rot.T + (a.pos_x_m, a.pos_y_m, 0.0)
-            vis = (np.sum(n_w * (C - fc_w), axis=-1) > 0) & model.face_ok
-            shade = L["ambient"] + L["sun"] * np.maximum(0.0, n_w @ sun)
-            shade = np.where(model.glass, 0.6 + 0.5 * shade * np.where(model.top, 1.3, 1.0), shade)
-            colours = np.clip(model.base_bgr * shade[..., None] * gain, 0, 255).tolist()
+            p0 = first_part[k_a]
+            vis, colours = vis_all[p0:first_part[k_a + 1]], colours_all[p0:]
             face16 = np.ascontiguousarray(uv16[:n_corner].reshape(len(parts), 8, 2)[:, FACE_IDX])  # (P, faces, 4, 2)
             for p_i, f_i in zip(*np.nonzero(vis), strict=True):
                 cv2.fillConvexPoly(img, face16[p_i, f_i], colours[p_i][f_i], cv2.LINE_AA, 4)

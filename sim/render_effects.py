@@ -1,5 +1,5 @@
-"""Pure per-frame numbers of the renderer's effects (issue 19: computed with a few array operations instead of a
-Python loop per lamp or kernel tap), kept apart from ``sim.render`` so they can be tested alone."""
+"""Pure per-frame numbers of the renderer (issue 19: computed with a few array operations instead of a Python loop
+per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be tested alone."""
 
 from __future__ import annotations
 
@@ -48,3 +48,23 @@ def halo_numbers(glows: list[tuple[np.ndarray, tuple, float]], scale: float) -> 
     cores = np.maximum(1, (sizes / 12).astype(int)).tolist()
     return [(cx, cy, r, tuple(col), hot, core) for (cx, cy), r, col, hot, core in
             zip(np.round(centres).astype(int).tolist(), radii, cols, (strengths >= 1.0).tolist(), cores, strict=True)]
+
+
+def shade_faces(posed: list[tuple], camera_centre: np.ndarray, lighting: dict, sun: np.ndarray
+                ) -> tuple[np.ndarray, list, list[int]]:
+    """The part faces of every posed actor ((body model, rotation 3x3, x m, y m) each), together: which face the
+    camera ((S, 5) bool over the S parts of all), their shaded colours ((S, 5) BGR lists: base colour x (ambient +
+    sun max(0, n . sun)), glass 0.6 + 0.5 shade (x 1.3 on top), x the scene gain, clipped) and each actor's first
+    part index (S at the end)."""
+    models = [p[0] for p in posed]
+    counts = [len(md.parts) for md in models]
+    rots_t = np.repeat(np.stack([p[1] for p in posed]).transpose(0, 2, 1), counts, axis=0)  # (S, 3, 3)
+    pos = np.repeat(np.array([(p[2], p[3], 0.0) for p in posed]), counts, axis=0)
+    n_w = np.concatenate([md.normals for md in models]) @ rots_t
+    fc_w = np.concatenate([md.centres for md in models]) @ rots_t + pos[:, None, :]
+    vis = (np.sum(n_w * (camera_centre - fc_w), axis=-1) > 0) & np.concatenate([md.face_ok for md in models])
+    shade = lighting["ambient"] + lighting["sun"] * np.maximum(0.0, n_w @ sun)
+    shade = np.where(np.concatenate([md.glass for md in models]),
+                     0.6 + 0.5 * shade * np.where(np.concatenate([md.top for md in models]), 1.3, 1.0), shade)
+    colours = np.clip(np.concatenate([md.base_bgr for md in models]) * shade[..., None] * lighting["scene_gain"], 0, 255)
+    return vis, colours.tolist(), [0, *np.cumsum(counts).tolist()]

@@ -46,3 +46,34 @@ def test_halo_numbers_match_the_per_lamp_loop():
         expected.add((int(round(cx)), int(round(cy)), r, col, strength >= 1.0, max(1, int(size / 12))))
     assert set(halo_numbers(glows, scale)) == expected
     assert halo_numbers([], scale) == []
+
+
+def test_shade_faces_of_several_actors_equal_each_actors_own():
+    from protocol.messages import Actor, ActorKind
+    from sim.bodies import body_model
+    from sim.render_effects import shade_faces
+    from sim.scenery import LIGHTING
+
+    actors = [Actor(actor_id=f"a{k}", kind=ActorKind(kind), pos_x_m=20.0 + 9 * k, pos_y_m=1.85 + 3.7 * (k % 2),
+                    heading_rad=0.3 * k, length_m=size[0], width_m=size[1], height_m=size[2], speed_mps=10.0,
+                    colour_bgr=(40, 80, 160))
+              for k, (kind, size) in enumerate([("car", (4.5, 1.8, 1.5)), ("truck", (9.0, 2.5, 3.4)),
+                                                ("van", (5.5, 2.0, 2.4))])]
+    cam_c, L = np.array([0.0, -8.0, 7.0]), LIGHTING["dusk"]
+    sun = np.array(L["sun_dir"], float) / np.linalg.norm(L["sun_dir"])
+    posed = []
+    for a in actors:
+        c, s = np.cos(a.heading_rad), np.sin(a.heading_rad)
+        posed.append((body_model(a), np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), a.pos_x_m, a.pos_y_m))
+    vis, colours, first = shade_faces(posed, cam_c, L, sun)
+    assert first[-1] == len(vis) == sum(len(p[0].parts) for p in posed)
+    for k, (model, rot, x, y) in enumerate(posed):  # one actor at a time, as issue 17's renderer shades
+        n_w = model.normals @ rot.T
+        fc_w = model.centres @ rot.T + (x, y, 0.0)
+        own_vis = (np.sum(n_w * (cam_c - fc_w), axis=-1) > 0) & model.face_ok
+        shade = L["ambient"] + L["sun"] * np.maximum(0.0, n_w @ sun)
+        shade = np.where(model.glass, 0.6 + 0.5 * shade * np.where(model.top, 1.3, 1.0), shade)
+        own = np.clip(model.base_bgr * shade[..., None] * L["scene_gain"], 0, 255)
+        np.testing.assert_array_equal(vis[first[k]:first[k + 1]], own_vis)
+        np.testing.assert_allclose(colours[first[k]:first[k + 1]], own, atol=1e-9)
+        assert own_vis.any() and not own_vis.all()
