@@ -36,6 +36,7 @@ if str(ROOT) not in sys.path:
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey  # noqa: E402
 
+from deploy.procs import stop_process  # noqa: E402
 from protocol import keys  # noqa: E402
 from protocol.codec import decode, encode  # noqa: E402
 from protocol.examples import example_messages  # noqa: E402
@@ -154,11 +155,7 @@ def end_to_end(n_commands: int, timeout_s: float = 120.0) -> dict[str, float]:
                 time.sleep(0.013)  # not in phase with the vehicle's 100 Hz loop
         finally:
             transport.close()
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            stop_process(proc)
     out: dict[str, float] = {"e2e_commands_per_mode": float(min(len(v) for v in lat.values())), "e2e_lost": float(lost)}
     for mode, v in lat.items():
         if v:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -41,6 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from deploy.procs import stop_process  # noqa: E402
 from protocol import keys, qos  # noqa: E402
 from protocol.codec import encode  # noqa: E402
 from protocol.examples import example_messages  # noqa: E402
@@ -81,13 +81,8 @@ def _wait_line(p: subprocess.Popen, word: str, timeout_s: float) -> None:
 
 
 def stop(p: subprocess.Popen | None) -> None:
-    if p is not None and p.poll() is None:
-        p.send_signal(signal.SIGTERM)
-        try:
-            p.wait(5)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(5)
+    if p is not None:
+        stop_process(p, timeout_s=5.0)
 
 
 def client(endpoint: str) -> ZenohSettings:

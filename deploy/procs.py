@@ -163,17 +163,31 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
         pass
 
 
-def stop_process_group(p: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int | None:
-    """Stop a process started in its own session (``start_new_session``) and its children: ``sig`` to its group,
-    then SIGKILL after ``timeout_s``; its exit code."""
+def stop_process(p: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 10.0, *,
+                 group: bool = False) -> int | None:
+    """Stop a process: ``sig`` (to its process group with ``group``: one started with ``start_new_session``,
+    its children included), then SIGKILL after ``timeout_s``; its exit code. The one teardown of the runners,
+    benches and tests that start services."""
+    def send(s: int) -> None:
+        if group:
+            _signal_group(p, s)
+        else:
+            p.send_signal(s)
+
     if p.poll() is None:
-        _signal_group(p, sig)
+        send(sig)
         try:
             p.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            _signal_group(p, signal.SIGKILL)
+            send(signal.SIGKILL)
             p.wait(timeout=10)
     return p.returncode
+
+
+def stop_process_group(p: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int | None:
+    """Stop a process started in its own session (``start_new_session``) and its children: ``sig`` to its group,
+    then SIGKILL after ``timeout_s``; its exit code."""
+    return stop_process(p, sig, timeout_s, group=True)
 
 
 SIM_WAIT_FOR_AV_S = 30.0

@@ -14,6 +14,7 @@ from uuid import uuid4
 import pytest
 from ddm_rig import det, lane_y, object_list
 
+from deploy.procs import stop_process
 from protocol.corridor import load_corridor
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
 from protocol.messages import AckStatus, AlertState, CommandAck, EvAlert, Manoeuvre, VehicleMode, VehicleState
@@ -98,12 +99,7 @@ def test_ddm_process_pulls_over_and_retransmits_until_acked():
         assert not math.isnan(health[-1].uptime_s)
     finally:
         tr.close()
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+        stop_process(proc, timeout_s=5.0)
 
 
 def test_cli_help_and_bad_arguments(capsys):

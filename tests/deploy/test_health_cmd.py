@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 from uuid import uuid4
 
+from deploy.procs import stop_process
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -26,11 +28,7 @@ def test_health_reports_a_running_service_and_fails_for_a_silent_one():
         silent = _health("rsu", "rsu1", "--corridor-id", cid, timeout_s=2.0)  # no RSU runs
         assert silent.returncode == 1 and "no Health" in silent.stderr
     finally:
-        ddm.terminate()
-        try:
-            ddm.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            ddm.kill()
+        stop_process(ddm)
     bad = subprocess.run([sys.executable, "-m", "deploy", "health", "rsu"], capture_output=True, text=True,
                          cwd=ROOT, timeout=60)
     assert bad.returncode == 2 and "needs its id" in bad.stderr

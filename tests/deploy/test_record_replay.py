@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from deploy.procs import stop_process
 from deploy.record import McapRecorder, check_recording, peek_header, read_recording
 from deploy.replay import recorded_commands, rename_corridor, replay_into_ddm, schedule
 from protocol.codec import encode
@@ -86,7 +87,7 @@ def test_schedule_scales_by_speed_and_renames_the_corridor(tmp_path):
 
 @pytest.mark.slow
 def test_lockstep_replayed_into_a_fresh_ddm_makes_the_same_decisions(tmp_path):
-    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     path = tmp_path / "run.mcap"
     # the EV's lights come on at 4 s: the run holds the alert, the command and its ack
@@ -132,8 +133,7 @@ def test_iea_record_and_iea_replay_over_zenoh(tmp_path):
         assert f"{len(sent) + 1} messages published" in rep.stdout
         time.sleep(1.0)
     finally:
-        rec.terminate()
-        rec.wait(timeout=15)
+        stop_process(rec, timeout_s=15.0)
     def per_key(pairs):
         out: dict[str, list[bytes]] = {}
         for k, p in pairs:

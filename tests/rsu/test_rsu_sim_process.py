@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from deploy.procs import stop_process
 from protocol.keys import rsu_key
 from protocol.messages import AlertState, EvAlert
 from protocol.transport import ZenohTransport
@@ -18,13 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _stop(proc: subprocess.Popen) -> str:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+    stop_process(proc, timeout_s=5.0)
     return (proc.stderr.read() if proc.stderr else "")[-3000:]
 
 

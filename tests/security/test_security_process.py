@@ -3,7 +3,6 @@ forged and unsigned commands over Zenoh and follows the signed one; the CLIs ref
 
 from __future__ import annotations
 
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import pytest
 from sec_helpers import key, resume
 
+from deploy.procs import stop_process
 from protocol.corridor import DEFAULT_CORRIDOR
 from protocol.keys import vehicle_key
 from protocol.messages import AckStatus
@@ -69,11 +69,7 @@ def test_vehicle_process_refuses_forged_and_unsigned_commands(tmp_path, corridor
         assert all(s.mode.value == "driving" for s in states)  # the car kept cruising throughout
     finally:
         transport.close()
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc)
 
 
 def test_cli_key_errors(tmp_path, spawn):

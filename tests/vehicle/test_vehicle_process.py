@@ -11,6 +11,7 @@ from uuid import uuid4
 import pytest
 from vehicle_helpers import make_command
 
+from deploy.procs import stop_process
 from protocol.corridor import load_corridor
 from protocol.keys import vehicle_key
 from protocol.messages import AckStatus
@@ -61,10 +62,5 @@ def test_vehicle_process_over_zenoh(tmp_path):
         assert states[-1].active_command_id == "zenoh-1" and states[-1].mode.value == "manoeuvre"
     finally:
         transport.close()
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+        stop_process(proc)
     assert (record / "run.npz").is_file()  # SIGTERM ends it cleanly and the run is written
