@@ -23,7 +23,7 @@ table (condition -> outcome, margin): latency and drop-out on the vehicle link (
 vehicle services, scripted RSUs: ``deploy/faults.py``) and the process faults (RSU killed, DDM
 restarted, router restarted: ``deploy/process_faults.py``).
 
-The same distribution from the whole corridor in lockstep (``deploy/lockstep.py``: simulator, 4 RSUs
+The same distribution from the whole corridor in lockstep (``scenario/lockstep.py``: simulator, 4 RSUs
 rendering and processing pixels, DDM, vehicle on one simulated clock; ``--lockstep-runs``) shows what
 the algorithms alone cost: no processing time, no scheduling, no load. ``--corridor-faults`` adds
 the fault table on that runner (about 40 s of CPU per case).
@@ -123,7 +123,7 @@ def add_hops(m: dict[str, Any], ev: dict[str, float], decisions: list[tuple[floa
 def one_lockstep_run(seed: int, duration_s: float, ddm_config: Any = None) -> dict[str, Any]:
     """The same scenario on the whole corridor in lockstep (simulated time: no processing delays)."""
     from ddm.config import DdmConfig
-    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     runner = CorridorLockstep(LockstepConfig(seed=seed, duration_s=duration_s, ddm_config=ddm_config or DdmConfig()))
     decisions = DecisionRecorder(runner.clock.now)

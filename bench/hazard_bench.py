@@ -3,7 +3,7 @@ the AV's clearance from the hazard.
 
     python bench/hazard_bench.py [--quick] [--json] [--seeds 101 102] [--scenarios ...] [--clean ...]
 
-Lockstep, one process, on a simulated clock: ``deploy.lockstep.CorridorLockstep`` runs the sim
+Lockstep, one process, on a simulated clock: ``scenario.lockstep.CorridorLockstep`` runs the sim
 ``World``, every RSU (``SimCamera`` renders its view at 15 fps; MotionDetector -> SORT -> EV classifier
 -> localiser -> ``rsu.hazard.HazardDetector``; ``RsuService`` publishes), the ``DdmService`` (fusion,
 EV and hazard policies, command manager) and the AV's ``VehicleService`` (controller on the bicycle
@@ -48,7 +48,7 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from deploy.lockstep import CorridorLockstep, LockstepConfig  # noqa: E402
+from scenario.lockstep import CorridorLockstep, LockstepConfig  # noqa: E402
 from protocol.keys import corridor_expr  # noqa: E402
 from protocol.messages import HazardAlert  # noqa: E402
 from rsu.hazard import HazardConfig, road_mask  # noqa: E402
@@ -128,7 +128,7 @@ class _Score:
 
 def run_one(name: str, seed: int, *, end_to_end: bool, duration_s: float | None, rsu_ids: list[str] | None,
             min_visible_s: float, match_m: float) -> dict:
-    """One scenario run on ``deploy.lockstep.CorridorLockstep`` (hazard detection on in every RSU);
+    """One scenario run on ``scenario.lockstep.CorridorLockstep`` (hazard detection on in every RSU);
     ``end_to_end`` False: the AV is scripted (no vehicle process), the RSUs and DDM still run."""
     sc = load_scenario(name).with_overrides(seed=seed)
     if not end_to_end:

@@ -340,7 +340,7 @@ def _view(argv: list[str]) -> int:
 
 
 def _scenario(argv: list[str]) -> int:
-    from deploy.lockstep import scenario_main
+    from scenario.lockstep import scenario_main
 
     return scenario_main(argv)
 

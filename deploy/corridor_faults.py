@@ -1,6 +1,6 @@
 """The fault table on the whole corridor in lockstep (issue 8, judged as issue 18 asks).
 
-``deploy/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
+``scenario/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
 on one SimClock; one fault per run. Slower than the rig of ``deploy/faults.py`` (every camera frame is
 rendered: ~2-3x the scenario time on a loaded 2-core machine) but end to end. Every row passes only on
 its own criterion AND the one yield judge's verdict (``scenario/outcome.py``, from the run monitor's ground
@@ -41,7 +41,7 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
     this long after.
     """
-    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
     from protocol import keys
 
     base = channel or ChannelModel()

@@ -10,7 +10,7 @@ Two ways to replay:
 - ``replay_into_ddm`` is the deterministic one: a fresh ``DdmService`` on a ``LocalBus`` and a
   ``SimClock`` is fed the recorded inputs of the DDM (every RSU topic, the vehicles' states and acks) in
   recorded order at their receive times, and stepped at its rate between them as the lockstep runner
-  (``deploy.lockstep``) steps it: at an instant where a step is due, the RSUs' messages of that instant
+  (``scenario.lockstep``) steps it: at an instant where a step is due, the RSUs' messages of that instant
   come before it (their tasks run first) and the others after. For a recording of a lockstep run it
   makes the same decisions: ``recorded_commands`` and the commands it returns are the same sequence of
   (vehicle, command id, manoeuvre, reason).

@@ -1,7 +1,7 @@
 """One RSU assembled in one place (issue 20): which detector, the SORT tracker's settings, the EV classifier,
 the hazard detector and the localiser, from one :class:`PipelineConfig`.
 
-``iea-rsu`` (:func:`run_rsu`), ``iea-rsu scan``, the lockstep corridor (``deploy/lockstep.py``), the benches
+``iea-rsu`` (:func:`run_rsu`), ``iea-rsu scan``, the lockstep corridor (``scenario/lockstep.py``), the benches
 and the tests build their RSUs here, so an RSU measured by a bench is the RSU a corridor runs. The defaults are
 the RSU's (thesis 2.3, Framework B): the project's detector, SORT with ``max_age`` 1, ``min_hits`` 3, IoU 0.3,
 ray-plane localisation, the per-track lamp evidence with the EV-body classifier.

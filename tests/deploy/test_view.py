@@ -72,7 +72,7 @@ def test_page_draws_a_live_lockstep_run_in_headless_chromium(tmp_path):
     browser = chromium()
     if browser is None:
         pytest.skip("Debian's chromium is not installed (apt-get install chromium): the page is not checked")
-    from deploy.lockstep import CorridorLockstep, LockstepConfig
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
     from deploy.up import free_port
     from protocol import keys
     from protocol.transport import ZenohTransport

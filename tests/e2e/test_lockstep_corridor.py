@@ -1,11 +1,11 @@
-"""The whole corridor in lockstep (deploy/lockstep.py): simulator -> 4 RSUs on rendered pixels -> DDM ->
+"""The whole corridor in lockstep (scenario/lockstep.py): simulator -> 4 RSUs on rendered pixels -> DDM ->
 vehicle, on a simulated clock. Perception sees pixels only; scoring reads the simulator's ground truth."""
 
 from __future__ import annotations
 
 import pytest
 
-from deploy.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
+from scenario.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
 from scenario.outcome import judge_run
 from protocol.messages import ClearReason
 

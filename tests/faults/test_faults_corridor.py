@@ -1,4 +1,4 @@
-"""The worst link of the latency fault on the whole corridor in lockstep (deploy/lockstep.py): the simulator,
+"""The worst link of the latency fault on the whole corridor in lockstep (scenario/lockstep.py): the simulator,
 4 RSUs processing rendered pixels, the DDM and the vehicle behind a DsrcLink with 300 ms (+ jitter) each
 way. One run (~15 s of scenario, 30-60 s of CPU on 2 loaded cores); the other cases run in the bench
 (`python bench/e2e_bench.py --corridor-faults`) and, fast, on the DDM + vehicle rig (test_faults_command_link).

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deploy.lockstep import CorridorLockstep, LockstepConfig
+from scenario.lockstep import CorridorLockstep, LockstepConfig
 from sim.camera_source import SimCamera
 from sim.scenario import load_scenario
 from sim.warmup import preroll_scenario, warmup_frames
