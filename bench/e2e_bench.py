@@ -3,7 +3,7 @@
 Runs ``rellis_ev_yield`` N times (seeds) as real processes over Zenoh on loopback: the simulator, 4 RSUs
 (``--source sim``, motion detector: pixels in, objects out), the DDM and the vehicle. Default: the
 ``iea up`` deployment (every service a client of one router); ``--peer``: the ``iea demo`` topology
-(peer mode, no router). Each run's figures come from ``deploy.demo.RunMonitor`` (a client listening to
+(peer mode, no router). Each run's figures come from ``scenario.monitor.RunMonitor`` (a client listening to
 every key of the corridor; stamps are the publishers' wall clocks on this one host):
 
 - lights on -> first EvAlert: the simulator's snapshot with the light bar on -> the RSU's alert stamp;

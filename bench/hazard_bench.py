@@ -48,10 +48,10 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from scenario.lockstep import CorridorLockstep, LockstepConfig  # noqa: E402
 from protocol.keys import corridor_expr  # noqa: E402
 from protocol.messages import HazardAlert  # noqa: E402
 from rsu.hazard import HazardConfig, road_mask  # noqa: E402
+from scenario.lockstep import CorridorLockstep, LockstepConfig  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
 
 cv2.setNumThreads(1)

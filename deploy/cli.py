@@ -310,7 +310,7 @@ def _calibrate(argv: list[str]) -> int:
 
 
 def _demo(argv: list[str]) -> int:
-    from deploy import demo
+    from scenario import demo
 
     return demo.main(argv)
 

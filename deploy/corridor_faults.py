@@ -41,8 +41,8 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
     this long after.
     """
-    from scenario.lockstep import CorridorLockstep, LockstepConfig
     from protocol import keys
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     base = channel or ChannelModel()
     if outage_s is not None:

@@ -38,7 +38,6 @@ from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from scenario.outcome import Body, YieldTrace, out_of_strip
 from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.corridor import Corridor, load_corridor
@@ -55,6 +54,7 @@ from protocol.messages import (
 )
 from protocol.security import Signer, public_key_b64
 from protocol.transport import DsrcLink, LocalBus, Subscription, Transport
+from scenario.outcome import Body, YieldTrace, out_of_strip
 
 CAMERA_VIEW_M = (18.0, 120.0)
 """What each RELLIS camera sees along x, relative to its own x (deploy/corridors/rellis.toml)."""

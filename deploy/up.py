@@ -24,9 +24,9 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from deploy.demo import RunMonitor, print_summary
 from deploy.procs import ROOT, ServiceGroup, corridor_services
 from protocol.runtime import stop_on_ctrl_c
+from scenario.monitor import RunMonitor, print_summary
 
 ROUTER = "router"
 CLIENT_CONFIG = "zenoh-client.json5"

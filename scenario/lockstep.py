@@ -19,7 +19,7 @@ Faults. ``schedule`` takes ``(t_s, action)`` pairs; actions are methods of the r
 ``kill_rsu("rsu2")``, ``kill_ddm()`` and ``start_ddm()`` (a fresh DDM with no memory, as after a
 crash), so the fault tests can script a run.
 
-Scoring (``RunMonitor`` from ``deploy/demo.py``) reads the simulator's ground truth; perception
+Scoring (``RunMonitor`` from ``scenario/monitor.py``) reads the simulator's ground truth; perception
 never does.
 """
 
@@ -36,7 +36,6 @@ from typing import Any
 
 from ddm.config import DdmConfig
 from ddm.service import DdmService
-from deploy.demo import RunMonitor
 from protocol import keys
 from protocol.channel import ChannelModel
 from protocol.clock import SimClock
@@ -46,6 +45,7 @@ from protocol.transport import DsrcLink, LocalBus, Transport
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.frames import Frame
 from rsu.service import RsuService
+from scenario.monitor import RunMonitor
 from sim.camera_source import SimCamera
 from sim.scenario import Scenario, load_scenario
 from sim.service import SimService
@@ -337,7 +337,8 @@ def scenario_main(argv: list[str] | None = None) -> int:
         return 2
     if args.seed is not None:
         sc = sc.with_overrides(seed=args.seed)
-    from deploy.demo import ROOT, print_summary, run_demo
+    from scenario.demo import ROOT, run_demo
+    from scenario.monitor import print_summary
 
     runs = Path(args.runs) if args.runs else ROOT / "runs"
     if args.inprocess:

@@ -1,12 +1,12 @@
-"""RunMonitor (deploy/demo.py): the figures of a run, from the messages of the corridor; and judge_run."""
+"""RunMonitor (scenario/monitor.py): the figures of a run, from the messages of the corridor; and judge_run."""
 
 from __future__ import annotations
 
-from deploy.demo import RunMonitor
-from scenario.outcome import judge_run
 from protocol import keys
 from protocol.corridor import load_corridor
 from protocol.messages import Actor, LightBar, ObjectList, WorldSnapshot
+from scenario.monitor import RunMonitor
+from scenario.outcome import judge_run
 
 
 def snap(t: float, av_xy: tuple[float, float], ev_xy: tuple[float, float], ev_speed: float, seq: int) -> WorldSnapshot:

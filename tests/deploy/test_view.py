@@ -72,10 +72,10 @@ def test_page_draws_a_live_lockstep_run_in_headless_chromium(tmp_path):
     browser = chromium()
     if browser is None:
         pytest.skip("Debian's chromium is not installed (apt-get install chromium): the page is not checked")
-    from scenario.lockstep import CorridorLockstep, LockstepConfig
     from deploy.up import free_port
     from protocol import keys
     from protocol.transport import ZenohTransport
+    from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     port = free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")

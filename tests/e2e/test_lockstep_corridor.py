@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
+from protocol.messages import ClearReason
 from scenario.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
 from scenario.outcome import judge_run
-from protocol.messages import ClearReason
 
 
 @pytest.fixture(scope="module")
