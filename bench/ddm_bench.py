@@ -39,8 +39,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from ddm.build import DdmOptions, build_ddm  # noqa: E402
 from ddm.config import DdmConfig  # noqa: E402
-from ddm.service import DdmService  # noqa: E402
 from protocol.clock import SimClock  # noqa: E402
 from protocol.codec import encode  # noqa: E402
 from protocol.corridor import CameraConfig, Corridor, Road, RsuConfig, Segment, VehicleConfig  # noqa: E402
@@ -56,6 +56,8 @@ from protocol.messages import (  # noqa: E402
 from protocol.transport import LocalBus  # noqa: E402
 
 TARGET_UPDATES_PER_S = 20_000
+BENCH_DDM = DdmOptions(config=DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
+"""The DDM every measurement builds: commanding at once, no let-faster-pass re-plans."""
 TARGET_P99_MS = 10.0
 LANES, LANE_W = 4, 3.7
 
@@ -130,7 +132,7 @@ def throughput(cor: Corridor, frames, t0: float) -> dict:
     bus = LocalBus()
     clock = SimClock(t0)
     # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
+    svc = build_ddm(BENCH_DDM, bus, clock, cor)
     n_obj = 0
     step_times = []
     frame_times = []
@@ -164,7 +166,7 @@ def paced(cor: Corridor, frames, t0: float) -> dict:
     bus = LocalBus()
     clock = SettableClock(t0)
     # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
+    svc = build_ddm(BENCH_DDM, bus, clock, cor)
     wall0 = time.perf_counter()
     lags = []
     next_step = 0.0
@@ -194,7 +196,7 @@ def latency(cor: Corridor, frames, cars, t0: float, n_rounds: int) -> dict:
     bus = LocalBus()
     clock = SimClock(t0)
     # let_faster_pass off: in this dense traffic lane 0 always has faster cars, and a latency needs a command
-    svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0, let_faster_pass=False))
+    svc = build_ddm(BENCH_DDM, bus, clock, cor)
     for f, items in enumerate(frames[:10]):
         clock.advance(max(0.0, t0 + 0.1 * f - clock.now()))
         for key, payload, _ in items:

@@ -215,12 +215,11 @@ def start_stub(endpoint: str, cid: str, duration_s: float = 120.0) -> subprocess
 
 
 def start_ddm(endpoint: str, cid: str, catch_up: bool = True):
-    from ddm.service import DdmService
+    from ddm.build import DdmOptions, build_ddm
     from protocol.clock import WallClock
-    from protocol.corridor import load_corridor
 
     t = ZenohTransport(client(endpoint))
-    return t, DdmService(t, WallClock(), load_corridor(), corridor_id=cid, catch_up=catch_up)
+    return t, build_ddm(DdmOptions(corridor_id=cid, catch_up=catch_up), t, WallClock())
 
 
 def wait_for(cond, timeout_s: float, step=None, poll_s: float = 0.002) -> float | None:

@@ -41,12 +41,13 @@ class DdmOptions:
     """Key id of ``key`` (None: the corridor trust entry holding its public key)."""
     verify_alerts: bool | None = None
     """Refuse unsigned EV/hazard alerts (None: when the corridor trusts RSU keys)."""
+    catch_up: bool = True
+    """Ask the RSUs for their active alerts at start (False: wait for the alerts' repeats; zenoh_bench's A/B)."""
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
 
-def _signer(options: DdmOptions, trust: TrustList) -> Signer | None:
-    """The command signer, with the warning a misconfigured one deserves (vehicles refuse its commands)."""
-    signer = load_signer(options.key, options.key_id, trust) if options.key else None
+def _log_signing(signer: Signer | None, trust: TrustList) -> None:
+    """How commands leave, with the warning a misconfigured signer deserves (vehicles refuse its commands)."""
     if signer is not None:
         log.info("signing commands with key %r", signer.key_id)
         if signer.key_id not in trust.keys:
@@ -55,13 +56,14 @@ def _signer(options: DdmOptions, trust: TrustList) -> Signer | None:
         log.warning("the corridor trusts DDM keys but no --key was given: vehicles will refuse unsigned commands")
     else:
         log.warning("commands are NOT signed (no --key)")
-    return signer
 
 
-def build_ddm(options: DdmOptions, transport: Transport, clock: Clock) -> DdmService:
-    """The DDM of ``options`` on ``transport`` and ``clock``. Raises CorridorError (a ValueError) for a bad
-    corridor file or id, ValueError / FileNotFoundError for a bad key, before anything is subscribed."""
-    return _Checked.of(options).service(transport, clock)
+def build_ddm(options: DdmOptions, transport: Transport, clock: Clock, corridor: Corridor | None = None
+              ) -> DdmService:
+    """The DDM of ``options`` on ``transport`` and ``clock``; ``corridor``: one already loaded (a runner's or a
+    bench's, perhaps edited) instead of ``options.corridor_file``. Raises CorridorError (a ValueError) for a
+    bad corridor file or id, ValueError / FileNotFoundError for a bad key, before anything is subscribed."""
+    return _Checked.of(options, corridor).service(transport, clock)
 
 
 @dataclass(frozen=True)
@@ -73,21 +75,24 @@ class _Checked:
     signer: Signer | None
 
     @classmethod
-    def of(cls, options: DdmOptions) -> _Checked:
-        corridor = load_corridor(options.corridor_file)
+    def of(cls, options: DdmOptions, corridor: Corridor | None = None) -> _Checked:
+        if corridor is None:
+            corridor = load_corridor(options.corridor_file)
         all_rsus_expr(options.corridor_id or corridor.corridor_id)  # an id that cannot be a key chunk fails here
-        return cls(options, corridor, _signer(options, TrustList.from_corridor(corridor)))
+        trust = TrustList.from_corridor(corridor)
+        return cls(options, corridor, load_signer(options.key, options.key_id, trust) if options.key else None)
 
     def service(self, transport: Transport, clock: Clock) -> DdmService:
         o = self.options
         return DdmService(transport, clock, self.corridor, o.config, corridor_id=o.corridor_id, ddm_id=o.ddm_id,
-                          signer=self.signer, verify_alerts=o.verify_alerts)
+                          signer=self.signer, verify_alerts=o.verify_alerts, catch_up=o.catch_up)
 
 
 def run_ddm(options: DdmOptions, stop: threading.Event | None = None) -> int:
     """``iea-ddm run``: check the options (as :func:`build_ddm`, raising before the Zenoh session opens), then
     run the DDM over Zenoh until SIGINT/SIGTERM or ``stop`` is set; 0."""
     checked = _Checked.of(options)
+    _log_signing(checked.signer, TrustList.from_corridor(checked.corridor))
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):

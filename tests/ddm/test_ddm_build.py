@@ -55,3 +55,16 @@ def test_bad_options_raise_before_anything_is_subscribed(tmp_path):
 def test_cli_refuses_bad_options_with_exit_2(argv, message, capsys):
     assert cli.main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_loaded_corridor_is_used_as_given():
+    import dataclasses
+
+    from protocol.corridor import load_corridor
+
+    edited = dataclasses.replace(load_corridor(), corridor_id="edited")
+    svc = build_ddm(DdmOptions(corridor_file="/nonexistent.toml", catch_up=False), LocalBus(), SimClock(), edited)
+    try:  # the file is not read: the runner's or bench's corridor is the DDM's
+        assert svc.corridor is edited and svc.corridor_id == "edited"
+    finally:
+        svc.close()
