@@ -185,8 +185,9 @@ class Renderer:
         return cols
 
     def _pose_all(self, actors: list[Actor]) -> list[tuple]:
-        """Per actor (model, (m, tvec), rot, uv (N, 2), depth (N,)): its body model posed and projected, every actor's
-        points in one batched product (m = K R rot, tvec = K R (position - C))."""
+        """Per actor (model, (m, tvec), rot, uv (N, 2), uv x 16 rounded (N, 2) int32, nearest part-corner depth,
+        part corners' (x, y) pixel minimum and maximum): its body model posed and projected, every actor's points in
+        one batched product (m = K R rot, tvec = K R (position - C))."""
         if not actors:
             return []
         models = [self._model(a) for a in actors]
@@ -199,8 +200,13 @@ class Renderer:
         h = np.einsum("nij,nj->ni", m[idx], np.concatenate([md.points for md in models])) + tvec[idx]
         depth = h[:, 2]
         uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
+        uv16 = np.round(uv * 16).astype(np.int32)
         ends = np.cumsum(counts).tolist()
-        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], depth[e - n:e])
+        # per actor, over its part corners (the first 8 P points of its block): nearest depth, pixel bounds
+        cuts = [i for n, e, md in zip(counts, ends, models, strict=True) for i in (e - n, e - n + 8 * len(md.parts))]
+        near = np.minimum.reduceat(depth, cuts)[::2].tolist()
+        lo, hi = np.minimum.reduceat(uv, cuts)[::2].tolist(), np.maximum.reduceat(uv, cuts)[::2].tolist()
+        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], uv16[e - n:e], near[k], lo[k], hi[k])
                 for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
 
     @staticmethod
@@ -240,16 +246,14 @@ class Renderer:
         if pools:
             pool_uv, pool_ok = self._pool_quads(ordered)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
-        for i_a, (a, (model, pose, rot, uv, depth)) in enumerate(zip(ordered, self._pose_all(ordered), strict=True)):
-            n_corner = 8 * len(model.parts)
-            if np.any(depth[:n_corner] <= NEAR_M):
+        for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi))) in enumerate(
+                zip(ordered, self._pose_all(ordered), strict=True)):
+            if near <= NEAR_M:
                 continue
-            cu = uv[:n_corner]
-            x_lo, y_lo = cu.min(axis=0)
-            x_hi, y_hi = cu.max(axis=0)
             if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
                 continue  # (shadows may reach into the image from a little outside)
-            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi))
+            n_corner = 8 * len(model.parts)
+            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16))
             if cast:
                 corners_w = model.points[:n_corner] @ rot.T + (a.pos_x_m, a.pos_y_m, 0.0)
                 self._draw_shadow(img, corners_w, sun, 0.45 * L["sun"] / 0.55)
@@ -258,11 +262,10 @@ class Renderer:
         drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
         vis_all, colours_all, first_part = shade_faces(
             [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
-        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi) in enumerate(drawn):
+        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16) in enumerate(drawn):
             parts, decals = model.parts, model.decals
             n_corner = 8 * len(parts)
             blur_px = self._blur_from_pose(a, pose, L["exposure_s"]) if self.blur_enabled else None
-            uv16 = np.round(uv * 16).astype(np.int32)
             cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
             p0 = first_part[k_a]
             vis, colours = vis_all[p0:first_part[k_a + 1]], colours_all[p0:]
