@@ -20,8 +20,8 @@ every key of the corridor; stamps are the publishers' wall clocks on this one ho
 
 Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault
 table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
-vehicle services, scripted RSUs: ``deploy/faults.py``) and the process faults (RSU killed, DDM
-restarted, router restarted: ``deploy/process_faults.py``).
+vehicle services, scripted RSUs: ``scenario/faults.py``) and the process faults (RSU killed, DDM
+restarted, router restarted: ``scenario/process_faults.py``).
 
 The same distribution from the whole corridor in lockstep (``scenario/lockstep.py``: simulator, 4 RSUs
 rendering and processing pixels, DDM, vehicle on one simulated clock; ``--lockstep-runs``) shows what
@@ -56,9 +56,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.e2e_rsu_load import first_lit_frame_s, load_figures, print_load, rsu_load  # noqa: E402
-from deploy.corridor_faults import corridor_faults  # noqa: E402
-from deploy.faults import MEASURED_ALERT_DELAY_S, FaultOutcome, dropout_faults, latency_faults  # noqa: E402
 from deploy.up import Up  # noqa: E402
+from scenario.corridor_faults import corridor_faults  # noqa: E402
+from scenario.faults import MEASURED_ALERT_DELAY_S, FaultOutcome, dropout_faults, latency_faults  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
 RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed)")
@@ -316,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.corridor_faults:
         faults += corridor_faults(quick=args.quick)
     if not args.no_process_faults:
-        from deploy.process_faults import PROCESS_FAULTS, run_retimed
+        from scenario.process_faults import PROCESS_FAULTS, run_retimed
 
         for fn in PROCESS_FAULTS.values():
             faults.append(run_retimed(fn, root))

@@ -1,7 +1,7 @@
 """Pass/fail of a run: the one yield judge of every runner (issue 18) and the scenario verdict. Pure.
 
 **Yield judge** (``judge_yield``), fed with ground-truth samples of the AV and the EV in the road frame
-(s along the road, d to the left; lane k spans ``[k w, (k + 1) w]``) by the rig (``deploy/faults.py``),
+(s along the road, d to the left; lane k spans ``[k w, (k + 1) w]``) by the rig (``scenario/faults.py``),
 the lockstep corridor, the process runs (``deploy/up.py``) and the demo (``RunMonitor``):
 
 - **the EV's lane** comes from the EV's own path: every lane its body touches in the ``EV_LANE_WINDOW_S``

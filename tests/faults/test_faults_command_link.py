@@ -1,7 +1,7 @@
 """Latency and drop-out on the vehicle's radio link (issue 8 fault tests, judged as issue 18 asks), in lockstep.
 
 The real DdmService and VehicleService on one SimClock; every message to and from the vehicle passes a
-DsrcLink with the channel under test; scripted RSUs report the EV approach (deploy/faults.py) with the
+DsrcLink with the channel under test; scripted RSUs report the EV approach (scenario/faults.py) with the
 first EvAlert at the measured p99 alert delay. Each row passes only on its own criterion AND the one
 yield judge (scenario/outcome.py); a row that cannot pass physically is listed beyond its computed bound.
 """
@@ -12,7 +12,8 @@ import dataclasses
 
 import pytest
 
-from deploy.faults import (
+from protocol.channel import ChannelModel
+from scenario.faults import (
     LATENCIES_S,
     LOSSES,
     MEASURED_ALERT_DELAY_S,
@@ -24,7 +25,6 @@ from deploy.faults import (
     rig_bound,
     run_command_link,
 )
-from protocol.channel import ChannelModel
 
 P99 = MEASURED_ALERT_DELAY_S["p99"]
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from deploy.corridor_faults import run_corridor_fault
-from deploy.faults import latency_channel
+from scenario.corridor_faults import run_corridor_fault
+from scenario.faults import latency_channel
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 

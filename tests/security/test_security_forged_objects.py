@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from sec_helpers import key
 
-from deploy.faults import _detected
 from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
 from protocol.messages import AlertState, EvAlert, ObjectList, VehicleMode, VehicleState
 from protocol.security import new_key_pair
 from protocol.transport import ZenohSettings, ZenohTransport
+from scenario.faults import _detected
 
 ROOT = Path(__file__).resolve().parents[2]
 AV_X0, EV_X0, AV_V, EV_V = 60.0, 20.0, 13.4, 19.0

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from deploy.faults import FaultOutcome, with_yield
 from deploy.up import Up
+from scenario.faults import FaultOutcome, with_yield
 
 RUNNER = "processes over Zenoh (iea up)"
 

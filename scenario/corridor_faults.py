@@ -1,7 +1,7 @@
 """The fault table on the whole corridor in lockstep (issue 8, judged as issue 18 asks).
 
 ``scenario/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
-on one SimClock; one fault per run. Slower than the rig of ``deploy/faults.py`` (every camera frame is
+on one SimClock; one fault per run. Slower than the rig of ``scenario/faults.py`` (every camera frame is
 rendered: ~2-3x the scenario time on a loaded 2-core machine) but end to end. Every row passes only on
 its own criterion AND the one yield judge's verdict (``scenario/outcome.py``, from the run monitor's ground
 truth). A row that failed is *beyond the bound* when the fault alone delays the command by more than the
@@ -16,7 +16,8 @@ import dataclasses
 import math
 from typing import Any
 
-from deploy.faults import (
+from protocol.channel import ChannelModel
+from scenario.faults import (
     LATENCIES_S,
     LOSSES,
     OUTAGES_S,
@@ -24,7 +25,6 @@ from deploy.faults import (
     latency_channel,
     latency_fault_delay_s,
 )
-from protocol.channel import ChannelModel
 
 LOCKSTEP_RUNNER = "lockstep corridor (sim + 4 RSUs + DDM + vehicle)"
 
