@@ -124,3 +124,25 @@ def test_case_2_and_3_see_the_threat_of_debris_ahead(nets):
     assert nets[1](img, radar)[1] == 0.0
     assert nets[2](img, radar)[1] > 0.5, "radar threat of debris 20 m ahead in the lane"
     assert nets[3](img, radar)[1] > 0.3, "the on-board segmentation finds it: image threat of eq. 4"
+
+
+def test_camera_loop_of_the_vehicle_process_steers_from_the_world_and_withdraws_when_it_is_stale():
+    from protocol.messages import WorldSnapshot
+    from vehicle.learned_steering import CameraLoop
+
+    sc = make_scenario(2000)
+    car = _car(2000)
+    seen = []
+
+    def steering(image, radar):
+        seen.append((image.shape, radar))
+        return 0.03, 0.5
+
+    loop = CameraLoop(car, sc.road, steering, "av1")
+    assert loop.tick(0.0) is None and car.learned_steer_rad is None, "no world yet: the thesis controller steers"
+    snap = WorldSnapshot(src="sim", stamp=0.0, scenario="t", sim_time_s=0.0, actors=sc.actors())
+    loop.on_world(snap, 0.0)
+    assert loop.tick(0.1) == 0.03 and car.learned_steer_rad == 0.03
+    assert seen[-1][0] == (66, 200, 3)
+    assert seen[-1][1] is None, "debris 100+ m ahead is beyond the radar's 60 m"
+    assert loop.tick(1.0) is None and car.learned_steer_rad is None, "world stale for > 0.5 s: withdrawn"
