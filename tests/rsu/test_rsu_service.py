@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 import uuid
 from collections import Counter, defaultdict
@@ -119,24 +117,20 @@ def _write_video(path: Path, frames) -> Path:
 
 
 @pytest.mark.slow
-def test_iea_rsu_process_publishes_stable_ids_over_zenoh(tmp_path):
+def test_iea_rsu_process_publishes_stable_ids_over_zenoh(tmp_path, spawn):
     video = _write_video(tmp_path / "scene.avi", _scene(70))
     cid = f"t{uuid.uuid4().hex[:8]}"
     received: list[ObjectList] = []
     health: list[Health] = []
     transport = ZenohTransport()
     transport.subscribe(all_rsus_expr(cid), lambda k, m: (received if isinstance(m, ObjectList) else health).append(m))
-    proc = subprocess.Popen([sys.executable, "-m", "rsu", "--rsu", "rsu1", "--corridor-id", cid, "--source", str(video),
-                             "--detector", "motion", "--realtime", "--max-age", "3", "--log-level", "WARNING"],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = spawn("-m", "rsu", "--rsu", "rsu1", "--corridor-id", cid, "--source", str(video), "--detector", "motion",
+                 "--realtime", "--max-age", "3", "--log-level", "WARNING")
     try:
         rc = proc.wait(timeout=60)
         time.sleep(0.5)
         _, err = proc.communicate(timeout=5)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=5)
         transport.close()
     assert rc == 0, err
     assert len(received) >= 50, f"received {len(received)} ObjectLists"

@@ -213,24 +213,20 @@ def test_cli_help_and_render(tmp_path):
     assert r.returncode == 2 and "scenario not found" in r.stderr
 
 
-def test_sim_process_publishes_over_zenoh(tmp_path):
+def test_sim_process_publishes_over_zenoh(tmp_path, spawn):
     """Real process over real Zenoh (peer mode, loopback): snapshots at ~20 Hz, recorded video."""
     from protocol.transport import ZenohSettings, ZenohTransport
 
     cid = f"t{uuid4().hex[:8]}"
     video = tmp_path / "rsu1.mp4"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
     tr = ZenohTransport(ZenohSettings())
     got: list[float] = []
     tr.subscribe(sim_world_key(cid), lambda _k, m: got.append(time.monotonic()))
-    proc = subprocess.Popen([sys.executable, "-m", "sim", "run", "rellis_ev_yield", "--corridor-id", cid,
-                             "--duration", "3", "--record", f"rsu1:{video}"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = spawn("-m", "sim", "run", "rellis_ev_yield", "--corridor-id", cid, "--duration", "3",
+                 "--record", f"rsu1:{video}")
     try:
         proc.wait(timeout=40)
     finally:
-        if proc.poll() is None:
-            proc.kill()
         tr.close()
     assert proc.returncode == 0, proc.stderr.read()
     assert len(got) >= 30  # 60 published in 3 s; discovery may miss the first ones
