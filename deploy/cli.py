@@ -254,11 +254,9 @@ def _write_compose(args: argparse.Namespace, corridor) -> int:
 
 
 def _health(argv: list[str]) -> int:
-    import threading
-
-    from protocol import keys
+    from deploy.status import check_health, health_key
     from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.transport import ZenohSettings
 
     ap = argparse.ArgumentParser(prog="iea health", description="Wait for a service's Health message and report it "
                                  "(exit 0: ok or degraded; 1: error status or none within the timeout). Used as the "
@@ -273,28 +271,12 @@ def _health(argv: list[str]) -> int:
     if args.role in ("rsu", "vehicle") and not args.node:
         ap.error(f"{args.role} needs its id, e.g. `iea health {args.role} {'rsu1' if args.role == 'rsu' else 'av1'}`")
     try:
-        cid = args.corridor_id or load_corridor(args.corridor).corridor_id
-        key = {"rsu": lambda: keys.rsu_key(cid, args.node, "health"),
-               "vehicle": lambda: keys.vehicle_key(cid, args.node, "health"),
-               "ddm": lambda: keys.ddm_health_key(cid), "sim": lambda: keys.sim_health_key(cid)}[args.role]()
+        key = health_key(args.corridor_id or load_corridor(args.corridor).corridor_id, args.role, args.node)
         settings = ZenohSettings.from_args(args)
     except (CorridorError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    got: list = []
-    done = threading.Event()
-    transport = ZenohTransport(settings)
-    try:
-        transport.subscribe(key, lambda _k, m: (got.append(m), done.set()))
-        done.wait(args.timeout_s)
-    finally:
-        transport.close()
-    if not got:
-        print(f"no Health on {key} within {args.timeout_s:g} s", file=sys.stderr)
-        return 1
-    h = got[-1]
-    print(f"{key}: {h.status.value} (uptime {h.uptime_s:.0f} s) {h.detail}")
-    return 0 if h.status.value in ("ok", "degraded") else 1
+    return check_health(settings, key, args.timeout_s)
 
 
 def _status(argv: list[str]) -> int:

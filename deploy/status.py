@@ -110,6 +110,38 @@ def expected_services(corridor) -> set[tuple[str, str]]:
             | {("vehicle", v.vehicle_id) for v in corridor.vehicles})
 
 
+def health_key(corridor_id: str, role: str, node: str | None = None) -> str:
+    """The Health key of one service: ``rsu`` and ``vehicle`` need their id (ValueError without it)."""
+    if role in ("rsu", "vehicle") and not node:
+        raise ValueError(f"{role} needs its id")
+    return {"rsu": lambda: keys.rsu_key(corridor_id, node, "health"),
+            "vehicle": lambda: keys.vehicle_key(corridor_id, node, "health"),
+            "ddm": lambda: keys.ddm_health_key(corridor_id), "sim": lambda: keys.sim_health_key(corridor_id)}[role]()
+
+
+def check_health(settings, key: str, timeout_s: float) -> int:
+    """``iea health``: wait up to ``timeout_s`` for a Health on ``key`` and print it; 0 for ok or degraded, 1 for
+    error or none (the docker-compose health check)."""
+    import threading
+
+    from protocol.transport import ZenohTransport
+
+    got: list[Health] = []
+    done = threading.Event()
+    transport = ZenohTransport(settings)
+    try:
+        transport.subscribe(key, lambda _k, m: (got.append(m), done.set()))
+        done.wait(timeout_s)
+    finally:
+        transport.close()
+    if not got:
+        print(f"no Health on {key} within {timeout_s:g} s", file=sys.stderr)
+        return 1
+    h = got[-1]
+    print(f"{key}: {h.status.value} (uptime {h.uptime_s:.0f} s) {h.detail}")
+    return 0 if h.status.value in ("ok", "degraded") else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
     from protocol.transport import ZenohSettings, ZenohTransport

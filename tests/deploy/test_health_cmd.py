@@ -32,3 +32,15 @@ def test_health_reports_a_running_service_and_fails_for_a_silent_one():
     bad = subprocess.run([sys.executable, "-m", "deploy", "health", "rsu"], capture_output=True, text=True,
                          cwd=ROOT, timeout=60)
     assert bad.returncode == 2 and "needs its id" in bad.stderr
+
+
+def test_health_key_names_each_services_health():
+    import pytest
+
+    from deploy.status import health_key
+
+    assert health_key("c", "rsu", "rsu2") == "iea/c/rsu/rsu2/health"
+    assert health_key("c", "vehicle", "av1") == "iea/c/vehicle/av1/health"
+    assert (health_key("c", "ddm"), health_key("c", "sim")) == ("iea/c/ddm/health", "iea/c/sim/health")
+    with pytest.raises(ValueError, match="needs its id"):
+        health_key("c", "vehicle")
