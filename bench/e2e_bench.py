@@ -58,7 +58,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.e2e_rsu_load import first_lit_frame_s, load_figures, print_load, rsu_load  # noqa: E402
 from deploy.up import Up  # noqa: E402
 from scenario.corridor_faults import corridor_faults  # noqa: E402
-from scenario.faults import MEASURED_ALERT_DELAY_S, FaultOutcome, dropout_faults, latency_faults  # noqa: E402
+from scenario.fault_judges import FaultOutcome  # noqa: E402
+from scenario.faults import MEASURED_ALERT_DELAY_S, dropout_faults, latency_faults  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
 RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed)")

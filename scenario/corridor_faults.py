@@ -3,8 +3,8 @@
 ``scenario/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
 on one SimClock; one fault per run. Slower than the rig of ``scenario/faults.py`` (every camera frame is
 rendered: ~2-3x the scenario time on a loaded 2-core machine) but end to end. Every row passes only on
-its own criterion AND the one yield judge's verdict (``scenario/outcome.py``, from the run monitor's ground
-truth). A row that failed is *beyond the bound* when the fault alone delays the command by more than the
+its own criterion (its kind's judge, ``scenario/fault_judges.py``) AND the one yield judge's verdict
+(``scenario/outcome.py``, from the run monitor's ground truth). A row that failed is *beyond the bound* when the fault alone delays the command by more than the
 perfect-link run of the same seed had to spare (its margin): a shift of that run's manoeuvre (the same EV
 speed and lane change) by the fault's delay could not clear the lane in time. A perfect-link run that
 fails itself gives no bound: its rows fail.
@@ -13,20 +13,25 @@ fails itself gives no bound: its rows fail.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 from protocol.channel import ChannelModel
-from scenario.faults import (
-    LATENCIES_S,
-    LOSSES,
-    OUTAGES_S,
+from scenario.fault_judges import (
+    DdmRestartSeen,
+    DeliverySeen,
     FaultOutcome,
-    latency_channel,
-    latency_fault_delay_s,
+    Judgement,
+    RsuKillSeen,
+    judge_ddm_restart,
+    judge_dropout,
+    judge_latency,
+    judge_rsu_kill,
+    lost_commands,
 )
+from scenario.faults import LATENCIES_S, LOSSES, OUTAGES_S, latency_channel, latency_fault_delay_s
 
 LOCKSTEP_RUNNER = "lockstep corridor (sim + 4 RSUs + DDM + vehicle)"
+CORRIDOR_KINDS = ("latency", "dropout", "rsu_kill", "ddm_restart")
 
 
 def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = None, seed: int | None = None,
@@ -41,6 +46,11 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
     this long after.
     """
+    if kind not in CORRIDOR_KINDS or (kind == "rsu_kill") != kill_first_alerting_rsu \
+            or (kind == "ddm_restart") != (restart_ddm_after_s is not None):
+        raise ValueError(f"run_corridor_fault: kind {kind!r} with kill_first_alerting_rsu={kill_first_alerting_rsu}, "
+                         f"restart_ddm_after_s={restart_ddm_after_s}: the kind must be one of {CORRIDOR_KINDS} and "
+                         "rsu_kill goes with kill_first_alerting_rsu=True, ddm_restart with restart_ddm_after_s")
     from protocol import keys
     from scenario.lockstep import CorridorLockstep, LockstepConfig
 
@@ -68,74 +78,62 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
             facts["old_commands"] = set(sent)
             facts["active_at_kill"] = msg.active_command_id
             runner.at(now, runner.kill_ddm)
+            facts["ddm_started"] = now + restart_ddm_after_s
             runner.at(now + restart_ddm_after_s, runner.start_ddm)
         if "ddm_killed" in facts:
             facts.setdefault("modes_after_kill", []).append((runner.clock.now(), msg.mode.value))
 
-    health_stale: list[tuple[float, list[str]]] = []
+    ddm_health: list[tuple[float, str, tuple[str, ...]]] = []
     runner.bus.subscribe(keys.all_rsus_expr(c).replace("/*/*", "/*/ev"), on_alert)
     runner.bus.subscribe(keys.all_vehicles_expr(c, "state"), on_state)
     runner.bus.subscribe(keys.all_vehicles_expr(c, "cmd"),
                          lambda k, m: sent.setdefault(m.command_id, (runner.clock.now(), m.manoeuvre.value)))
     runner.bus.subscribe(keys.all_vehicles_expr(c, "ack"),
                          lambda k, m: acks.append((runner.clock.now(), m.command_id, m.status.value)))
-    runner.bus.subscribe(keys.ddm_health_key(c), lambda k, m: health_stale.append((runner.clock.now(), list(m.stale))))
+    runner.bus.subscribe(keys.ddm_health_key(c), lambda k, m: ddm_health.append((runner.clock.now(), m.status.value,
+                                                                                 tuple(m.stale))))
     m = runner.run()
 
     verdict = m.get("yield")  # the one yield judge (scenario/outcome.py), from the run monitor's ground truth
-    yield_ok = bool(verdict and verdict["passed"])
-    outcome = "no yield verdict" if not verdict else f"{verdict['status']}: {verdict['reason']}"
-    margin = None if not verdict else verdict["margin_s"]
     lon = None if not verdict else verdict["lights_on_s"]
     passed_at = None if not verdict else verdict["ev_passed_s"]
-    acked = {cid for _, cid, _ in acks}
     issued = sorted(sent, key=lambda i: sent[i][0])
-    lost = [cid for i, cid in enumerate(issued) if cid not in acked and not any(x in acked for x in issued[i + 1:])]
     details: dict[str, Any] = {
         "yield": verdict,
         "commands": [f"{sent[i][1]}@{sent[i][0] - (lon or 0):+.2f}s" for i in issued],
-        "lost_commands": lost, "latency_s": m.get("latency_s"), "vehicle_link": m.get("vehicle_link"),
-        "collision": m.get("collision"), "wall_s": m.get("wall_s"), "seed": m.get("seed"),
-        "first_command_s": sent[issued[0]][0] if issued else None,
+        "lost_commands": lost_commands(issued, {cid for _, cid, _ in acks}), "latency_s": m.get("latency_s"),
+        "vehicle_link": m.get("vehicle_link"), "collision": m.get("collision"), "wall_s": m.get("wall_s"),
+        "seed": m.get("seed"), "first_command_s": sent[issued[0]][0] if issued else None,
     }
     start = m.get("latency_s", {}).get("lights_on_to_manoeuvre_s")
-    if start is not None:
-        outcome += f", starts +{start:.2f} s"
-    ok = yield_ok
-    if kind in ("latency", "dropout"):
-        if kind == "dropout":
-            ok = not lost and yield_ok
-            outcome = ("every command acked; " if not lost else f"{len(lost)} command(s) lost; ") + outcome
-    elif kind == "rsu_kill":
-        victim, t_kill = facts.get("first_alert_rsu"), facts.get("first_alert")
-        stale_at = next((t for t, st in health_stale if t_kill is not None and t >= t_kill and victim in st), None)
-        early = [i for i in issued if sent[i][1] == "resume" and t_kill is not None and sent[i][0] > t_kill
-                 and (passed_at is None or sent[i][0] < passed_at)]
-        details.update(killed=victim, stale_after_s=None if stale_at is None else round(stale_at - t_kill, 3),
-                       resume_before_ev_passed=len(early))
-        ok = stale_at is not None and not early and yield_ok
-        outcome = (f"{victim} stale after {stale_at - t_kill:.2f} s" if stale_at is not None else
-                   f"{victim} never reported stale") + (f"; {len(early)} early RESUME" if early else "") \
-            + f"; yield: {outcome}"
-        margin = None if stale_at is None else round(2.0 - (stale_at - t_kill), 3)
-    elif kind == "ddm_restart":
-        t_kill = facts.get("ddm_killed")
-        old = facts.get("old_commands", set())
-        new = [i for i in issued if i not in old]
-        first_new_accept = min((t for t, cid, st in acks if cid in new and st == "accepted"), default=math.inf)
-        modes = sorted({md for t, md in facts.get("modes_after_kill", []) if t < first_new_accept})
-        contradicting = [i for i in new if sent[i][1] == "resume" and (passed_at is None or sent[i][0] < passed_at)]
-        bad = [md for md in modes if md not in ("manoeuvre", "stopped", "minimal_risk")]
-        details.update(modes_on_its_own=modes, new_ddm_commands=[f"{sent[i][1]}@{sent[i][0] - t_kill:+.2f}s" for i in new]
-                       if t_kill is not None else [])
-        ok = t_kill is not None and not bad and not contradicting and yield_ok
-        outcome = ("no manoeuvre to interrupt" if t_kill is None else
-                   f"vehicle {'fail-safe stop' if 'minimal_risk' in modes else 'kept its command'}"
-                   + ("; restarted DDM sent RESUME before the EV passed" if contradicting else "")
-                   + f"; yield: {outcome}")
-        margin = None
-    return FaultOutcome(name, kind, ok, outcome, None if margin is None else round(margin, 3), LOCKSTEP_RUNNER,
-                        details), m
+    note = "" if start is None else f", starts +{start:.2f} s"
+    judged = _judge(kind, facts, sent, issued, acks, ddm_health, passed_at, runner.clock.now(), verdict)
+    return judged.row(name, kind, LOCKSTEP_RUNNER, details, yield_note=note), m
+
+
+def _judge(kind: str, facts: dict[str, Any], sent: dict[str, tuple[float, str]], issued: list[str],
+           acks: list[tuple[float, str, str]], ddm_health: list[tuple[float, str, tuple[str, ...]]],
+           passed_at: float | None, end_s: float, verdict: dict[str, Any] | None) -> Judgement:
+    """What the lockstep run saw, in the kind's record, to the kind's judge (``scenario/fault_judges.py``)."""
+    if kind == "latency":
+        return judge_latency(verdict)
+    if kind == "dropout":
+        return judge_dropout(DeliverySeen(tuple(issued), frozenset(cid for _, cid, _ in acks)), verdict)
+    if kind == "rsu_kill":
+        if "first_alert" not in facts:
+            return Judgement(False, "no EvAlert at all", None, {}, verdict)
+        resumes = tuple(sent[i][0] for i in issued if sent[i][1] == "resume")
+        return judge_rsu_kill(RsuKillSeen(facts["first_alert_rsu"], facts["first_alert"], tuple(ddm_health), resumes,
+                                          passed_at), verdict)
+    t_kill = facts.get("ddm_killed")  # ddm_restart
+    if t_kill is None:
+        return Judgement(False, "no manoeuvre to interrupt", None, {}, verdict)
+    old = facts["old_commands"]
+    new = tuple((sent[i][0], sent[i][1], i) for i in issued if i not in old)
+    back = next((t for t, _, _ in ddm_health if t > facts["ddm_started"]), None)
+    return judge_ddm_restart(DdmRestartSeen(
+        t_kill, facts["active_at_kill"], new, tuple(a for a in acks if a[0] > t_kill),
+        tuple(facts.get("modes_after_kill", ())), back, passed_at, end_s), verdict)
 
 
 def _reseeded(name: str, kind: str, *, seed: int | None, tries: int = 3, **kw: Any) -> FaultOutcome:

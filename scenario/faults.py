@@ -13,6 +13,7 @@ Two runners:
 - the process-level faults (an RSU killed, the DDM killed and restarted, the router restarted) run
   the corridor's real processes over Zenoh on loopback: see ``scenario/process_faults.py``.
 
+Each row is judged by its kind's judge (``scenario/fault_judges.py``: ``latency``, ``dropout``).
 Outcome of an EV-yield run (issue 18): the one yield judge, ``scenario.outcome.judge_yield``, on ground truth:
 pass only when the AV's body is out of the EV's lane before the EV is within its following distance of
 it (2 m + 1 s x its speed), with no collision; stopped in the lane, blocked and "the EV never reached the
@@ -33,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
@@ -54,47 +55,16 @@ from protocol.messages import (
 )
 from protocol.security import Signer, public_key_b64
 from protocol.transport import DsrcLink, LocalBus, Subscription, Transport
+from scenario.fault_judges import DeliverySeen, FaultOutcome, judge_dropout, judge_latency, lost_commands
 from scenario.outcome import Body, YieldTrace, out_of_strip
 
 CAMERA_VIEW_M = (18.0, 120.0)
 """What each RELLIS camera sees along x, relative to its own x (deploy/corridors/rellis.toml)."""
 
 
-@dataclass(frozen=True)
-class FaultOutcome:
-    """One row of the fault table."""
-
-    name: str
-    kind: str
-    passed: bool
-    outcome: str
-    margin_s: float | None
-    """How much earlier than needed the AV was safe (negative: how late); None where not applicable."""
-    runner: str
-    details: dict[str, Any] = field(default_factory=dict)
-    beyond_bound: str | None = None
-    """Set (to the bound, in words) when the case is physically impossible: listed, never passed."""
-
-    @property
-    def verdict(self) -> str:
-        return "BEYOND" if self.beyond_bound else ("PASS" if self.passed else "FAIL")
-
-    def row(self) -> str:
-        m = "-" if self.margin_s is None else f"{self.margin_s:+.2f} s"
-        extra = f" [beyond the bound: {self.beyond_bound}]" if self.beyond_bound else ""
-        return f"{self.name:<34} {self.verdict:<6} {m:>9}  {self.outcome}{extra}"
-
-
 MEASURED_ALERT_DELAY_S = {"median": 0.86, "p99": 1.42}
 """Lights on -> first EvAlert over Zenoh (process mode, ``bench/e2e_bench.py``, issue 18's figures); the
 bench replaces it with the distribution it measures in the same run."""
-
-
-def with_yield(ok: bool, outcome: str, verdict: dict[str, Any] | None) -> tuple[bool, str]:
-    """A fault row's own criterion AND the yield outcome (``YieldVerdict.to_dict()``; None: no EV seen)."""
-    if not verdict:
-        return False, f"{outcome}; yield: no verdict (no AV/EV ground truth)"
-    return ok and bool(verdict["passed"]), f"{outcome}; yield {verdict['status']}: {verdict['reason']}"
 
 
 @dataclass(frozen=True)
@@ -180,6 +150,9 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     ``command_outage_after_alert``: the same on the command link only (the RSUs are still heard).
     ``direct_alerts``: the vehicle's ``DirectAlertConfig`` (default: on).
     """
+    if kind not in ("latency", "dropout"):
+        raise ValueError(f"run_command_link: kind {kind!r} is not a fault of the rig: use 'latency' or 'dropout' "
+                         "(the process and corridor runners run the rsu_kill and ddm_restart kinds)")
     from ddm.config import DdmConfig
     from ddm.service import DdmService
     from vehicle.ev_direct import DirectAlertConfig
@@ -311,9 +284,8 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     rel = {k: round(v - events.get("lights_on", t0), 3) for k, v in events.items()}
     issued = list(dict.fromkeys(c.command_id for c in sent))
     manoeuvre_of = {c.command_id: c.manoeuvre.value for c in sent}
-    acked = {cid for _, cid, _ in acks_at_ddm}
-    lost = [cid for i, cid in enumerate(issued) if cid not in acked and not any(x in acked for x in issued[i + 1:])]
-    duplicates = {cid: n for cid, n in activations.items() if n > 1}
+    delivery = DeliverySeen(tuple(issued), frozenset(cid for _, cid, _ in acks_at_ddm), dict(activations),
+                            int(ddm.counters["cmd_expired"]))
     first_sent = {}
     for cmd in sent:
         first_sent.setdefault(cmd.command_id, cmd.stamp)
@@ -321,32 +293,25 @@ def run_command_link(channel: ChannelModel, *, name: str = "", kind: str = "late
     counts = {
         "commands_issued": len(issued),
         "manoeuvres": [f"{manoeuvre_of[i]}@{first_sent[i] - lon:.2f}s" for i in issued],
-        "transmissions": len(sent), "acks_at_ddm": len(acks_at_ddm), "lost_commands": lost,
-        "duplicate_activations": duplicates, "ddm_expired": int(ddm.counters["cmd_expired"]),
+        "transmissions": len(sent), "acks_at_ddm": len(acks_at_ddm),
+        "lost_commands": lost_commands(delivery.issued, delivery.acked),
+        "duplicate_activations": {cid: n for cid, n in activations.items() if n > 1},
+        "ddm_expired": delivery.expired_at_ddm,
         "link": {d: dict(v) for d, v in link.counts.items()}, "modes": sorted(modes_seen),
         "rsu_link": {d: dict(v) for d, v in rsu_link.counts.items()}, "direct_pull_overs": veh.direct_pull_overs,
     }
-    outcome = f"{verdict.status}: {verdict.reason}"
+    note = ""
     if "manoeuvre" in events and "lights_on" in events:
-        outcome += f", starts +{events['manoeuvre'] - events['lights_on']:.2f} s"
+        note += f", starts +{events['manoeuvre'] - events['lights_on']:.2f} s"
     if "direct_pull_over" in events:
-        outcome += f", pulled over on its own on the signed EvAlert +{events['direct_pull_over'] - events['lights_on']:.2f} s"
+        note += f", pulled over on its own on the signed EvAlert +{events['direct_pull_over'] - events['lights_on']:.2f} s"
     elif "failsafe" in events:
-        outcome += ", fail-safe stop"
-    own_ok, own = True, "yield"
-    if kind == "dropout":  # delivery (issue 8) AND the yield outcome (issue 18)
-        own_ok = not lost and not duplicates and counts["ddm_expired"] == 0
-        own = (f"{len(lost)} command(s) lost" if lost else f"duplicate manoeuvre {sorted(duplicates)}" if duplicates
-               else "every command acked, none executed twice")
-    ok = own_ok and verdict.passed
-    if kind == "dropout":
-        outcome = f"{own}; {outcome}"
+        note += ", fail-safe stop"
+    judged = judge_dropout(delivery, verdict.to_dict()) if kind == "dropout" else judge_latency(verdict.to_dict())
     details = {"events_since_lights_on_s": rel, **counts, "yield": verdict.to_dict(),
                "alert_delay_s": sc.alert_delay_s,
                "lights_on_to_command_at_vehicle_s": _diff(events, "lights_on", "manoeuvre")}
-    margin = verdict.margin_s
-    out = FaultOutcome(name or kind, kind, ok, outcome, None if margin is None else round(margin, 3),
-                       "lockstep ddm+vehicle, scripted RSUs", details)
+    out = judged.row(name or kind, kind, "lockstep ddm+vehicle, scripted RSUs", details, yield_note=note)
     return LinkRunResult(out, events, counts)
 
 

@@ -5,7 +5,7 @@ DDM, the RSUs with ``--source sim`` and the simulator running ``rellis_ev_yield`
 breaks one thing, and returns a ``FaultOutcome`` measured from what a client of the router heard
 (the simulator's ground truth only scores the run). Every row passes only on its own criterion below AND
 the one yield judge's verdict of the run (``scenario/outcome.py``: out of the EV's lane before it reached
-the AV):
+the AV); each kind is judged by its judge in ``scenario/fault_judges.py``:
 
 - ``rsu_killed``: the RSU that raised the first EvAlert is SIGKILLed at once (the EV is in its view).
   Pass: the DDM's Health names it stale (status degraded) within ``stale_limit_s``; a neighbouring
@@ -34,7 +34,15 @@ from pathlib import Path
 from typing import Any
 
 from deploy.up import Up
-from scenario.faults import FaultOutcome, with_yield
+from scenario.fault_judges import (
+    DdmRestartSeen,
+    FaultOutcome,
+    RouterRestartSeen,
+    RsuKillSeen,
+    judge_ddm_restart,
+    judge_router_restart,
+    judge_rsu_kill,
+)
 
 RUNNER = "processes over Zenoh (iea up)"
 
@@ -125,32 +133,16 @@ def rsu_killed(run_root: Path | None = None, stale_limit_s: float = 2.0, timeout
     finally:
         up.stop()
     with rec.lock:
-        stale_at = next((t for t, status, stale in rec.ddm_health
-                         if t > t_kill and victim in stale and status == "degraded"), None)
-        later_ev = sorted({rsu for t, rsu, _ in rec.ev_reports if t > t_kill + 0.5 and rsu != victim})
-        victim_after = [t for t, rsu, _ in rec.ev_reports if t > t_kill + 0.5 and rsu == victim]
-        resumes = [t for t, m, _ in rec.commands.values() if m == "resume" and t > t_kill]
-    passed_at = _ev_passed(up)
-    early_resume = [t for t in resumes if passed_at is None or t < passed_at]
-    details.update(stale_after_s=None if stale_at is None else round(stale_at - t_kill, 3),
-                   ev_reported_after_kill_by=later_ev, reports_from_killed=len(victim_after),
-                   resume_before_ev_passed=len(early_resume), ev_passed=passed_at is not None,
-                   ddm_max_tracks=max((n for _, n, _ in rec.ddm_fused), default=None),
-                   ddm_old_measurements=max((d for _, _, d in rec.ddm_fused), default=None),
-                   metrics=up.metrics())
-    ok = stale_at is not None and stale_at - t_kill <= stale_limit_s and bool(later_ev) and not early_resume \
-        and not victim_after
-    if stale_at is None:
-        outcome = f"DDM never reported {victim} stale"
-    elif not later_ev:
-        outcome = "no neighbouring RSU reported the EV"
-    elif early_resume:
-        outcome = "DDM resumed before the EV passed"
-    else:
-        outcome = f"{victim} stale after {stale_at - t_kill:.2f} s; EV kept by {','.join(later_ev)}"
-    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
-    margin = None if stale_at is None else round(stale_limit_s - (stale_at - t_kill), 3)
-    return FaultOutcome("RSU killed with the EV in view", "rsu_kill", ok, outcome, margin, RUNNER, details)
+        later_ev = tuple(sorted({rsu for t, rsu, _ in rec.ev_reports if t > t_kill + 0.5 and rsu != victim}))
+        seen = RsuKillSeen(victim, t_kill, tuple((t, st, tuple(stale)) for t, st, stale in rec.ddm_health),
+                           tuple(t for t, m, _ in rec.commands.values() if m == "resume"), _ev_passed(up), later_ev,
+                           len([t for t, rsu, _ in rec.ev_reports if t > t_kill + 0.5 and rsu == victim]))
+        details.update(ddm_max_tracks=max((n for _, n, _ in rec.ddm_fused), default=None),
+                       ddm_old_measurements=max((d for _, _, d in rec.ddm_fused), default=None))
+    details.update(ev_reported_after_kill_by=list(later_ev), reports_from_killed=seen.reports_from_killed,
+                   ev_passed=seen.ev_passed_at_s is not None, metrics=up.metrics())
+    judged = judge_rsu_kill(seen, details["metrics"].get("yield"), stale_limit_s)
+    return judged.row("RSU killed with the EV in view", "rsu_kill", RUNNER, details)
 
 
 def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: float = 60.0,
@@ -173,42 +165,16 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
         time.sleep(2.0)
     finally:
         up.stop()
-    passed_at = _ev_passed(up)
-    end = passed_at if passed_at is not None else time.time()
     with rec.lock:
-        new_cmds = sorted((t, m, cid) for cid, (t, m, _) in rec.commands.items() if cid not in old_ids)
-        new_ids = {cid for _, _, cid in new_cmds}
-        # the vehicle on its own: from the kill until it accepts the restarted DDM's first command
-        own_end = min([end] + [t for t, cid, st in rec.acks if cid in new_ids and st == "accepted"])
-        modes_between = sorted({m for t, m, _ in rec.modes if t_kill < t < own_end})
-        ddm_back = next((t for t, _, _ in rec.ddm_health if t > t_restart), None)
-        kept = any(a == active_at_kill for t, m, a in rec.modes if t_kill < t < end)
-    contradicting = [(round(t - t_kill, 2), m) for t, m, _ in new_cmds if m == "resume" and t < end]
-    with rec.lock:
-        completed = any(cid == active_at_kill and st == "completed" for _, cid, st in rec.acks)
-    ok_modes = ("manoeuvre", "stopped", "minimal_risk") + (("driving",) if completed else ())
-    bad_modes = [m for m in modes_between if m not in ok_modes]  # driving: only after the command was done
-    first_resume = next((t for t, m, _ in new_cmds if m == "resume"), None)
-    details.update(modes_on_its_own=modes_between, on_its_own_s=round(own_end - t_kill, 2), kept_active_command=kept,
-                   command_completed=completed,
-                   new_ddm_commands=[(round(t - t_kill, 2), m) for t, m, _ in new_cmds],
-                   ddm_heard_again_after_s=None if ddm_back is None else round(ddm_back - t_kill, 2),
-                   ev_passed=passed_at is not None, metrics=up.metrics())
-    ok = not bad_modes and not contradicting and ddm_back is not None
-    if bad_modes:
-        outcome = f"AV went to {bad_modes} on its own while the DDM was away"
-    elif contradicting:
-        outcome = f"restarted DDM sent {contradicting[0][1]} before the EV passed"
-    elif ddm_back is None:
-        outcome = "the DDM did not come back"
-    else:
-        how = "fail-safe stop" if "minimal_risk" in modes_between else "kept its command"
-        outcome = f"AV {how}; DDM back after {ddm_back - t_kill:.1f} s"
-    if passed_at is None:
-        outcome += " (the EV had not passed the AV by the end of the run)"
-    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
-    margin = None if passed_at is None else round((first_resume or time.time()) - passed_at, 3)
-    return FaultOutcome("DDM killed + restarted mid-manoeuvre", "ddm_restart", ok, outcome, margin, RUNNER, details)
+        seen = DdmRestartSeen(
+            t_kill, active_at_kill,
+            tuple(sorted((t, m, cid) for cid, (t, m, _) in rec.commands.items() if cid not in old_ids)),
+            tuple(rec.acks), tuple((t, m) for t, m, _ in rec.modes if t > t_kill),
+            next((t for t, _, _ in rec.ddm_health if t > t_restart), None), _ev_passed(up), time.time())
+        kept = any(a == active_at_kill for t, m, a in rec.modes if t_kill < t < (seen.ev_passed_at_s or seen.end_s))
+    details.update(kept_active_command=kept, metrics=up.metrics())
+    judged = judge_ddm_restart(seen, details["metrics"].get("yield"))
+    return judged.row("DDM killed + restarted mid-manoeuvre", "ddm_restart", RUNNER, details)
 
 
 SERVICES = ("vehicle", "ddm", "rsu1", "rsu2", "rsu3", "rsu4", "sim")
@@ -232,21 +198,12 @@ def router_restarted(run_root: Path | None = None, at_s: float = 0.5, down_s: fl
     finally:
         up.stop()
     back = {s: rec.first_after(s, t_back) for s in SERVICES}
-    delays = {s: (None if t is None else round(t - t_back, 2)) for s, t in back.items()}
-    missing = [s for s, d in delays.items() if d is None]
-    accepted = [t for t, _, s in rec.acks if s == "accepted" and t > t_back]
-    slowest = max((d for d in delays.values() if d is not None), default=None)
-    details.update(reconnect_s=delays, command_accepted_after_restart=bool(accepted), metrics=up.metrics())
-    ok = not missing and slowest is not None and slowest <= reconnect_limit_s and bool(accepted)
-    if missing:
-        outcome = f"not heard again: {', '.join(missing)}"
-    elif not accepted:
-        outcome = "no command accepted after the restart"
-    else:
-        outcome = f"all {len(SERVICES)} services back within {slowest:.1f} s"
-    ok, outcome = with_yield(ok, outcome, details["metrics"].get("yield"))
-    margin = None if slowest is None or missing else round(reconnect_limit_s - slowest, 3)
-    return FaultOutcome("router restarted (iea up)", "router_restart", ok, outcome, margin, RUNNER, details)
+    seen = RouterRestartSeen({s: (None if t is None else round(t - t_back, 2)) for s, t in back.items()},
+                             any(s == "accepted" and t > t_back for t, _, s in rec.acks))
+    details.update(reconnect_s=seen.back_after_s, command_accepted_after_restart=seen.command_accepted_after,
+                   metrics=up.metrics())
+    judged = judge_router_restart(seen, details["metrics"].get("yield"), reconnect_limit_s)
+    return judged.row("router restarted (iea up)", "router_restart", RUNNER, details)
 
 
 PROCESS_FAULTS = {"rsu_kill": rsu_killed, "ddm_restart": ddm_restarted, "router_restart": router_restarted}
