@@ -3,7 +3,7 @@
 Used by the tests and ``bench/control_bench.py``. ``field_test_scenario`` reproduces the report's
 field test (SPEC.md "Response and control"): the car drives at 13.4 m/s in the left lane, a
 command arrives to change one lane right (3.7 m) and stop; the localisation is noisy, slow and
-late. Every control step is recorded in a ``RunRecord`` (truth, estimate, errors against the
+late. Every control step is recorded in a ``vehicle.record.RunRecord`` (truth, estimate, errors against the
 active path, commands) that ``vehicle/record.py`` writes and ``vehicle/plot.py`` draws.
 """
 
@@ -20,44 +20,8 @@ from protocol.corridor import Road, Segment
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
 from vehicle.core import CoreConfig, SimulatedVehicle
 from vehicle.localisation import GNSS, FixSourceConfig
+from vehicle.record import RunRecord, record_step
 from vehicle.reference import lane_change_waypoints
-
-RECORD_FIELDS = (
-    "t_s", "x_m", "y_m", "yaw_rad", "speed_mps", "yaw_rate_rps", "steer_rad", "accel_mps2",
-    "est_x_m", "est_y_m", "est_yaw_rad", "steer_cmd_rad", "accel_cmd_mps2", "speed_ref_mps",
-    "lateral_error_m", "yaw_error_rad", "yaw_rate_error_rps",
-    "est_lateral_error_m", "est_yaw_error_rad", "est_yaw_rate_error_rps",
-    "curvature_1pm", "path_s_m", "mode", "path_version",
-)
-MODE_CODES = {m: i for i, m in enumerate(VehicleMode)}
-
-
-@dataclass
-class RunRecord:
-    """Columns of the run (one row per control step) plus paths and events."""
-
-    rows: list[tuple] = field(default_factory=list)
-    paths: dict[int, np.ndarray] = field(default_factory=dict)
-    """Reference points by path version."""
-    events: list[dict] = field(default_factory=list)
-    meta: dict = field(default_factory=dict)
-
-    def columns(self) -> dict[str, np.ndarray]:
-        arr = np.asarray(self.rows, dtype=float).reshape(-1, len(RECORD_FIELDS))
-        return {name: arr[:, i] for i, name in enumerate(RECORD_FIELDS)}
-
-
-def record_step(rec: RunRecord, sim: SimulatedVehicle, out, now_s: float) -> None:
-    st, core = sim.truth, sim.core
-    e, ye, yre, _ = sim.true_errors()
-    lat, lon = out.lateral, out.longitudinal
-    ex, ey, eyaw = core.estimator.pose
-    if core.path_version not in rec.paths and core.path is not None:
-        rec.paths[core.path_version] = core.path.points
-    rec.rows.append((now_s, st.x_m, st.y_m, st.yaw_rad, st.vx_mps, st.yaw_rate_rps, st.steer_rad, st.accel_mps2,
-                     ex, ey, eyaw, out.steer_cmd_rad, out.accel_cmd_mps2, lon.speed_ref_mps,
-                     e, ye, yre, lat.lateral_error_m, lat.yaw_error_rad, lat.yaw_rate_error_rps,
-                     lat.curvature_1pm, lat.s_m, MODE_CODES[out.mode], core.path_version))
 
 
 @dataclass

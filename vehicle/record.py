@@ -1,6 +1,8 @@
-"""Run folders: ``run.npz`` (columns + reference paths), ``run.csv`` (columns) and ``meta.json``.
+"""Run records and run folders: ``RunRecord`` (one row per control step: truth, estimate, errors against the
+active path, commands; filled by ``record_step``) and its folder ``run.npz`` (columns + reference paths),
+``run.csv`` (columns) and ``meta.json``.
 
-Written by the lockstep runner (tests, bench) and by the service (``--record DIR``); read by
+Recorded and written by the lockstep runner (tests, bench) and by the service (``--record DIR``); read by
 ``iea-vehicle plot RUN``.
 """
 
@@ -8,11 +10,55 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from vehicle.lockstep import RECORD_FIELDS, RunRecord
+from protocol.messages import VehicleMode
+
+if TYPE_CHECKING:
+    from vehicle.core import SimulatedVehicle
+
+RECORD_FIELDS = (
+    "t_s", "x_m", "y_m", "yaw_rad", "speed_mps", "yaw_rate_rps", "steer_rad", "accel_mps2",
+    "est_x_m", "est_y_m", "est_yaw_rad", "steer_cmd_rad", "accel_cmd_mps2", "speed_ref_mps",
+    "lateral_error_m", "yaw_error_rad", "yaw_rate_error_rps",
+    "est_lateral_error_m", "est_yaw_error_rad", "est_yaw_rate_error_rps",
+    "curvature_1pm", "path_s_m", "mode", "path_version",
+)
+MODE_CODES = {m: i for i, m in enumerate(VehicleMode)}
+
+
+@dataclass
+class RunRecord:
+    """Columns of the run (one row per control step) plus paths and events."""
+
+    rows: list[tuple] = field(default_factory=list)
+    paths: dict[int, np.ndarray] = field(default_factory=dict)
+    """Reference points by path version."""
+    events: list[dict] = field(default_factory=list)
+    meta: dict = field(default_factory=dict)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        arr = np.asarray(self.rows, dtype=float).reshape(-1, len(RECORD_FIELDS))
+        return {name: arr[:, i] for i, name in enumerate(RECORD_FIELDS)}
+
+
+def record_step(rec: RunRecord, sim: SimulatedVehicle, out, now_s: float) -> None:
+    st, core = sim.truth, sim.core
+    e, ye, yre, _ = sim.true_errors()
+    lat, lon = out.lateral, out.longitudinal
+    ex, ey, eyaw = core.estimator.pose
+    if core.path_version not in rec.paths and core.path is not None:
+        rec.paths[core.path_version] = core.path.points
+    rec.rows.append((now_s, st.x_m, st.y_m, st.yaw_rad, st.vx_mps, st.yaw_rate_rps, st.steer_rad, st.accel_mps2,
+                     ex, ey, eyaw, out.steer_cmd_rad, out.accel_cmd_mps2, lon.speed_ref_mps,
+                     e, ye, yre, lat.lateral_error_m, lat.yaw_error_rad, lat.yaw_rate_error_rps,
+                     lat.curvature_1pm, lat.s_m, MODE_CODES[out.mode], core.path_version))
+
+
 
 
 def _jsonable(value):

@@ -59,7 +59,7 @@ from vehicle.commands import ANSWERED_AUTH_REASONS, CommandGate
 from vehicle.core import CoreConfig, SimulatedVehicle
 from vehicle.ev_direct import DirectAlertConfig, HeardAlert, act_on_alert
 from vehicle.localisation import GNSS, Fix, FixSourceConfig
-from vehicle.lockstep import RunRecord, record_step
+from vehicle.record import RunRecord, record_step
 
 log = logging.getLogger(__name__)
 
