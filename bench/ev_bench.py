@@ -73,7 +73,7 @@ held-out runs (``python bench/ev_bench.py --json``, 2-core machine shared with o
 
 from __future__ import annotations
 
-from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
+from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
 # isort: split
 import argparse  # noqa: E402
@@ -101,7 +101,7 @@ from sim.world import World  # noqa: E402
 
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
-YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
+YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 HELD_OUT_SEEDS = (5441, 6538)
 """Drawn at random once (2026-11-25, fourth session of issue 17) and frozen; 1-4, 101/102, 301/302 and 1142/1527 are
 tuning seeds (module docstring)."""

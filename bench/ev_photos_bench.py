@@ -14,7 +14,7 @@ App. A) and ms per crop; with ``--json`` the last line is one JSON object of the
 
 from __future__ import annotations
 
-from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
+from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
 # isort: split
 import argparse  # noqa: E402
@@ -29,8 +29,6 @@ from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402
 from rsu.classify.temporal import EvidenceConfig, measure_lamps  # noqa: E402
-
-REAL = ROOT.parent / "shared" / "data" / "real"
 
 
 class LampRule:

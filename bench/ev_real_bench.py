@@ -32,7 +32,7 @@ so those figures count every track, not only the ones another camera's geometry 
 
 from __future__ import annotations
 
-from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
+from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
 # isort: split
 import argparse  # noqa: E402
@@ -50,9 +50,6 @@ from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noq
 from rsu.detect import Detector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
 
-REAL = ROOT.parent / "shared" / "data" / "real"
-if not REAL.is_dir():
-    REAL = Path("/work/shared/data/real")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 

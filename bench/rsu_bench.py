@@ -34,7 +34,7 @@ With ``--json`` the last line is one JSON object of the figures.
 
 from __future__ import annotations
 
-from bench._setup import ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
+from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric library, before numpy loads
 
 # isort: split
 import argparse  # noqa: E402
@@ -67,7 +67,6 @@ from rsu.frames import VideoSource  # noqa: E402
 from rsu.pipeline import RsuPipeline  # noqa: E402
 from rsu.track import SortTracker  # noqa: E402
 
-REAL = ROOT.parent / "shared" / "data" / "real"
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO = REAL / "traffic_videos" / "ambdet_video_3.mp4"
 SIZE_720P = (1280, 720)
