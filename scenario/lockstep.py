@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ddm.build import DdmOptions, build_ddm
 from ddm.config import DdmConfig
 from ddm.service import DdmService
 from protocol import keys
@@ -193,7 +194,7 @@ class CorridorLockstep:
     def start_ddm(self) -> None:
         """A fresh DDM (no memory of earlier commands), as after a restart."""
         self.kill_ddm()
-        self.ddm = DdmService(self.bus, self.clock, self.corridor, self.config.ddm_config)
+        self.ddm = build_ddm(DdmOptions(config=self.config.ddm_config), self.bus, self.clock, self.corridor)
         self._tasks.append(_Task("ddm", 1.0 / self.config.ddm_config.rate_hz, self._ddm_step, start_s=self.clock.now()))
 
     def at(self, t_s: float, action: Callable[[], None]) -> None:
