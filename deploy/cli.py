@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Callable
 
 SERVICES = {
     "rsu": ("rsu.cli", "roadside unit: frames -> detections -> tracks -> ObjectList / EvAlert"),
@@ -279,52 +280,12 @@ def _health(argv: list[str]) -> int:
     return check_health(settings, key, args.timeout_s)
 
 
-def _status(argv: list[str]) -> int:
-    from deploy import status
-
-    return status.main(argv)
-
-
-def _calibrate(argv: list[str]) -> int:
-    from deploy import commission
-
-    return commission.main(argv)
-
-
-def _demo(argv: list[str]) -> int:
-    from scenario import demo
-
-    return demo.main(argv)
-
-
-def _up(argv: list[str]) -> int:
-    from deploy import up
-
-    return up.main(argv)
-
-
-def _record(argv: list[str]) -> int:
-    from deploy import record
-
-    return record.main(argv)
-
-
-def _replay(argv: list[str]) -> int:
-    from deploy import replay
-
-    return replay.main(argv)
-
-
-def _view(argv: list[str]) -> int:
-    from deploy import view
-
-    return view.main(argv)
-
-
-def _scenario(argv: list[str]) -> int:
-    from scenario.lockstep import scenario_main
-
-    return scenario_main(argv)
+def _delegate(module_name: str, function: str = "main") -> Callable[[list[str]], int]:
+    """A command run by another module's ``function(argv)`` (deployment commands in deploy/, experiments in
+    scenario/), imported only when the command runs."""
+    def run(argv: list[str]) -> int:
+        return int(getattr(importlib.import_module(module_name), function)(argv) or 0)
+    return run
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -334,17 +295,22 @@ def main(argv: list[str] | None = None) -> int:
         "router": ("start a Zenoh router (iea-router)", None),
         "corridor": ("validate and summarise a corridor file", _corridor),
         "calibrate": ("commission a camera from surveyed points (iea calibrate RSU --image F --points P.csv)",
-                      _calibrate),
+                      _delegate("deploy.commission")),
         "keys": ("create signing keys (iea keys new KEY_ID --role ddm|rsu)", _keys),
         "deploy": ("generate deployment files (iea deploy acl|compose ...)", _deploy),
-        "demo": ("run the main scenario end to end (make demo)", _demo),
-        "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)", _scenario),
+        "demo": ("run the main scenario end to end (make demo)", _delegate("scenario.demo")),
+        "scenario": ("list scenarios, or run one end to end (processes, or --inprocess lockstep)",
+                     _delegate("scenario.lockstep", "scenario_main")),
         "health": ("check a running service's Health (docker-compose health check)", _health),
-        "status": ("every service of a running corridor as one table (iea status --corridor-id ID)", _status),
-        "up": ("router + every service as local processes (no Docker)", _up),
-        "record": ("record every key of a corridor to MCAP (iea record --out run.mcap)", _record),
-        "replay": ("republish an MCAP recording (iea replay run.mcap [--speed X] [--keys EXPR])", _replay),
-        "view": ("the corridor live in a browser (iea view --port 8080 --corridor-id ID)", _view),
+        "status": ("every service of a running corridor as one table (iea status --corridor-id ID)",
+                   _delegate("deploy.status")),
+        "up": ("router + every service as local processes (no Docker)", _delegate("deploy.up")),
+        "record": ("record every key of a corridor to MCAP (iea record --out run.mcap)",
+                   _delegate("deploy.record")),
+        "replay": ("republish an MCAP recording (iea replay run.mcap [--speed X] [--keys EXPR])",
+                   _delegate("deploy.replay")),
+        "view": ("the corridor live in a browser (iea view --port 8080 --corridor-id ID)",
+                 _delegate("deploy.view")),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]
