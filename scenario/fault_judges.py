@@ -152,6 +152,8 @@ def judge_rsu_kill(seen: RsuKillSeen, verdict: dict[str, Any] | None, stale_limi
         own = f"DDM never reported {victim} stale"
     elif no_neighbour:
         own = "no neighbouring RSU reported the EV"
+    elif seen.reports_from_killed:
+        own = f"{victim} stale after {stale_after:.2f} s but still reported the EV {seen.reports_from_killed} time(s)"
     elif early:
         own = f"{victim} stale after {stale_after:.2f} s; DDM resumed before the EV passed ({len(early)} RESUME)"
     else:
