@@ -233,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--weight-decay", type=float, default=1e-5, help="L2 regularisation")
     ap.add_argument("--dropout", type=float, default=0.3)
+    ap.add_argument("--no-flip", action="store_true", help="train the steering nets without the flipped copies")
     ap.add_argument("--manoeuvre-weight", type=float, default=3.0, help="loss weight of the steering frames")
     ap.add_argument("--width-scale", type=float, default=0.5, help="scale of DAVE-2's convolution widths")
     ap.add_argument("--seg-frames", type=int, default=3000,
@@ -265,6 +266,10 @@ def main(argv: list[str] | None = None) -> int:
         figures.update(train_seg({k: tr[k][keep] for k in ("images", "masks")},
                                  {k: va[k][vkeep] for k in ("images", "masks")}, args.seg_epochs, out, log))
         figures["seg_train_frames"] = int(len(keep))
+    if args.no_flip:  # the flipped copies mirror the road too (yellow edge line on the right): leave them out
+        tr = {k: v[~tr["flipped"]] for k, v in tr.items()}
+        va = {k: v[~va["flipped"]] for k, v in va.items()}
+        figures["no_flip"] = True
     if len(tr["images"]) > args.max_train_frames:
         keep = np.sort(np.random.default_rng(0).choice(len(tr["images"]), args.max_train_frames, replace=False))
         tr = {k: v[keep] for k, v in tr.items()}
