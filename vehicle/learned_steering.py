@@ -18,6 +18,7 @@ when no finite learned angle is there, the core's own command. Runtime needs onn
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 
@@ -32,6 +33,7 @@ STEER_LIMIT_RAD = 0.2
 """Eq. 5's theta_max (= -theta_min): road-wheel angles beyond it are clipped (the teacher stays under 0.1)."""
 SEGMENTED_BGR = (255, 0, 255)
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+log = logging.getLogger("vehicle.learned_steering")
 INPUT_SHAPE = (66, 200, 3)
 
 
@@ -173,6 +175,7 @@ class CameraLoop:
         self.snapshot_at_s = -math.inf
         self.frames = 0
         self.last_threat = 0.0
+        self.engaged = False
 
     def on_world(self, snapshot, now_s: float) -> None:
         self.snapshot, self.snapshot_at_s = snapshot, now_s
@@ -185,6 +188,9 @@ class CameraLoop:
         snap = self.snapshot
         if snap is None or now_s - self.snapshot_at_s > self.stale_s:
             self.vehicle.learned_steer_rad = None
+            if self.engaged:
+                log.warning("learned steering withdrawn: no world snapshot for %.1f s", now_s - self.snapshot_at_s)
+                self.engaged = False
             return None
         st = self.vehicle.truth
         actors = [a for a in snap.actors if a.actor_id != self.vehicle_id]
@@ -194,6 +200,9 @@ class CameraLoop:
         steer, self.last_threat = self.steering(img, radar)
         self.vehicle.learned_steer_rad = steer
         self.frames += 1
+        if not self.engaged:
+            log.info("learned steering engaged: first dashcam frame, %.4f rad", steer)
+            self.engaged = True
         return steer
 
 

@@ -146,3 +146,55 @@ def test_camera_loop_of_the_vehicle_process_steers_from_the_world_and_withdraws_
     assert seen[-1][0] == (66, 200, 3)
     assert seen[-1][1] is None, "debris 100+ m ahead is beyond the radar's 60 m"
     assert loop.tick(1.0) is None and car.learned_steer_rad is None, "world stale for > 0.5 s: withdrawn"
+
+
+@pytest.mark.timeout(60)
+def test_vehicle_process_steers_from_its_dashcam_over_zenoh(nets):
+    """iea-vehicle run --steering learned:2 as a real process: the world published over Zenoh (the test plays
+    the simulator) engages the learned steering, the car keeps publishing its state, and it exits cleanly."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+    from uuid import uuid4
+
+    from deploy.procs import stop_process
+    from protocol.corridor import load_corridor
+    from protocol.keys import sim_world_key, vehicle_key
+    from protocol.messages import WorldSnapshot
+    from protocol.transport import ZenohSettings, ZenohTransport
+    from sim.dashcam import debris_actor
+
+    root = Path(__file__).resolve().parents[2]
+    cid = f"t{uuid4().hex[:8]}"
+    proc = subprocess.Popen([sys.executable, "-m", "vehicle", "run", "--corridor-id", cid, "--duration", "8",
+                             "--steering", "learned:2"], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    transport = ZenohTransport(ZenohSettings())
+    states = []
+    try:
+        transport.subscribe(vehicle_key(cid, "av1", "state"), lambda k, m: states.append(m))
+        road = load_corridor().road
+        deadline = time.monotonic() + 20.0
+        while not states and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stdout.read().decode(errors="replace")
+            time.sleep(0.05)
+        assert states, "no VehicleState from the vehicle process"
+        s_car = float(np.atleast_1d(road.to_frenet(states[-1].pos_x_m, states[-1].pos_y_m)[0])[0])
+        debris = debris_actor(road, "hz0", s_car + 80.0, road.lane_centre_offset_m(1), "box", 1.2, 0.9, 0.45)
+        for k in range(20):  # 2 s of world at 10 Hz
+            transport.publish(sim_world_key(cid), WorldSnapshot(src="sim", stamp=time.time(), seq=k, scenario="t",
+                                                                sim_time_s=0.1 * k, actors=[debris]))
+            time.sleep(0.1)
+        n = len(states)
+        time.sleep(0.5)
+        assert len(states) > n, "the car keeps publishing its state while the camera loop runs"
+        out, _ = proc.communicate(timeout=20)
+        text = out.decode(errors="replace")
+        assert proc.returncode == 0, text
+        assert "learned steering engaged" in text and "Traceback" not in text, text
+    finally:
+        transport.close()
+        if proc.poll() is None:
+            stop_process(proc)
