@@ -93,6 +93,10 @@ class ZenohSettings:
         return conf
 
 
+BULK_THREAD_NICE = 19
+"""Niceness of the thread that decodes bulk samples (object lists, snapshots, video)."""
+
+
 class ZenohTransport(Transport):
     """eclipse-zenoh 1.x session. Publishers are declared once per key with their kind's QoS
     (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
@@ -148,6 +152,10 @@ class ZenohTransport(Transport):
         sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
 
         def drain() -> None:
+            try:  # bulk decoding yields the CPU to the threads that carry commands and alerts (Linux: per thread)
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BULK_THREAD_NICE)
+            except (AttributeError, OSError):
+                pass
             while True:
                 try:
                     sample = sub.handler.recv()
