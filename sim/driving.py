@@ -4,7 +4,7 @@ the infrastructure-guided controller and a camera-steered car, all in lockstep o
 - ``make_scenario(seed)``: a seeded two-lane road (a straight lead-in, an arc of radius 250-600 m either way
   or a straight, a straight run-out), the AV at 10 m/s in a seeded lane, and (``with_debris``) one piece of
   debris of the report's kinds in its lane, 0-0.5 m off the lane centre, 100-150 m ahead.
-- Every run is the thesis controller (``vehicle.core.SimulatedVehicle``: bicycle plant, GNSS + EKF, lateral
+- Every run is the thesis controller (``vehicle.simulated.SimulatedVehicle``: bicycle plant, GNSS + EKF, lateral
   and longitudinal controllers, fail-safe) stepped at 100 Hz with the DDM's heartbeat, so the speed profile
   is the same for every driver.
 - ``teacher``: the DDM's hazard rule with perfect knowledge: once the debris blocks the AV's lane
@@ -39,8 +39,8 @@ from protocol.corridor import Road, Segment
 from protocol.messages import Actor, Manoeuvre, PathSwitchCommand
 from sim.dashcam import debris_actor
 from sim.scenario import DEBRIS_KINDS
-from vehicle.core import SimulatedVehicle
 from vehicle.plant import VehicleParams
+from vehicle.simulated import SimulatedVehicle
 
 DT_S = 0.01
 CAMERA_PERIOD_S = 0.1

@@ -13,8 +13,8 @@ picture shows that side occupied). While no DDM heartbeat is heard for ``link_ti
 *degraded* (``vehicle.failsafe``): speed capped, said in ``detail``. A ``resume`` command returns to
 DRIVING in the current lane.
 
-``SimulatedVehicle`` closes the loop for the simulator, tests and the service: the bicycle plant
-(``vehicle/plant.py``), a simulated fix source and odometry feed a ``VehicleCore``.
+The closed loop of the simulator, the tests and the service (plant, simulated sensors and this core) is
+``vehicle.simulated.SimulatedVehicle``.
 """
 
 from __future__ import annotations
@@ -29,16 +29,11 @@ from vehicle.commands import CommandBook, CommandLimits, Decision
 from vehicle.failsafe import FailsafeConfig, Watchdog
 from vehicle.lateral import LateralController, LateralGains, LateralOutput
 from vehicle.localisation import (
-    GNSS,
     Fix,
-    FixSourceConfig,
-    Odometry,
-    OdometryNoise,
     PoseEstimator,
-    SimulatedFixSource,
 )
 from vehicle.longitudinal import LongitudinalController, LongitudinalOutput
-from vehicle.plant import BicyclePlant, VehicleParams, VehicleStateVec
+from vehicle.plant import VehicleParams
 from vehicle.reference import ReferencePath, lane_centre_waypoints, offset_change_waypoints
 
 ROAD_END_MARGIN_M = 10.0
@@ -394,56 +389,3 @@ def planned_braking_mps2(path: ReferencePath) -> float:
     v2, ds = path.speeds[:k] ** 2, np.diff(path.s[:k])
     steepest = float(np.max((v2[:-1] - v2[1:]) / (2.0 * np.maximum(ds, 1e-6)), initial=0.0))
     return max(steepest, float(path.speeds[0]) ** 2 / (2.0 * path.stop_s_m))
-
-
-class SimulatedVehicle:
-    """Plant + sensors + core, stepped at the control rate (the car of the simulator and the service)."""
-
-    def __init__(self, road, vehicle_id: str, start_s_m: float, start_lane: int, cruise_speed_mps: float,
-                 config: CoreConfig = CoreConfig(), fix_source: FixSourceConfig | None = GNSS,
-                 odometry: OdometryNoise = OdometryNoise(), seed: int = 0, start_time_s: float = 0.0,
-                 start_speed_mps: float | None = None) -> None:
-        self.road = road
-        x, y, h = road.pose_at(start_s_m, road.lane_centre_offset_m(start_lane))
-        v0 = cruise_speed_mps if start_speed_mps is None else start_speed_mps
-        self.plant = BicyclePlant(config.params, VehicleStateVec(x_m=x, y_m=y, yaw_rad=h, vx_mps=v0))
-        self.fixes = SimulatedFixSource(fix_source, seed) if fix_source is not None else None
-        self.odometry = Odometry(odometry, seed)
-        self.core = VehicleCore(road, vehicle_id, cruise_speed_mps, config)
-        self.core.initialise(start_time_s, x, y, h, v0)
-        self.fix_source_enabled = True
-
-    @property
-    def truth(self) -> VehicleStateVec:
-        return self.plant.state
-
-    def step(self, now_s: float, dt_s: float) -> ControlOutput:
-        st = self.plant.state
-        if self.fixes is not None:
-            for fix in self.fixes.step(now_s, st.x_m, st.y_m):
-                if self.fix_source_enabled:
-                    self.core.on_fix(fix)
-        v, w = self.odometry.measure(st.vx_mps, st.yaw_rate_rps)
-        out = self.core.control(now_s, v, w, dt_s, st.steer_rad)
-        self.plant.step(dt_s, out.steer_cmd_rad, out.accel_cmd_mps2)
-        return out
-
-    def true_errors(self) -> tuple[float, float, float, float]:
-        """(e_lat, yaw err, yaw-rate err, s) of the TRUE pose against the active path."""
-        core, st = self.core, self.plant.state
-        path = core.path
-        assert path is not None
-        proj = path.project(st.x_m, st.y_m, getattr(self, "_hint", None))
-        self._hint = proj.index
-        fit = path.fit_at(proj.s_m, core.lateral.fit_points, core.lateral.line_tolerance_m)
-        e, ye, yre = fit.errors(st.x_m, st.y_m, st.yaw_rad, st.yaw_rate_rps, st.vx_mps)
-        return e, ye, yre, proj.s_m
-
-    def stop_error_m(self) -> float | None:
-        """Signed distance along the path from the stop point to the car (+ past it)."""
-        core = self.core
-        if core.stop_s_m is None or core.path is None:
-            return None
-        st = self.plant.state
-        return core.path.project(st.x_m, st.y_m).s_m - core.stop_s_m
-

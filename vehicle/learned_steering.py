@@ -26,7 +26,8 @@ import numpy as np
 
 from ddm.threat import LX_MAX_M, LY_MAX_M, fuse_image, image_threat, threat_value
 from protocol.messages import VehicleMode
-from vehicle.core import ControlOutput, SimulatedVehicle
+from vehicle.core import ControlOutput
+from vehicle.simulated import SimulatedVehicle
 
 CASES = (1, 2, 3)
 STEER_LIMIT_RAD = 0.2
@@ -138,22 +139,15 @@ class LearnedVehicle(SimulatedVehicle):
         sim.__class__ = cls
         return sim  # type: ignore[return-value]
 
-    def step(self, now_s: float, dt_s: float) -> ControlOutput:
-        st = self.plant.state
-        if self.fixes is not None:
-            for fix in self.fixes.step(now_s, st.x_m, st.y_m):
-                if self.fix_source_enabled:
-                    self.core.on_fix(fix)
-        v, w = self.odometry.measure(st.vx_mps, st.yaw_rate_rps)
-        out = self.core.control(now_s, v, w, dt_s, st.steer_rad)
+    def plant_steer_rad(self, out: ControlOutput) -> float:
+        """The learned angle while the core is DRIVING (clipped to the steering limit), the core's otherwise."""
         steer = out.steer_cmd_rad
         learned = self.learned_steer_rad
         if out.mode == VehicleMode.DRIVING and learned is not None and math.isfinite(learned):
             steer = float(np.clip(learned, -STEER_LIMIT_RAD, STEER_LIMIT_RAD))
             self.learned_steps += 1
         self.applied_steer_rad = steer
-        self.plant.step(dt_s, steer, out.accel_cmd_mps2)
-        return out
+        return steer
 
 
 class CameraLoop:

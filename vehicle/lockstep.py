@@ -18,10 +18,11 @@ import numpy as np
 
 from protocol.corridor import Road, Segment
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
-from vehicle.core import CoreConfig, SimulatedVehicle
+from vehicle.core import CoreConfig
 from vehicle.localisation import GNSS, FixSourceConfig
 from vehicle.record import RunRecord, record_step
 from vehicle.reference import lane_change_waypoints
+from vehicle.simulated import SimulatedVehicle
 
 
 @dataclass

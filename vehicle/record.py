@@ -19,7 +19,7 @@ import numpy as np
 from protocol.messages import VehicleMode
 
 if TYPE_CHECKING:
-    from vehicle.core import SimulatedVehicle
+    from vehicle.simulated import SimulatedVehicle
 
 RECORD_FIELDS = (
     "t_s", "x_m", "y_m", "yaw_rad", "speed_mps", "yaw_rate_rps", "steer_rad", "accel_mps2",

@@ -56,10 +56,11 @@ from protocol.runtime import freeze_startup_heap
 from protocol.security import AuthError, TrustList, Verifier
 from protocol.transport import Transport
 from vehicle.commands import ANSWERED_AUTH_REASONS, CommandGate
-from vehicle.core import CoreConfig, SimulatedVehicle
+from vehicle.core import CoreConfig
 from vehicle.ev_direct import DirectAlertConfig, HeardAlert, act_on_alert
 from vehicle.localisation import GNSS, Fix, FixSourceConfig
 from vehicle.record import RunRecord, record_step
+from vehicle.simulated import SimulatedVehicle
 
 log = logging.getLogger(__name__)
 
