@@ -36,8 +36,8 @@ from sim.bodies import (
     ev_lamps_on,
 )
 from sim.camera import NEAR_M, PinholeCamera
-from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
-from sim.render_effects import halo_numbers, line_kernel, shade_faces
+from sim.lamps import AMBER_ON_BGR, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
+from sim.render_effects import halo_numbers, line_kernel, queue_lamp_glow, shade_faces
 from sim.scenery import LIGHTING, render_scenery
 
 MIN_VISIBLE_FRACTION = 0.3
@@ -299,17 +299,8 @@ class Renderer:
                 cv2.fillConvexPoly(img, uv16[q:q + 4], colour, cv2.LINE_AA, 4)
                 if lit:
                     puv = uv[q:q + 4]
-                    strength = 1.0 if dc.lamp.startswith("ev") else SIGNAL_GLOW if dc.lamp in SIGNAL_LAMPS \
-                        else (0.55 if a.brake_on else 0.3)
-                    if dc.lamp.startswith("ev") and dc.part == len(parts) - 1:
-                        # one halo per light-bar colour (its faces share it)
-                        key = (a.actor_id, dc.lamp)
-                        if key in lamp_pts:
-                            lamp_pts[key][0] = np.vstack([lamp_pts[key][0], puv])
-                        else:
-                            lamp_pts[key] = [puv, colour, strength]
-                    else:
-                        glows.append((puv, colour, strength))
+                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on, puv,
+                                    colour)
             if blur_px is not None:
                 self._motion_blur(img, (x_lo, y_lo, x_hi, y_hi), blur_px)
         glows.extend(tuple(v) for v in lamp_pts.values())

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.lamps import SIGNAL_GLOW, SIGNAL_LAMPS
+
 
 def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     """Motion-blur kernel for an image motion ``vec`` (px) during the exposure: n + 1 = min(25, ceil(|vec|)) + 1
@@ -68,3 +70,19 @@ def shade_faces(posed: list[tuple], camera_centre: np.ndarray, lighting: dict, s
                      0.6 + 0.5 * shade * np.where(np.concatenate([md.top for md in models]), 1.3, 1.0), shade)
     colours = np.clip(np.concatenate([md.base_bgr for md in models]) * shade[..., None] * lighting["scene_gain"], 0, 255)
     return vis, colours.tolist(), [0, *np.cumsum(counts).tolist()]
+
+
+def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_bar: bool, brake_on: bool,
+                    puv: np.ndarray, colour) -> None:
+    """Queue the halo of a lit lamp face (its pixel points ``puv``): strength 1 for an EV lamp, ``SIGNAL_GLOW`` for
+    a flasher or turn signal, 0.55 / 0.3 for a tail lamp braking / not; the faces of one light-bar colour
+    (``on_bar``: an EV lamp on the body's last part) share one halo, gathered in ``bar_halos``."""
+    strength = 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
+    if lamp.startswith("ev") and on_bar:
+        key = (actor_id, lamp)
+        if key in bar_halos:
+            bar_halos[key][0] = np.vstack([bar_halos[key][0], puv])
+        else:
+            bar_halos[key] = [puv, colour, strength]
+    else:
+        glows.append((puv, colour, strength))

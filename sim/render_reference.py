@@ -24,8 +24,9 @@ from sim.bodies import (
     face_points,
 )
 from sim.camera import NEAR_M
-from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
+from sim.lamps import AMBER_ON_BGR, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
 from sim.render import Renderer
+from sim.render_effects import queue_lamp_glow
 from sim.scenery import LIGHTING
 
 
@@ -154,17 +155,8 @@ class ReferenceRenderer(Renderer):
                                      * (L["ambient"] + 0.5 * L["sun"]) * gain * 1.3, 0, 255).tolist()
                 cv2.fillConvexPoly(img, np.round(puv * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
                 if lit:
-                    strength = 1.0 if dc.lamp.startswith("ev") else SIGNAL_GLOW if dc.lamp in SIGNAL_LAMPS \
-                        else (0.55 if a.brake_on else 0.3)
-                    if dc.lamp.startswith("ev") and dc.part == len(parts) - 1:
-                        # one halo per light-bar colour (its faces share it)
-                        key = (a.actor_id, dc.lamp)
-                        if key in lamp_pts:
-                            lamp_pts[key][0] = np.vstack([lamp_pts[key][0], puv])
-                        else:
-                            lamp_pts[key] = [puv, colour, strength]
-                    else:
-                        glows.append((puv, colour, strength))
+                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on, puv,
+                                    colour)
             if blur_px is not None:
                 self._motion_blur(img, uv, blur_px)
         glows.extend(tuple(v) for v in lamp_pts.values())
