@@ -169,7 +169,7 @@ class ZenohTransport(Transport):
 
         worker = threading.Thread(target=drain, name=f"bulk {key_expr}", daemon=True)
         worker.start()
-        self._drains.append(worker)
+        self._drains = [t for t in self._drains if t.is_alive()] + [worker]  # those of closed subscriptions ended
         return self._declared(sub)
 
     def _declared(self, entity: Any) -> Subscription:
