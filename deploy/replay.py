@@ -209,7 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"iea replay: {exc}", file=sys.stderr)
         return 2
-    transport = ZenohTransport(settings)
+    from protocol.qos import qos_lossless
+
+    # each kind at its own priority, but blocking and express: a recording replays whole at any --speed
+    transport = ZenohTransport(settings, qos=qos_lossless)
     try:
         time.sleep(0.5)  # let subscribers discover this session before the first message
         n = replay_to_transport(args.recording, transport, speed=args.speed, keys=args.keys,

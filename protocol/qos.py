@@ -65,6 +65,12 @@ def qos_for_key(key: str) -> QosClass:
     return BY_TOPIC.get(key.rsplit("/", 1)[-1], OBJECTS)
 
 
+def qos_lossless(key: str) -> QosClass:
+    """The kind's priority with ``BLOCK`` and express: for a publisher that must lose nothing and batch
+    nothing (``iea replay`` at any speed, whose last batch would otherwise still be queued at close)."""
+    return QosClass(qos_for_key(key).priority, "BLOCK", True)
+
+
 def is_bulk_expr(key_expr: str) -> bool:
     """True when every key of ``key_expr`` is a bulk kind (its last chunk ``objects``, ``world``, ``video``):
     such subscriptions are delivered off the network thread through a bounded ring that keeps the newest

@@ -43,6 +43,9 @@ def test_qos_by_kind_commands_first_bulk_last_and_never_mixed():
         qos.check_separation({"a": qos.COMMAND, "b": qos.QosClass("REAL_TIME", "DROP", True)})
     assert qos.is_bulk_expr("iea/c/rsu/*/objects") and qos.is_bulk_expr("iea/c/sim/world")
     assert not qos.is_bulk_expr("iea/c/rsu/*/*") and not qos.is_bulk_expr("iea/c/vehicle/av1/cmd")
+    # a replay keeps each kind's priority but loses and batches nothing
+    assert qos.qos_lossless("iea/c/sim/world") == qos.QosClass("BACKGROUND", "BLOCK", True)
+    assert qos.qos_lossless("iea/c/vehicle/av1/cmd") == cmd
 
 
 def test_zenoh_publishers_carry_their_kind_qos(corridor_id):
