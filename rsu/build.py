@@ -160,7 +160,8 @@ def open_source(spec: str, corridor: Corridor, rsu_id: str, transport_factory, *
     """``sim`` (this RSU's view of the simulator's WorldSnapshot; needs the transport), a folder of images,
     or what OpenCV opens: a video file, a camera index, an rtsp:// or http:// URL."""
     if spec == "sim":
-        return SimSource(corridor, rsu_id, transport_factory(), corridor_id=corridor_id, seed=sim_seed)
+        return SimSource(corridor, rsu_id, transport_factory(), corridor_id=corridor_id, seed=sim_seed,
+                         queue_size=queue_size)
     if Path(spec).is_dir():
         return ImageFolderSource(spec, fps or corridor.rsu(rsu_id).camera.fps, source_id=rsu_id)
     return VideoSource(spec, source_id=rsu_id, read_timeout_s=read_timeout_s, queue_size=queue_size,

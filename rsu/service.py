@@ -8,8 +8,9 @@ camera: ``rsu.overlay.CalibrationOverlay``) and reports health. Frames never que
 sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
-Latest frame, not a queue (issue 19): the simulated camera renders the newest snapshot when the RSU asks for a frame
-and counts the camera frames it passed over (``drops.source``). Health reports the processed rate
+Latest frame, not a queue (issue 19): the simulated camera holds its newest ``queue_size`` frames (2, as a live
+source), renders the oldest of them when the RSU asks for a frame and counts the camera frames pushed out while
+the RSU was busy (``drops.source``). Health reports the processed rate
 (``rates_hz.frames``, beside the camera's ``rates_hz.camera``), per stage the mean wall-clock and CPU (``{stage}_cpu``)
 milliseconds per frame (``render`` when the camera renders in this process), and, for sources stamped with the
 capture time, the frame's age when its ObjectList went out (``latency_ms.frame_age`` mean, ``frame_age_max``).

@@ -24,13 +24,13 @@ class SimSource:
     """Frames of one RSU's simulated camera; ``read`` raises :class:`SourceStalled` when no snapshot comes."""
 
     def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport, *, corridor_id: str | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, queue_size: int = 2) -> None:
         from sim.camera_source import SimCamera  # the simulator is only needed for --source sim
 
         if corridor_id and corridor_id != corridor.corridor_id:
             # SimCamera subscribes on its corridor's id: give it the overriding id (key expressions only).
             corridor = dataclasses.replace(corridor, corridor_id=corridor_id)
-        self.camera = SimCamera(corridor, rsu_id, transport, seed=seed)
+        self.camera = SimCamera(corridor, rsu_id, transport, seed=seed, queue_frames=queue_size)
         self.fps = float(self.camera.fps)
         self.source_id = f"sim:{rsu_id}"
         self.stamps_capture_time = True
@@ -38,7 +38,8 @@ class SimSource:
 
     @property
     def drops(self) -> int:
-        """Camera frames passed over because the RSU came late for them (it processes the latest frame)."""
+        """Camera frames passed over because the RSU came late for them (the camera holds the newest
+        ``queue_size`` frames, as a live source does)."""
         return self.camera.frames_skipped
 
     @property

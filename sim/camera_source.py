@@ -38,13 +38,17 @@ class SimCamera:
     """Frame source of one RSU camera rendered from world snapshots."""
 
     def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport | None = None, *, seed: int = 0,
-                 noise: bool = True, motion_blur: bool = True, exposure: bool = True) -> None:
+                 noise: bool = True, motion_blur: bool = True, exposure: bool = True, queue_frames: int = 2) -> None:
+        if not 1 <= queue_frames <= 64:
+            raise ValueError(f"queue_frames must be in [1, 64], got {queue_frames}")
         self.corridor = corridor
         self.rsu = corridor.rsu(rsu_id)
         self.renderer = Renderer(self.rsu.camera, corridor.road, seed=seed, noise=noise, motion_blur=motion_blur,
                                  exposure=exposure)
         self.fps = self.rsu.camera.fps
-        self._latest: WorldSnapshot | None = None
+        self.queue_frames = queue_frames
+        """Camera frames held for a late reader, newest kept (a live camera's ``--queue-size``, default 2)."""
+        self._pending: dict[int, WorldSnapshot] = {}  # frame index -> its first snapshot, oldest first
         self._latest_seen: int | None = None
         self._cond = threading.Condition()
         self._sub: Subscription | None = None
@@ -67,9 +71,15 @@ class SimCamera:
         return self.rsu.camera.height_px
 
     def _on_snapshot(self, _key: str, snap: WorldSnapshot) -> None:
+        n = self.frame_index(snap.sim_time_s)
         with self._cond:
-            self._latest = snap
             self.snapshots_received += 1
+            newest = max(self._pending, default=self._latest_seen)
+            if newest is not None and n <= newest:
+                return  # a second snapshot within a frame already captured (snapshots 20 Hz, camera 15 fps)
+            self._pending[n] = snap
+            while len(self._pending) > self.queue_frames:  # the buffer keeps the newest frames
+                del self._pending[min(self._pending)]
             self._cond.notify_all()
 
     def frame_index(self, sim_time_s: float) -> int:
@@ -85,18 +95,15 @@ class SimCamera:
         return Frame(img, float(snapshot.sim_time_s), n, self.rsu.rsu_id, float(snapshot.stamp))
 
     def read(self, timeout_s: float = 1.0) -> Frame | None:
-        """The latest frame, not a queue: renders the newest snapshot that falls in a camera frame not delivered
-        yet (snapshots come at 20 Hz, a 15 fps camera skips one in four); camera frames passed over because the
+        """The oldest camera frame still held, not a queue: the camera captures frame k from the first snapshot
+        at or after k / fps (snapshots come at 20 Hz, so a 15 fps camera skips one in four) and holds the newest
+        ``queue_frames`` frames, as a live camera's driver does; frames pushed out of that buffer because the
         reader came late are counted in ``frames_skipped``. None on timeout."""
-        def fresh() -> bool:
-            return self._latest is not None and (self._latest_seen is None or
-                                                 self.frame_index(self._latest.sim_time_s) > self._latest_seen)
-
         with self._cond:
-            if not self._cond.wait_for(fresh, timeout_s):
+            if not self._cond.wait_for(lambda: bool(self._pending), timeout_s):
                 return None
-            snap = self._latest
-            n = self.frame_index(snap.sim_time_s)
+            n = min(self._pending)
+            snap = self._pending.pop(n)
             if self._latest_seen is not None:
                 self.frames_skipped += max(0, n - self._latest_seen - 1)
             self._latest_seen = n

@@ -27,7 +27,7 @@ def _snap(t_s: float) -> WorldSnapshot:
 
 def test_a_late_reader_gets_the_newest_frame_and_the_missed_ones_are_counted():
     bus = LocalBus()
-    src = SimSource(CORRIDOR, "rsu1", bus)
+    src = SimSource(CORRIDOR, "rsu1", bus, queue_size=1)
     key = sim_world_key(CORRIDOR.corridor_id)
     bus.publish(key, _snap(0.0))
     assert src.read(0.5).frame_number == 0 and src.drops == 0
@@ -41,6 +41,27 @@ def test_a_late_reader_gets_the_newest_frame_and_the_missed_ones_are_counted():
     assert src.drops == 7 - 1 - 1  # frames 2..6 were never processed
     wall_s, cpu_s = src.last_render_times_s
     assert wall_s > 0 and cpu_s > 0
+    src.close()
+
+
+def test_the_camera_holds_its_newest_two_frames_for_a_reader_one_frame_late():
+    bus = LocalBus()
+    src = SimSource(CORRIDOR, "rsu1", bus)  # queue_size 2, as a live source
+    key = sim_world_key(CORRIDOR.corridor_id)
+    bus.publish(key, _snap(0.0))
+    assert src.read(0.5).frame_number == 0
+    bus.publish(key, _snap(0.1))  # frame 1
+    bus.publish(key, _snap(0.15))  # frame 2 arrives before the RSU read frame 1 (50 ms after it)
+    f1, f2 = src.read(0.5), src.read(0.5)
+    assert (f1.frame_number, f2.frame_number) == (1, 2) and src.drops == 0  # nothing lost for being 1 frame late
+    assert f1.timestamp_s == pytest.approx(1000.1)  # frame 1 from its own snapshot, not the newest
+    for k in range(4, 11):  # 0.2 .. 0.5 s (frames 3..7) published while the RSU was busy
+        bus.publish(key, _snap(0.05 * k))
+    f = src.read(0.5)
+    assert f.frame_number == 6 and src.drops == 3  # the oldest of the two held; frames 3..5 pushed out
+    assert src.read(0.5).frame_number == 7 and src.camera.read(0.01) is None
+    bus.publish(key, _snap(0.5))  # a second snapshot within frame 7 is not a new frame
+    assert src.camera.read(0.01) is None
     src.close()
 
 
