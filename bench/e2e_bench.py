@@ -14,8 +14,8 @@ every key of the corridor; stamps are the publishers' wall clocks on this one ho
   response decided -> manoeuvre start is then the wait for traffic, not the pipeline;
 - issue 19, from the run's recording (``bench/e2e_rsu_load.py``): lights on -> response split at the first
   processed frame with the lamps lit (the alerting RSU's first ObjectList of a frame captured after lights on) ->
-  EvAlert -> DDM decision; per RSU the processed fps (``rsu_fps_min``: every RSU, every 1 s Health period while the
-  simulator ran, the first excepted), the camera frames dropped for being stale, the frames' age at publication and
+  EvAlert -> DDM decision; per RSU the processed fps (``rsu_fps_min``: of the camera's frames, those processed, every RSU,
+  every 1 s Health period inside the simulator's run, the RSU's warm-up excepted; ``rsu_rate_min_hz`` the raw count), the camera frames dropped for being stale, the frames' age at publication and
   the CPU ms per frame by stage (render, detect, track, classify, localize, hazard, publish).
 
 Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault

@@ -1,12 +1,13 @@
 """What each RSU kept up with in a process run of ``bench/e2e_bench.py`` (issue 19), from the run's recording
 (``iea up`` records every key of the corridor into ``<run folder>/run.mcap``, ``deploy/record.py``):
 
-- per RSU, from its 1 Hz ``Health``: processed frames per second (``rates_hz.frames``) beside the camera's
-  (``rates_hz.camera``), the camera frames it passed over because it came late (``drops.source``: it processes the
-  latest frame, not a queue), the frames' age when their ObjectList went out (``latency_ms.frame_age``) and the CPU
-  milliseconds per frame of each stage (``latency_ms.{stage}_cpu``: render, detect, track, classify, localize,
-  hazard, publish). Only the periods while the simulator ran count, the first one excepted (the camera's static
-  scene and the models are built on the first frames);
+- per RSU, from its 1 Hz ``Health``: of the camera's frames per second (``rates_hz.camera``), those processed
+  (``fps``: camera fps x processed / (processed + passed over) in the period) and the raw count of frames
+  processed per second (``rate_hz``: ``rates_hz.frames``), the camera frames it passed over because it came late
+  (``drops.source``: it processes the newest frames, not a queue), the frames' age when their ObjectList went
+  out (``latency_ms.frame_age``) and the CPU milliseconds per frame of each stage (``latency_ms.{stage}_cpu``:
+  render, detect, track, classify, localize, hazard, publish). Only the periods wholly inside the simulator's
+  run count, the RSU's first ``WARMUP_PERIODS`` excepted (its first frame builds the camera's static scene);
 - the split of lights on -> EvAlert at the first processed frame with the lamps lit: the first ObjectList of the
   RSU that raised the first alert whose frame was captured after lights on (its ``measurement_time``, the
   snapshot's stamp), published at its stamp.
@@ -20,6 +21,8 @@ import statistics
 from pathlib import Path
 from typing import Any
 
+WARMUP_PERIODS = 2
+"""Health periods of an RSU not counted at the start of a run (its first frame, and the catch-up after it)."""
 STAGES = ("render", "detect", "track", "classify", "localize", "hazard", "publish")
 
 
@@ -47,20 +50,39 @@ def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
             health.setdefault(m.src, []).append(m)
     out = {}
     for rsu_id, hs in sorted(health.items()):
-        running = [h for h in hs if t0 < h.stamp <= t1 + 0.5][1:]  # the first period builds caches and models
+        # periods wholly inside the simulator's run ([stamp - 1 s, stamp] within [t0, t1]: one that runs past
+        # the last snapshot counts frames that never came), the RSU's warm-up excepted: its first frame builds
+        # the camera's static scene (0.4 s alone, 1-2 s while every service starts) and the frames passed
+        # meanwhile are counted at its next read, in the second period
+        idx = [i for i, h in enumerate(hs) if t0 < h.stamp <= t1][WARMUP_PERIODS:]
+        running = [hs[i] for i in idx]
         if not running:
             continue
-        fps = [h.rates_hz.get("frames", 0.0) for h in running]
+        rates = [h.rates_hz.get("frames", 0.0) for h in running]
+        fps = [_camera_frames_processed_hz(hs[i - 1], hs[i]) for i in idx]
         ages = [h.latency_ms["frame_age"] for h in running if "frame_age" in h.latency_ms]
         cpu = {s: round(statistics.fmean(h.latency_ms[f"{s}_cpu"] for h in running if f"{s}_cpu" in h.latency_ms), 2)
                for s in STAGES if any(f"{s}_cpu" in h.latency_ms for h in running)}
         out[rsu_id] = {
             "fps_min": round(min(fps), 2), "fps_median": round(statistics.median(fps), 2),
+            "rate_min_hz": round(min(rates), 2), "rate_median_hz": round(statistics.median(rates), 2),
             "camera_fps": running[-1].rates_hz.get("camera"), "frames_dropped": hs[-1].drops.get("source", 0),
+            "frames_dropped_running": running[-1].drops.get("source", 0) - hs[idx[0] - 1].drops.get("source", 0),
             "frame_age_ms_median": round(statistics.median(ages), 1) if ages else None,
             "frame_age_ms_max": round(max(h.latency_ms.get("frame_age_max", 0.0) for h in running), 1) if ages else None,
             "cpu_ms_per_frame": cpu, "cpu_ms_per_frame_total": round(sum(cpu.values()), 2), "periods": len(running)}
     return out
+
+
+def _camera_frames_processed_hz(prev: Any, h: Any) -> float:
+    """Of the camera's frames in the period ending at Health ``h``, those processed, per second of camera time:
+    camera fps x processed / (processed + passed over) (``drops.source`` is cumulative: its rise since ``prev``).
+    The raw count per 1 s period (``rates_hz.frames``) moves +-1 frame with the period's phase even when no frame
+    is dropped (snapshots come at 20 Hz, frames of a 15 fps camera 50 or 100 ms apart)."""
+    camera = h.rates_hz.get("camera") or 0.0
+    n = h.rates_hz.get("frames", 0.0) * max(h.stamp - prev.stamp, 0.0)
+    d = max(h.drops.get("source", 0) - prev.drops.get("source", 0), 0)
+    return camera * n / (n + d) if n + d > 0 else 0.0
 
 
 def first_lit_frame_s(path: str | Path, rsu_id: str | None, lights_on_s: float | None) -> float | None:
@@ -82,16 +104,17 @@ def print_load(runs: list[dict[str, Any]]) -> None:
     if not by_rsu:
         print(" per-RSU load: no recording")
         return
-    print(f"\n per RSU over {len(runs)} process runs (Health, 1 s periods while the simulator ran, first one excepted)")
-    print(f" {'rsu':<6} {'fps min':>7} {'median':>7} {'camera':>6} {'dropped':>8} {'age ms':>7} {'age max':>8}  "
+    print(f"\n per RSU over {len(runs)} process runs (Health, 1 s periods inside the simulator's run, the first "
+          f"{WARMUP_PERIODS} excepted; fps: of the camera's frames, those processed; raw: frames counted per period)")
+    print(f" {'rsu':<6} {'fps min':>7} {'median':>7} {'raw min':>7} {'camera':>6} {'dropped':>8} {'age ms':>7} {'age max':>8}  "
           "CPU ms per frame by stage")
     for rsu_id, loads in sorted(by_rsu.items()):
         cpu = {s: statistics.fmean(ld["cpu_ms_per_frame"].get(s, 0.0) for ld in loads) for s in STAGES}
         ages = [ld["frame_age_ms_median"] for ld in loads if ld["frame_age_ms_median"] is not None]
         age_max = max((ld["frame_age_ms_max"] for ld in loads if ld["frame_age_ms_max"] is not None), default=None)
         print(f" {rsu_id:<6} {min(ld['fps_min'] for ld in loads):7.1f} "
-              f"{statistics.median(ld['fps_median'] for ld in loads):7.1f} {loads[0]['camera_fps'] or 0:6.1f} "
-              f"{sum(ld['frames_dropped'] for ld in loads):8d} "
+              f"{statistics.median(ld['fps_median'] for ld in loads):7.1f} {min(ld['rate_min_hz'] for ld in loads):7.1f} "
+              f"{loads[0]['camera_fps'] or 0:6.1f} {sum(ld['frames_dropped_running'] for ld in loads):8d} "
               f"{statistics.median(ages) if ages else float('nan'):7.0f} {age_max or float('nan'):8.0f}  "
               + " ".join(f"{s} {v:.1f}" for s, v in cpu.items()) + f" = {sum(cpu.values()):.1f}")
 
@@ -107,7 +130,10 @@ def load_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
         cpu[rsu_id] = {s: round(statistics.median(ld["cpu_ms_per_frame"].get(s, 0.0) for ld in mine), 2)
                        for s in STAGES}
         cpu[rsu_id]["fps_min"] = min(ld["fps_min"] for ld in mine)
+        cpu[rsu_id]["rate_min_hz"] = min(ld["rate_min_hz"] for ld in mine)
         cpu[rsu_id]["frames_dropped"] = sum(ld["frames_dropped"] for ld in mine)
+        cpu[rsu_id]["frames_dropped_running"] = sum(ld["frames_dropped_running"] for ld in mine)
     ages = [ld["frame_age_ms_max"] for _r, ld in loads if ld["frame_age_ms_max"] is not None]
-    return {"rsu_fps_min": min(ld["fps_min"] for _r, ld in loads), "rsu_load": cpu,
+    return {"rsu_fps_min": min(ld["fps_min"] for _r, ld in loads),
+            "rsu_rate_min_hz": min(ld["rate_min_hz"] for _r, ld in loads), "rsu_load": cpu,
             "rsu_frame_age_ms_max": max(ages) if ages else None}
