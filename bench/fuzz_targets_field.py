@@ -251,8 +251,9 @@ class RsuSnapshotTarget(_BusTarget):
 
     def after(self) -> None:
         self.n += 1
-        if self.n % 200 == 0 and self.camera._latest is not None:
-            self.camera.render(self.camera._latest)
+        held = self.camera.newest_held
+        if self.n % 200 == 0 and held is not None:
+            self.camera.render(held)
 
     def sizes(self) -> dict[str, int]:
-        return {"snapshots_held": int(self.camera._latest is not None)}
+        return {"snapshots_held": self.camera.frames_held}

@@ -82,6 +82,18 @@ class SimCamera:
                 del self._pending[min(self._pending)]
             self._cond.notify_all()
 
+    @property
+    def newest_held(self) -> WorldSnapshot | None:
+        """The snapshot of the newest camera frame held and not delivered yet (None: none held)."""
+        with self._cond:
+            return self._pending[max(self._pending)] if self._pending else None
+
+    @property
+    def frames_held(self) -> int:
+        """Camera frames held for the reader (at most ``queue_frames``)."""
+        with self._cond:
+            return len(self._pending)
+
     def frame_index(self, sim_time_s: float) -> int:
         """The camera's frame counter at a sim time (it exposes a frame every 1/fps s from t = 0)."""
         return int(sim_time_s * self.fps + 1e-6)

@@ -47,13 +47,13 @@ def test_the_rsu_sim_camera_never_holds_the_crashing_snapshot():
     bus = LocalBus()
     camera = SimCamera(corridor, "rsu1", transport=bus, seed=0)
     bus.publish_bytes(keys.sim_world_key("r24"), ISSUE_24_CRASH)
-    assert camera._latest is None and bus.stats.rejected["invalid"] == 1 and bus.stats.handler_errors == 0
+    assert camera.newest_held is None and bus.stats.rejected["invalid"] == 1 and bus.stats.handler_errors == 0
     # the latest sim time a message may carry still makes an integer frame counter and a frame
     body = msgpack.unpackb(ISSUE_24_CRASH)
     body["sim_time_s"] = MAX_SIM_TIME_S
     bus.publish_bytes(keys.sim_world_key("r24"), msgpack.packb(body))
-    assert camera._latest is not None
-    frame = camera.render(camera._latest)
+    assert camera.newest_held is not None and camera.frames_held == 1
+    frame = camera.render(camera.newest_held)
     assert frame.frame_number == camera.frame_index(MAX_SIM_TIME_S) == int(MAX_SIM_TIME_S * camera.fps)
     assert frame.image.shape[:2] == (camera.height_px, camera.width_px)
 
