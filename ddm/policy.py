@@ -20,6 +20,8 @@ EV has passed):
   over as soon as the gap behind the AV is safe.
 - ... no safe gap in lane 0 because of a slower car there: keep speed past it; of a faster one: keep speed and
   let it pass (``let_faster_pass``, issue 18: slowing in the EV's lane brings the EV on sooner); then pull over.
+  A slower car still wholly ahead, leaving too little room to stop behind it, with the EV at least
+  ``drop_back_min_time_to_pass_s`` from passing: SLOW_IN_LANE to drop behind it, PULL_OVER once the room is there.
 - ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late); if
   the EV then stops closing (it is held up behind the AV) and lane 0 has a gap, PULL_OVER after all.
 - ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
@@ -135,9 +137,12 @@ class GapCheck(tuple):
     vehicle that makes the gap unsafe (None when the gap is safe)."""
 
     def __new__(cls, ok: bool, why: str, blocker_speed_mps: float | None = None,
-                room_ahead_m: float | None = None, blocker_role: str | None = None) -> GapCheck:
+                room_ahead_m: float | None = None, blocker_role: str | None = None,
+                blocker_clearance_m: float | None = None) -> GapCheck:
         self = super().__new__(cls, (ok, why))
         self.blocker_speed_mps = blocker_speed_mps
+        self.blocker_clearance_m = blocker_clearance_m
+        """Bumper-to-bumper distance to that vehicle along the road (<= 0: beside the AV)."""
         self.blocker_role = blocker_role
         """``leader`` or ``follower``: where the vehicle that makes the gap unsafe is (None when safe)."""
         self.room_ahead_m = room_ahead_m
@@ -198,7 +203,7 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             if r < need_m or clearance < cfg.gap_min_m:
                 return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
                                 f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l,
-                                blocker_role="leader")
+                                blocker_role="leader", blocker_clearance_m=clearance)
             room = r if room is None else min(room, r)
             worst = worst or f"room to stop in lane {target_lane}"
             continue
@@ -222,7 +227,8 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
                        cfg.gap_min_m + follower_stop_m - av_stop, MIN_START_GAP_M)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                            f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role)
+                            f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role,
+                            blocker_clearance_m=clearance)
         worst = worst or f"gaps in lane {target_lane} ok"
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
 
@@ -324,6 +330,13 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             return Decision(Manoeuvre.PULL_OVER, f"pull over to lane 0 ({why}): {describe(t)}", target_lane=0,
                             stop_within_m=gap.room_ahead_m, **common)
         if gap.blocker_speed_mps is not None and gap.blocker_speed_mps < v_e - cfg.min_closing_mps:
+            if (gap.blocker_role == "leader" and (gap.blocker_clearance_m or 0.0) > cfg.gap_min_m
+                    and cfg.drop_back_min_time_to_pass_s > 0
+                    and t.time_to_pass_s >= cfg.drop_back_min_time_to_pass_s):
+                # still wholly behind the slower car, the EV far off: easing off opens the room behind it at
+                # once, where passing it takes (clearance + lengths) / speed difference and the room shrinks
+                return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow to drop behind the slower vehicle, then "
+                                f"pull over: {describe(t)}", target_lane=lane_e, slow_because="gap", **common)
             # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
             return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
                             **common)
