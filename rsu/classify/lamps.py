@@ -50,6 +50,10 @@ class LampMeasurement:
     """Share of the red lamp pixels whose channel reaches ``LampColours.core_min_value`` (1.0 when none is lit
     or the definition has no core): a lit lamp clips the sensor, paint does not."""
     blue_core: float = 1.0
+    red_peak: float = 1.0
+    """The red lamp pixels' brightest red channel, as a share of 255 (1.0 when none is lit or with the ``hsv``
+    definition): a lit lamp clips the sensor (255) at its brightest point, sunlit paint stays below."""
+    blue_peak: float = 1.0
 
     @property
     def coloured(self) -> float:
@@ -125,11 +129,15 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
         w_frac, w_centre = (0.0, 1.0) if white is None else (float(np.count_nonzero(white)) / n, _centre_share(white))
         n_red, n_blue = np.count_nonzero(red), np.count_nonzero(blue)
         red_core = blue_core = 1.0
-        if c.kind == "chroma" and c.core_min_value > 0:
-            red_core = float(np.count_nonzero(red & (r >= c.core_min_value))) / n_red if n_red else 1.0
-            blue_core = float(np.count_nonzero(blue & (b >= c.core_min_value))) / n_blue if n_blue else 1.0
+        red_peak = blue_peak = 1.0
+        if c.kind == "chroma":
+            if c.core_min_value > 0:
+                red_core = float(np.count_nonzero(red & (r >= c.core_min_value))) / n_red if n_red else 1.0
+                blue_core = float(np.count_nonzero(blue & (b >= c.core_min_value))) / n_blue if n_blue else 1.0
+            red_peak = float(r[red].max()) / 255.0 if n_red else 1.0
+            blue_peak = float(b[blue].max()) / 255.0 if n_blue else 1.0
         out.append(LampMeasurement(float(n_red) / n, float(n_blue) / n, _centre_share(red), _centre_share(blue),
-                                   w_frac, w_centre, red_core, blue_core))
+                                   w_frac, w_centre, red_core, blue_core, red_peak, blue_peak))
     return tuple(out)
 
 

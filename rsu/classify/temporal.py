@@ -137,6 +137,11 @@ class EvidenceConfig:
     steady_max_fraction: float = 0.12
     """... and covering at most this share of the band (median over its lit samples): a roof bar is a thin
     strip, while red or blue *paint* bright enough to pass the real-video colour test covers the body."""
+    steady_min_peak: float = 250 / 255
+    """... and with its brightest pixel's channel at least this share of 255 (median over its lit samples): a lit
+    lamp clips the sensor at its brightest point. Sunlit red paint passes the core test (the simulator's red
+    truck cab: R 228-243 at its brightest, core share 0.1-0.34; ev_bench tuning seeds 31372/91468: 3 false
+    alerts on it) but stays below 250."""
     strong_bar_flashes: int = 3
     """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes,
     each after a dark stretch, at most ``max_dark_s`` apart, central, bar-sized (at most
@@ -151,8 +156,8 @@ class EvidenceConfig:
 
 
 COLOURS = {"bright": ("red", "blue"), "bar": ("red", "blue", "white")}
-CORE = ("bar_red_core", "bar_blue_core")
-"""The light-bar signals that also keep the lamp-core share of their pixels."""
+CORE = ("bar_red_core", "bar_blue_core", "bar_red_peak", "bar_blue_peak")
+"""The light-bar signals that also keep the lamp-core share and the brightest channel of their pixels."""
 """The lamp colours each measurement kind keeps (white only in the light-bar definition)."""
 SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre")) + CORE
 """Per-frame signals a track keeps: lamp-bright red and blue, light-bar red, blue and white, and their centre shares."""
@@ -286,8 +291,10 @@ class TrackEvidence:
                 continue  # steady white is sky, a white roof or headlight glare, never a bar on its own
             lit = x >= cfg.bar_on_fraction
             core = np.fromiter(self._signals[f"bar_{colour}_core"], float)[keep]
+            peak = np.fromiter(self._signals[f"bar_{colour}_peak"], float)[keep]
             if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
                     and float(np.median(core[lit])) >= cfg.steady_min_core
+                    and float(np.median(peak[lit])) >= cfg.steady_min_peak
                     and self._central(x, centre, cfg.bar_on_fraction)):
                 return True
         return False
@@ -318,6 +325,7 @@ class TrackEvidence:
                 self._signals[f"{kind}_{c}_centre"].append(getattr(m, f"{c}_centre"))
         for c in ("red", "blue"):
             self._signals[f"bar_{c}_core"].append(getattr(bar, f"{c}_core"))
+            self._signals[f"bar_{c}_peak"].append(getattr(bar, f"{c}_peak"))
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
             self._t.popleft()
             for d in self._signals.values():

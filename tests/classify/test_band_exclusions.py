@@ -36,3 +36,23 @@ def test_a_nearer_vehicle_hides_its_whole_crop_and_a_far_one_only_its_side():
     assert (90, 60, 200, 160) in out  # box 1 is nearer (bottom 160 > 100): all of it
     assert (165, 27, 230, 95) in out  # box 2 is farther, to the right: from the midpoint 165 of the centres 140, 190
     assert band_exclusions(1, boxes, bounds)[0] == (100, 38, 142, 100)  # box 1 (centre 145) gives up box 0's side (centre 140)
+
+
+def test_a_truck_behind_a_car_does_not_measure_the_cars_tail_lights():
+    """A farther vehicle seen above a nearer one's roof (sim tuning seeds 31372/91468: a truck or bus behind a car,
+    or behind the EV itself, took in the tail lights or the light bar of the vehicle ahead through its upward-grown
+    band): its own box above the nearer box's top is left out; the nearer vehicle keeps its own roof."""
+    image = np.zeros((240, 400, 3), np.uint8)
+    boxes = np.array([[100.0, 100.0, 180.0, 180.0],   # the truck, nearer
+                      [120.0, 70.0, 160.0, 104.0]])   # the car ahead, its rear seen above the truck's roof
+    image[92:97, 124:130] = (40, 40, 255)  # the car's lit tail lights (BGR red)
+    image[92:97, 150:156] = (40, 40, 255)
+    clf = TrackEvClassifier()
+    bounds = [clf.crop_bounds(b, image.shape[1], image.shape[0]) for b in boxes]
+    _, bar_shared, _, _ = clf._measure(image, bounds[0])
+    assert bar_shared.red > 0.0  # without the exclusion the truck counts the car's tail lights
+    _, bar_truck, _, _ = clf._measure(image, bounds[0], band_exclusions(0, boxes, bounds))
+    assert bar_truck.red == 0.0
+    image[98:103, 130:150] = (40, 40, 255)  # a red bar on the truck's own roof, at its box's top edge
+    _, bar_truck, _, _ = clf._measure(image, bounds[0], band_exclusions(0, boxes, bounds))
+    assert bar_truck.red > 0.0

@@ -180,3 +180,21 @@ def test_sunlit_paint_without_a_lamp_core_is_no_steady_bar_even_with_a_confident
             out.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b, bar=sig(t))))
         states[name] = first(out)
     assert states["paint"] is None and states["lit"] is not None
+
+
+def test_sunlit_paint_whose_brightest_pixel_does_not_clip_is_no_steady_bar():
+    """The simulator's red truck cab in sunlight passes the core test (R >= 220 on 10-34 % of its pixels, ev_bench
+    tuning seeds 31372/91468) but its brightest pixel stays at R 228-243; a lit lamp clips at 255."""
+    paint = lambda t: LampMeasurement(BAR, 0.0, red_core=0.2, red_peak=240 / 255)  # noqa: E731
+    lit = lambda t: LampMeasurement(BAR, 0.0, red_core=0.2, red_peak=1.0)  # noqa: E731
+    states = {}
+    for name, sig in (("paint", paint), ("lit", lit)):
+        ev, last, out = TrackEvidence(), None, []
+        for i in range(int(3.0 * FPS)):
+            t = i / FPS
+            b = None
+            if last is None or t - last >= 0.25 - 1e-9:
+                b, last = 0.95, t
+            out.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b, bar=sig(t))))
+        states[name] = first(out)
+    assert states["paint"] is None and states["lit"] is not None

@@ -211,6 +211,13 @@ def test_slower_car_ahead_in_lane_0_without_room_behind_it_drops_back_when_the_e
     d = decide(ego(), [near_ev], [near_ev, leader], FRAME, replace(CFG, drop_back_min_time_to_pass_s=9.0),
                Response())
     assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
+    # a nearly stopped car 8 m ahead is passed in 2 s, dropping behind it would take 5 s of braking: keep speed
+    crawler = trk(3, 112.4, 0, 2.4)
+    d = decide(ego(), [far_ev], [far_ev, crawler], FRAME, CFG, Response())
+    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
+    # a car in lane 0 behind the AV would be in the way of dropping back: keep speed
+    d = decide(ego(), [far_ev], [far_ev, leader, trk(4, 92.0, 0, 12.0)], FRAME, CFG, Response())
+    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
     # and with the rule off, as before issue 18's seed-7 fix
     d = decide(ego(), [far_ev], [far_ev, leader], FRAME, replace(CFG, drop_back_min_time_to_pass_s=0.0),
                Response())
