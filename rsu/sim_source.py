@@ -30,7 +30,8 @@ class SimSource:
         if corridor_id and corridor_id != corridor.corridor_id:
             # SimCamera subscribes on its corridor's id: give it the overriding id (key expressions only).
             corridor = dataclasses.replace(corridor, corridor_id=corridor_id)
-        self.camera = SimCamera(corridor, rsu_id, transport, seed=seed, queue_frames=queue_size)
+        # the static scenes are rendered before subscribing: the RSU's first frame is not 0.4 s late
+        self.camera = SimCamera(corridor, rsu_id, transport, seed=seed, queue_frames=queue_size, prerender=True)
         self.fps = float(self.camera.fps)
         self.source_id = f"sim:{rsu_id}"
         self.stamps_capture_time = True

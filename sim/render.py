@@ -78,6 +78,10 @@ class Renderer:
         self._shadow_luts: dict[int, np.ndarray] = {}
 
     # ------------------------------------------------------------------ static scene
+    def static_scenes(self) -> tuple[str, ...]:
+        """The lightings whose static scene is rendered already (``background`` renders one on first use)."""
+        return tuple(sorted(self._backgrounds))
+
     def background(self, lighting: str) -> np.ndarray:
         if lighting not in self._backgrounds:
             self._backgrounds[lighting] = render_scenery(self.cfg, self.cam, self.road, self.seed, lighting)
