@@ -7,7 +7,7 @@
   (``drops.source``: it processes the newest frames, not a queue), the frames' age when their ObjectList went
   out (``latency_ms.frame_age``) and the CPU milliseconds per frame of each stage (``latency_ms.{stage}_cpu``:
   render, detect, track, classify, localize, hazard, publish). Only the periods wholly inside the simulator's
-  run count, the RSU's first ``WARMUP_PERIODS`` excepted (its first frame builds the camera's static scene);
+  run count (``WARMUP_PERIODS`` at the start excepted: none);
 - the split of lights on -> EvAlert at the first processed frame with the lamps lit: the first ObjectList of the
   RSU that raised the first alert whose frame was captured after lights on (its ``measurement_time``, the
   snapshot's stamp), published at its stamp.
@@ -21,8 +21,9 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-WARMUP_PERIODS = 2
-"""Health periods of an RSU not counted at the start of a run (its first frame, and the catch-up after it)."""
+WARMUP_PERIODS = 0
+"""Health periods of an RSU not counted at the start of a run (none: its simulated camera renders the static scenes
+before its first frame, and the share of the camera's frames processed needs no whole period)."""
 STAGES = ("render", "detect", "track", "classify", "localize", "hazard", "publish")
 
 
@@ -50,16 +51,16 @@ def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
             health.setdefault(m.src, []).append(m)
     out = {}
     for rsu_id, hs in sorted(health.items()):
-        # periods wholly inside the simulator's run ([stamp - 1 s, stamp] within [t0, t1]: one that runs past
-        # the last snapshot counts frames that never came), the RSU's warm-up excepted: its first frame builds
-        # the camera's static scene (0.4 s alone, 1-2 s while every service starts) and the frames passed
-        # meanwhile are counted at its next read, in the second period
+        # periods ending inside the simulator's run (one that runs past the last snapshot counts frames that
+        # never came), the first WARMUP_PERIODS excepted
         idx = [i for i, h in enumerate(hs) if t0 < h.stamp <= t1][WARMUP_PERIODS:]
         running = [hs[i] for i in idx]
         if not running:
             continue
-        rates = [h.rates_hz.get("frames", 0.0) for h in running]
-        fps = [_camera_frames_processed_hz(hs[i - 1], hs[i]) for i in idx]
+        # the raw count of the first period is partial (the RSU started within it, before the simulator)
+        rates = [h.rates_hz.get("frames", 0.0) for h in (running[1:] or running)]
+        fps = [f for i in idx if (f := _camera_frames_processed_hz(hs[i - 1] if i > 0 else None, hs[i])) is not None]
+        fps = fps or [0.0]
         ages = [h.latency_ms["frame_age"] for h in running if "frame_age" in h.latency_ms]
         cpu = {s: round(statistics.fmean(h.latency_ms[f"{s}_cpu"] for h in running if f"{s}_cpu" in h.latency_ms), 2)
                for s in STAGES if any(f"{s}_cpu" in h.latency_ms for h in running)}
@@ -67,22 +68,25 @@ def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
             "fps_min": round(min(fps), 2), "fps_median": round(statistics.median(fps), 2),
             "rate_min_hz": round(min(rates), 2), "rate_median_hz": round(statistics.median(rates), 2),
             "camera_fps": running[-1].rates_hz.get("camera"), "frames_dropped": hs[-1].drops.get("source", 0),
-            "frames_dropped_running": running[-1].drops.get("source", 0) - hs[idx[0] - 1].drops.get("source", 0),
+            "frames_dropped_running": running[-1].drops.get("source", 0)
+            - (hs[idx[0] - 1].drops.get("source", 0) if idx[0] > 0 else 0),
             "frame_age_ms_median": round(statistics.median(ages), 1) if ages else None,
             "frame_age_ms_max": round(max(h.latency_ms.get("frame_age_max", 0.0) for h in running), 1) if ages else None,
             "cpu_ms_per_frame": cpu, "cpu_ms_per_frame_total": round(sum(cpu.values()), 2), "periods": len(running)}
     return out
 
 
-def _camera_frames_processed_hz(prev: Any, h: Any) -> float:
+def _camera_frames_processed_hz(prev: Any | None, h: Any) -> float | None:
     """Of the camera's frames in the period ending at Health ``h``, those processed, per second of camera time:
-    camera fps x processed / (processed + passed over) (``drops.source`` is cumulative: its rise since ``prev``).
+    camera fps x processed / (processed + passed over) (``drops.source`` is cumulative: its rise since ``prev``,
+    the RSU's previous Health; None: ``h`` is its first, the period its uptime).
     The raw count per 1 s period (``rates_hz.frames``) moves +-1 frame with the period's phase even when no frame
     is dropped (snapshots come at 20 Hz, frames of a 15 fps camera 50 or 100 ms apart)."""
     camera = h.rates_hz.get("camera") or 0.0
-    n = h.rates_hz.get("frames", 0.0) * max(h.stamp - prev.stamp, 0.0)
-    d = max(h.drops.get("source", 0) - prev.drops.get("source", 0), 0)
-    return camera * n / (n + d) if n + d > 0 else 0.0
+    period_s = h.uptime_s if prev is None else h.stamp - prev.stamp
+    n = h.rates_hz.get("frames", 0.0) * max(period_s, 0.0)
+    d = max(h.drops.get("source", 0) - (0 if prev is None else prev.drops.get("source", 0)), 0)
+    return camera * n / (n + d) if n + d > 0 else None  # None: no camera frame in the period
 
 
 def first_lit_frame_s(path: str | Path, rsu_id: str | None, lights_on_s: float | None) -> float | None:
@@ -104,8 +108,8 @@ def print_load(runs: list[dict[str, Any]]) -> None:
     if not by_rsu:
         print(" per-RSU load: no recording")
         return
-    print(f"\n per RSU over {len(runs)} process runs (Health, 1 s periods inside the simulator's run, the first "
-          f"{WARMUP_PERIODS} excepted; fps: of the camera's frames, those processed; raw: frames counted per period)")
+    print(f"\n per RSU over {len(runs)} process runs (Health, 1 s periods ending inside the simulator's run; fps: of "
+          "the camera's frames, those processed; raw: frames counted per period, the first one excepted)")
     print(f" {'rsu':<6} {'fps min':>7} {'median':>7} {'raw min':>7} {'camera':>6} {'dropped':>8} {'age ms':>7} {'age max':>8}  "
           "CPU ms per frame by stage")
     for rsu_id, loads in sorted(by_rsu.items()):

@@ -222,7 +222,7 @@ class TrackEvClassifier:
                  colours: LampColours = LAMP_BRIGHT, bar_colours: LampColours = BAR_COLOURED, above_fraction: float | None = None, min_box_px: float = 40.0,
                  forget_after_s: float = 2.0, max_tracks: int = 512,
                  box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
-                 handover_after_s: float = 0.5, handover_iou: float = 0.3) -> None:
+                 handover_after_s: float = 0.5, handover_iou: float = 0.3, bright_above_fraction: float = 0.1) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
         if handover_after_s < 0 or not 0.0 < handover_iou <= 1.0:
@@ -245,6 +245,14 @@ class TrackEvClassifier:
         if not 0.0 <= above_fraction <= 1.0 or not 0.0 < top_fraction <= 1.0:
             raise ValueError("above_fraction must be in [0, 1] and top_fraction in (0, 1]")
         self.above_fraction = above_fraction
+        if not 0.0 <= bright_above_fraction <= 1.0:
+            raise ValueError(f"bright_above_fraction must be in [0, 1], got {bright_above_fraction}")
+        self.bright_above_fraction = float(bright_above_fraction)
+        """The lamp-bright colours (whose flash pattern confirms an EV alone) are measured in a band that reaches
+        only this share of the box height above the box (the light-bar colours: ``above_fraction``). A lit bar
+        sits on the roof, at the box's top edge; a lamp-bright flash 0.2-0.3 box heights above a bus or truck is
+        the light bar of a vehicle ahead that the detector does not see (the EV itself, half hidden behind the
+        bus: simulator tuning seeds 31372/91468, 2 false alerts on night_ev)."""
         # the band is the box's top ``top_fraction`` plus ``above_fraction`` of its height above the box
         self.band_fraction = min(1.0, (above_fraction + top_fraction) / (1.0 + above_fraction))
         self.colours, self.bar_colours = colours, bar_colours
@@ -293,7 +301,18 @@ class TrackEvClassifier:
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
-        lamps, bar = measure_band(crop, self.band_fraction, (self.colours, self.bar_colours), ignore)
+        offset = int(round(max(0.0, self.above_fraction - self.bright_above_fraction) * crop.shape[0]
+                           / (1.0 + self.above_fraction)))
+        if offset == 0:
+            lamps, bar = measure_band(crop, self.band_fraction, (self.colours, self.bar_colours), ignore)
+        else:  # the lamp-bright band starts lower: see ``bright_above_fraction``
+            (bar,) = measure_band(crop, self.band_fraction, (self.bar_colours,), ignore)
+            rows = max(1, int(round(crop.shape[0] * self.band_fraction)))
+            if rows > offset:
+                (lamps,) = measure_band(crop[offset:], (rows - offset) / (crop.shape[0] - offset), (self.colours,),
+                                        None if ignore is None else ignore[offset:])
+            else:
+                lamps = LampMeasurement(0.0, 0.0)
         return lamps, bar, score, crop
 
     def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, bar: LampMeasurement,

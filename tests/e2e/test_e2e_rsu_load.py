@@ -21,7 +21,8 @@ def _record(path, messages):
 
 
 def _health(rsu, t, fps, age_ms, dropped):
-    return Health(src=rsu, seq=int(t), stamp=t, role=Role.RSU, rates_hz={"frames": fps, "camera": 15.0},
+    return Health(src=rsu, seq=int(t), stamp=t, role=Role.RSU, uptime_s=t - 98.9,
+                  rates_hz={"frames": fps, "camera": 15.0},
                   latency_ms={"detect": 9.0, "detect_cpu": 6.0, "render_cpu": 4.0, "hazard_cpu": 1.5,
                               "frame_age": age_ms, "frame_age_max": age_ms + 20.0},
                   drops={"source": dropped})
@@ -32,8 +33,8 @@ def test_load_per_rsu_from_health_while_the_simulator_ran(tmp_path):
     msgs = [(rsu_key(C, "rsu1", "health"), _health("rsu1", 99.0, 0.0, 0.0, 0))]  # before the simulator: not counted
     msgs += [(sim_world_key(C), WorldSnapshot(src="sim", stamp=100.0 + 0.05 * k, scenario="s", sim_time_s=0.05 * k,
                                              lighting=Lighting.DAY, actors=[])) for k in range(101)]
-    # the first two periods (the first frame builds the static scene; the frames passed meanwhile are counted at
-    # the next read) are not counted, nor the one that runs past the last snapshot (105.9)
+    # every period ending inside the simulator's run counts (of the camera's frames, those processed), not the one
+    # that runs past the last snapshot (105.9); the raw count of the first (partial: the RSU started in it) does not
     for k, (fps, dropped) in enumerate([(3.0, 0), (15.0, 5), (14.0, 5), (15.0, 6), (13.0, 8), (7.0, 8)]):
         msgs.append((rsu_key(C, "rsu1", "health"), _health("rsu1", 100.9 + k, fps, 60.0 + k, dropped)))
         msgs.append((rsu_key(C, "rsu2", "health"), _health("rsu2", 100.9 + k, 14.0 if k % 2 else 15.0, 40.0, 0)))
@@ -44,14 +45,14 @@ def test_load_per_rsu_from_health_while_the_simulator_ran(tmp_path):
     load = rsu_load(path)
     assert set(load) == {"rsu1", "rsu2"}
     one = load["rsu1"]
-    # of the camera's 15 fps, those processed: 14 of 14, 15 of 16, 13 of 15
-    assert one["fps_min"] == pytest.approx(13.0) and one["fps_median"] == pytest.approx(15 * 15 / 16, abs=0.01)
+    # of the camera's 15 fps, those processed: 3 of 3, 15 of 20, 14 of 14, 15 of 16, 13 of 15
+    assert one["fps_min"] == pytest.approx(15 * 15 / 20) and one["fps_median"] == pytest.approx(15 * 15 / 16, abs=0.01)
     assert one["rate_min_hz"] == 13.0 and one["camera_fps"] == 15.0
-    assert one["frames_dropped"] == 8 and one["frames_dropped_running"] == 3 and one["periods"] == 3
-    assert one["frame_age_ms_median"] == pytest.approx(63.0) and one["frame_age_ms_max"] == pytest.approx(84.0)
+    assert one["frames_dropped"] == 8 and one["frames_dropped_running"] == 8 and one["periods"] == 5
+    assert one["frame_age_ms_median"] == pytest.approx(62.0) and one["frame_age_ms_max"] == pytest.approx(84.0)
     assert one["cpu_ms_per_frame"] == {"render": 4.0, "detect": 6.0, "hazard": 1.5}
     fig = load_figures([{"rsu_load": load}])
-    assert fig["rsu_fps_min"] == pytest.approx(13.0) and fig["rsu_rate_min_hz"] == 13.0
+    assert fig["rsu_fps_min"] == pytest.approx(11.25) and fig["rsu_rate_min_hz"] == 13.0
     # a raw count of 14 in a period where no camera frame was passed over is all of the camera's frames
     assert fig["rsu_load"]["rsu2"]["fps_min"] == 15.0 and fig["rsu_load"]["rsu2"]["rate_min_hz"] == 14.0
     # lights on at 102.0: rsu2's first frame captured at or after it (102.0167) went out at 102.07
