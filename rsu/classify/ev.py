@@ -193,6 +193,36 @@ def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int,
     return out
 
 
+def farther_boxes(k: int, boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """The boxes of the farther vehicles (bottom edge higher) that rise above track ``k``'s box top and overlap its
+    columns, left out of its *light-bar* measurement (not of the lamp-bright one): within this box's band such a
+    vehicle's tail lights and red paint show where a roof bar would (a dark truck at night behind a car: the
+    car's lit tail light inside the truck's box; simulator tuning seed 31372). The light-bar cues count only
+    with a confident EV body, which a black truck at night can get; the lamp-bright flash of a sim EV behind a
+    car is not affected. Above this box's top :func:`band_exclusions` leaves such a box out of both."""
+    box = boxes[k]
+    out = []
+    for j, other in enumerate(boxes):
+        if j != k and other[3] <= box[3] and other[1] < box[1] and other[2] > box[0] and other[0] < box[2]:
+            out.append((int(np.floor(other[0])), int(np.floor(other[1])), int(np.ceil(other[2])),
+                        int(np.ceil(other[3]))))
+    return out
+
+
+def _rect_mask(bounds: tuple[int, int, int, int], rects: Iterable[tuple[int, int, int, int]]) -> np.ndarray | None:
+    """A boolean mask of the crop ``bounds`` (xyxy pixels), True in the image rectangles ``rects``; None when none
+    of them overlaps it."""
+    xa, ya, xb, yb = bounds
+    mask = None
+    for ob in rects:
+        if ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
+            continue
+        if mask is None:
+            mask = np.zeros((yb - ya, xb - xa), bool)
+        mask[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
+    return mask
+
+
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -283,30 +313,30 @@ class TrackEvClassifier:
         return lamps, score
 
     def _measure(self, image: np.ndarray, bounds: tuple[int, int, int, int] | None,
-                 occluders: Iterable[tuple[int, int, int, int]] = ()
+                 occluders: Iterable[tuple[int, int, int, int]] = (),
+                 bar_occluders: list[tuple[int, int, int, int]] | tuple = ()
                  ) -> tuple[LampMeasurement, LampMeasurement, float | None, np.ndarray | None]:
         """(lamp-bright, light-bar colour) measurements of the band of the crop ``bounds``, the crop score and
-        the crop. ``occluders``: rectangles of the crop left out of the band (:func:`band_exclusions`)."""
+        the crop. ``occluders``: rectangles of the crop left out of the band (:func:`band_exclusions`);
+        ``bar_occluders``: rectangles left out of the light-bar measurement only (:func:`farther_boxes`)."""
         if bounds is None:
             return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
-        ignore = None
-        for ob in occluders:
-            if ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
-                continue
-            if ignore is None:
-                ignore = np.zeros(crop.shape[:2], bool)
-            ignore[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
+        ignore = _rect_mask(bounds, occluders)
+        bar_ignore = ignore
+        if bar_occluders:
+            extra = _rect_mask(bounds, bar_occluders)
+            bar_ignore = extra if ignore is None else ignore if extra is None else ignore | extra
         score = None
         if self.crop_score is not None:
             score = float(np.clip(self.crop_score(crop), 0.0, 1.0))
         offset = int(round(max(0.0, self.above_fraction - self.bright_above_fraction) * crop.shape[0]
                            / (1.0 + self.above_fraction)))
-        if offset == 0:
+        if offset == 0 and bar_ignore is ignore:
             lamps, bar = measure_band(crop, self.band_fraction, (self.colours, self.bar_colours), ignore)
-        else:  # the lamp-bright band starts lower: see ``bright_above_fraction``
-            (bar,) = measure_band(crop, self.band_fraction, (self.bar_colours,), ignore)
+        else:  # the lamp-bright band starts lower (``bright_above_fraction``), the light-bar one leaves out more
+            (bar,) = measure_band(crop, self.band_fraction, (self.bar_colours,), bar_ignore)
             rows = max(1, int(round(crop.shape[0] * self.band_fraction)))
             if rows > offset:
                 (lamps,) = measure_band(crop[offset:], (rows - offset) / (crop.shape[0] - offset), (self.colours,),
@@ -357,7 +387,8 @@ class TrackEvClassifier:
                 # (several merged into one blob): no measurement this frame, the evidence keeps its state
                 state = ev.state
             else:
-                lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds))
+                lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds),
+                                                        farther_boxes(k, boxes))
                 state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar)
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)
