@@ -389,10 +389,26 @@ class TrackEvClassifier:
             else:
                 lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds),
                                                         farther_boxes(k, boxes))
-                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar)
+                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar,
+                                  lamps_alone=not self._ev_ahead(k, ids, boxes, bounds))
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)
         return out
+
+    def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list) -> bool:
+        """Is a confirmed EV just ahead of track ``k``: a farther track (bottom edge higher), confirmed, whose box
+        reaches into ``k``'s crop? Its flashes light this vehicle's roof (a bus behind the EV: the bar's red
+        glow on the bus roof, outside the EV's box, flashed in step with it; simulator tuning seed 91468), so
+        ``k``'s flash pattern then confirms only with a confident body (``TrackEvidence.update``)."""
+        box, crop = boxes[k], bounds[k]
+        if crop is None:
+            return False
+        for j, other in enumerate(boxes):
+            info = self.tracks.get(ids[j])
+            if (j != k and info is not None and info.evidence.state == EvState.CONFIRMED and other[3] <= box[3]
+                    and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3] and other[3] > crop[1]):
+                return True
+        return False
 
     def _cut_by_border(self, box, image: np.ndarray) -> bool:
         """Does the image border cut the box's sides or its lamp band (grown above the box)? Then only part of

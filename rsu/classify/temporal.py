@@ -313,9 +313,12 @@ class TrackEvidence:
         return b is not None and len(self.body_scores) >= self.config.body_min_scores and b >= self.config.body_threshold
 
     def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None,
-               body_score: float | None = None, bar: LampMeasurement | None = None) -> EvState:
+               body_score: float | None = None, bar: LampMeasurement | None = None,
+               lamps_alone: bool = True) -> EvState:
         """One frame: ``lamps`` measured with the lamp-bright colours, ``bar`` with the light-bar colours
-        (:mod:`rsu.classify.lamps`; default: ``lamps``), the optional crop score and EV-body score."""
+        (:mod:`rsu.classify.lamps`; default: ``lamps``), the optional crop score and EV-body score.
+        ``lamps_alone`` False: the lamps may be another vehicle's (a confirmed EV just ahead, whose flashes light
+        this vehicle's roof), so a flash pattern does not confirm alone now; with a confident body it does."""
         cfg = self.config
         bar = lamps if bar is None else bar
         self._t.append(now_s)
@@ -349,9 +352,9 @@ class TrackEvidence:
         body = (EvCue.EV_BODY,) if self.body_confident else ()
 
         if self.state in (EvState.NONE, EvState.CLEARED, EvState.CANDIDATE):
-            if self.level >= cfg.confirm_level and flash is not None:
+            if self.level >= cfg.confirm_level and flash is not None and (lamps_alone or body):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
-            elif lamp_cue is not None and self._strong_bar_flash(now_s):
+            elif lamps_alone and lamp_cue is not None and self._strong_bar_flash(now_s):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (EvCue.FLASH, *body)
             elif body and lamp_cue is not None:
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (lamp_cue, *body)

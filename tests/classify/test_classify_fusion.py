@@ -198,3 +198,21 @@ def test_sunlit_paint_whose_brightest_pixel_does_not_clip_is_no_steady_bar():
             out.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b, bar=sig(t))))
         states[name] = first(out)
     assert states["paint"] is None and states["lit"] is not None
+
+
+def test_flashes_that_may_be_a_confirmed_ev_ahead_confirm_only_with_a_confident_body():
+    """A bus just behind a confirmed EV: the EV's flashes light the bus roof in step (sim tuning seed 91468). With
+    ``lamps_alone`` False the flash pattern does not confirm alone; a confident body still confirms."""
+    def alternating(t):
+        red = (t * 2.0) % 1.0 < 0.5
+        return LampMeasurement(BAR if red else 0.0, 0.0 if red else BAR)
+
+    for body, confirms in ((None, False), (0.95, True)):
+        ev, last, out = TrackEvidence(), None, []
+        for i in range(int(3.0 * FPS)):
+            t = i / FPS
+            b = None
+            if body is not None and (last is None or t - last >= 0.25 - 1e-9):
+                b, last = body, t
+            out.append((t, ev.update(t, alternating(t), body_score=b, lamps_alone=False)))
+        assert (first(out) is not None) == confirms
