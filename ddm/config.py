@@ -84,11 +84,6 @@ class DdmConfig:
     let_faster_pass: bool = True
     """No safe gap in lane 0 because a faster car is coming by there: keep speed and let it pass, then pull
     over (issue 18); False: slow in lane for the gap (before issue 18)."""
-    drop_back_min_time_to_pass_s: float = 8.0
-    """A slower car ahead in lane 0 leaves too little room to stop behind it: with the EV at least this long
-    from passing, the AV eases off in its lane to drop behind that car and pulls over as soon as the room is
-    there (issue 18, e2e seed 7: keeping speed past a car 1-2 m/s slower took 8 s, the room behind it only
-    shrinking meanwhile); nearer, it keeps its speed past it. 0: always keep speed past (before)."""
     pull_over_hold_speed: bool = True
     """A pull-over keeps its speed until its lane change is done, then brakes to the stop (issue 18: an AV that
     brakes while still in the lane of an EV closing from behind brings the EV onto it sooner); False: brake

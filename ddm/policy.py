@@ -20,9 +20,6 @@ EV has passed):
   over as soon as the gap behind the AV is safe.
 - ... no safe gap in lane 0 because of a slower car there: keep speed past it; of a faster one: keep speed and
   let it pass (``let_faster_pass``, issue 18: slowing in the EV's lane brings the EV on sooner); then pull over.
-  A slower car still wholly ahead, leaving too little room to stop behind it, lane 0 otherwise clear, the EV at
-  least ``drop_back_min_time_to_pass_s`` from passing, and slowing to its speed (``drop_back_s``) quicker than
-  driving past it (``pass_s``): SLOW_IN_LANE to drop behind it, PULL_OVER once the room is there.
 - ... ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when too late); if
   the EV then stops closing (it is held up behind the AV) and lane 0 has a gap, PULL_OVER after all.
 - ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
@@ -138,13 +135,9 @@ class GapCheck(tuple):
     vehicle that makes the gap unsafe (None when the gap is safe)."""
 
     def __new__(cls, ok: bool, why: str, blocker_speed_mps: float | None = None,
-                room_ahead_m: float | None = None, blocker_role: str | None = None,
-                blocker_clearance_m: float | None = None, blocker_track_id: int | None = None) -> GapCheck:
+                room_ahead_m: float | None = None, blocker_role: str | None = None) -> GapCheck:
         self = super().__new__(cls, (ok, why))
-        self.blocker_track_id = blocker_track_id
         self.blocker_speed_mps = blocker_speed_mps
-        self.blocker_clearance_m = blocker_clearance_m
-        """Bumper-to-bumper distance to that vehicle along the road (<= 0: beside the AV)."""
         self.blocker_role = blocker_role
         """``leader`` or ``follower``: where the vehicle that makes the gap unsafe is (None when safe)."""
         self.room_ahead_m = room_ahead_m
@@ -205,7 +198,7 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
             if r < need_m or clearance < cfg.gap_min_m:
                 return GapCheck(False, f"no room to stop in lane {target_lane}: leader track {o.track_id} "
                                 f"{clearance:.1f} m ahead, {r:.1f} m < {need_m:.1f} m needed", v_l,
-                                blocker_role="leader", blocker_clearance_m=clearance, blocker_track_id=o.track_id)
+                                blocker_role="leader")
             room = r if room is None else min(room, r)
             worst = worst or f"room to stop in lane {target_lane}"
             continue
@@ -229,22 +222,9 @@ def gap_check(ego_s: float, ego_v: float, ego_v_after: float, ego_len: float, ta
                        cfg.gap_min_m + follower_stop_m - av_stop, MIN_START_GAP_M)
         if clearance < need:
             return GapCheck(False, f"unsafe gap in lane {target_lane}: {role} track {o.track_id} "
-                            f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role,
-                            blocker_clearance_m=clearance, blocker_track_id=o.track_id)
+                            f"{clearance:.1f} m < {need:.1f} m needed", v_long, blocker_role=role)
         worst = worst or f"gaps in lane {target_lane} ok"
     return GapCheck(True, worst or f"lane {target_lane} clear", None, room)
-
-
-def pass_s(clearance_m: float, ego_len_m: float, ego_v_mps: float, other_v_mps: float, cfg: DdmConfig) -> float:
-    """Time to drive past a slower car ``clearance_m`` ahead in the next lane at today's speeds, until it is
-    ``gap_min_m`` behind the AV's rear (its length taken as the AV's): (clearance + 2 lengths + gap_min) / dv."""
-    dv = ego_v_mps - other_v_mps
-    return (clearance_m + 2.0 * ego_len_m + cfg.gap_min_m) / dv if dv > 0 else math.inf
-
-
-def drop_back_s(ego_v_mps: float, other_v_mps: float, cfg: DdmConfig) -> float:
-    """Time to slow to a slower car's speed at the comfort deceleration (from then on the room behind it grows)."""
-    return max(ego_v_mps - other_v_mps, 0.0) / cfg.comfort_decel_mps2
 
 
 def leader_room_m(ego_s: float, ego_len: float, lane: int, others: list[Track], frame: RoadFrame,
@@ -344,18 +324,6 @@ def decide(ego: Ego, evs: list[Track], others: list[Track], frame: RoadFrame, cf
             return Decision(Manoeuvre.PULL_OVER, f"pull over to lane 0 ({why}): {describe(t)}", target_lane=0,
                             stop_within_m=gap.room_ahead_m, **common)
         if gap.blocker_speed_mps is not None and gap.blocker_speed_mps < v_e - cfg.min_closing_mps:
-            if (gap.blocker_role == "leader" and (gap.blocker_clearance_m or 0.0) > cfg.gap_min_m
-                    and cfg.drop_back_min_time_to_pass_s > 0
-                    and t.time_to_pass_s >= cfg.drop_back_min_time_to_pass_s
-                    and drop_back_s(v_e, gap.blocker_speed_mps, cfg)
-                    < pass_s(gap.blocker_clearance_m, ego.length_m, v_e, gap.blocker_speed_mps, cfg)
-                    and gap_check(s_e, v_e, v_e, ego.length_m, 0, traffic, frame, 0.0, cfg,
-                                  exclude={gap.blocker_track_id}, stopping=True)[0]):
-                # still wholly behind the slower car, nobody else in lane 0 in the way, the EV far off: easing
-                # off opens the room behind it at once, where passing it takes (clearance + lengths) / speed
-                # difference while the room shrinks
-                return Decision(Manoeuvre.SLOW_IN_LANE, f"{why}; slow to drop behind the slower vehicle, then "
-                                f"pull over: {describe(t)}", target_lane=lane_e, slow_because="gap", **common)
             # slowing would keep the AV beside a slower car (and in the EV's way): drive on past it
             return Decision("none", f"{why}; keep speed past the slower vehicle, then pull over: {describe(t)}",
                             **common)

@@ -191,34 +191,3 @@ def test_an_ev_lost_from_view_is_predicted_before_resuming():
 def test_an_ev_at_the_avs_own_position_is_the_av_itself():
     ghost = trk(9, 100.5, 1, 13.4, ev=True)  # an RSU track that switched onto the AV
     assert decide(ego(), [ghost], [ghost], FRAME, CFG, Response()).action == "none"
-
-
-def test_slower_car_ahead_in_lane_0_without_room_behind_it_drops_back_when_the_ev_is_far():
-    # issue 18 (e2e seed 7): a car slowing for the EV 16 m ahead in lane 0 leaves too little room to stop behind
-    # it at 13.4 m/s (32.7 m < 35.9 m)
-    leader = trk(3, 121.0, 0, 8.6)
-    far_ev = trk(2, 52.0, 1, 12.4, ev=True)  # 48 m behind, not closing: time to pass infinite
-    d = decide(ego(), [far_ev], [far_ev, leader], FRAME, CFG, Response())
-    assert d.action == Manoeuvre.SLOW_IN_LANE and d.slow_because == "gap" and d.target_lane == 1
-    assert "no room to stop" in d.reason and "drop behind the slower vehicle" in d.reason
-    # slowed and dropped back 8 m: the room is there and the yielding AV pulls over behind it
-    resp = Response()
-    resp.commit(d, 0.0)
-    later = decide(ego(x=100.0, v=9.0), [far_ev], [far_ev, replace(leader, x_m=129.0)], FRAME, CFG, resp)
-    assert later.action == Manoeuvre.PULL_OVER and "gap opened" in later.reason
-    # the EV near (time to pass under drop_back_min_time_to_pass_s): keep speed past it, as before
-    near_ev = trk(2, 60.0, 1, 18.0, ev=True)  # 40 m behind closing 4.6 m/s: 8.7 s -> with 9 s, too near
-    d = decide(ego(), [near_ev], [near_ev, leader], FRAME, replace(CFG, drop_back_min_time_to_pass_s=9.0),
-               Response())
-    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
-    # a nearly stopped car 8 m ahead is passed in 2 s, dropping behind it would take 5 s of braking: keep speed
-    crawler = trk(3, 112.4, 0, 2.4)
-    d = decide(ego(), [far_ev], [far_ev, crawler], FRAME, CFG, Response())
-    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
-    # a car in lane 0 behind the AV would be in the way of dropping back: keep speed
-    d = decide(ego(), [far_ev], [far_ev, leader, trk(4, 92.0, 0, 12.0)], FRAME, CFG, Response())
-    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
-    # and with the rule off, as before issue 18's seed-7 fix
-    d = decide(ego(), [far_ev], [far_ev, leader], FRAME, replace(CFG, drop_back_min_time_to_pass_s=0.0),
-               Response())
-    assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
