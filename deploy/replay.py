@@ -69,19 +69,27 @@ def schedule(messages: Iterable[RecordedMessage], speed: float) -> Iterator[tupl
 
 def replay_to_transport(path: str | Path, transport: Any, *, speed: float = 1.0, keys: str = "**",
                         corridor_id: str | None = None, stop: threading.Event | None = None,
-                        progress: Callable[[int, float], None] | None = None) -> int:
-    """Publish the recorded bytes on ``transport`` at their recorded pace; returns how many were sent."""
+                        progress: Callable[[int, float], None] | None = None, wait_subscribers_s: float = 0.0,
+                        say: Callable[[str], None] = lambda _: None) -> int:
+    """Publish the recorded bytes on ``transport`` at their recorded pace; returns how many were sent.
+
+    With ``wait_subscribers_s`` the first message waits (before the pace's clock starts) until a subscriber
+    of its key is known, so that a replay started beside its listeners loses nothing to discovery."""
     stop = stop or threading.Event()
-    start = time.monotonic()
+    start = None
     sent = 0
-    last_progress = start
     for offset_s, m in schedule(read_recording(path, keys), speed):
+        key = rename_corridor(m.key, corridor_id)
+        if start is None:
+            if wait_subscribers_s > 0 and not transport.wait_for_subscribers(key, wait_subscribers_s):
+                say(f"no subscriber of {key} after {wait_subscribers_s:g} s: publishing anyway")
+            start = last_progress = time.monotonic()
         wait = start + offset_s - time.monotonic()
         if wait > 0 and stop.wait(wait):
             break
         if stop.is_set():
             break
-        transport.publish_bytes(rename_corridor(m.key, corridor_id), m.payload)
+        transport.publish_bytes(key, m.payload)
         sent += 1
         if progress is not None and time.monotonic() - last_progress >= 1.0:
             last_progress = time.monotonic()
@@ -183,6 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keys", default="**", help="replay only the keys matching this key expression, e.g. "
                     "'iea/*/rsu/**' (default: every key)")
     ap.add_argument("--corridor-id", default=None, help="publish under this corridor id instead of the recorded one")
+    ap.add_argument("--wait-subscribers-s", type=float, default=5.0, metavar="S",
+                    help="before the first message, wait up to S seconds for a subscriber of its key to be known "
+                         "(discovery; default 5, 0: publish at once)")
     ap.add_argument("--list", action="store_true", help="print what the file holds (check it) and exit")
     ZenohSettings.add_arguments(ap)
     args = ap.parse_args(argv)
@@ -206,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
         settings = ZenohSettings.from_args(args)
         if args.speed < 0:
             raise ValueError("--speed must be >= 0")
+        if args.wait_subscribers_s < 0:
+            raise ValueError("--wait-subscribers-s must be >= 0")
     except ValueError as exc:
         print(f"iea replay: {exc}", file=sys.stderr)
         return 2
@@ -214,9 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     # each kind at its own priority, but blocking and express: a recording replays whole at any --speed
     transport = ZenohTransport(settings, qos=qos_lossless)
     try:
-        time.sleep(0.5)  # let subscribers discover this session before the first message
         n = replay_to_transport(args.recording, transport, speed=args.speed, keys=args.keys,
-                                corridor_id=args.corridor_id,
+                                corridor_id=args.corridor_id, wait_subscribers_s=args.wait_subscribers_s,
+                                say=lambda s: print(f"[replay] {s}", flush=True),
                                 progress=lambda sent, t: print(f"[replay] t={t:6.1f} s  {sent} sent", flush=True))
     except KeyboardInterrupt:
         n = -1

@@ -116,6 +116,13 @@ class Transport:
         """The liveliness tokens alive now under ``key_expr`` (a liveliness query)."""
         return self._inner("query_presence").query_presence(key_expr, timeout_s)
 
+    def wait_for_subscribers(self, key: str, timeout_s: float) -> bool:
+        """Block until a subscriber matching concrete ``key`` is known to this transport, or ``timeout_s``;
+        True when one is. A transport that delivers to whoever subscribed at publish time (LocalBus) has
+        nothing to wait for; wrappers ask ``inner``."""
+        inner = getattr(self, "inner", None)
+        return inner.wait_for_subscribers(key, timeout_s) if isinstance(inner, Transport) else True
+
     def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
         """Answer queries intersecting ``key_expr`` with ``handler(query_expr)``'s (key, payload) pairs."""
         return self._inner("declare_queryable").declare_queryable(key_expr, handler)

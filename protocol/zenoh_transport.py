@@ -119,6 +119,21 @@ class ZenohTransport(Transport):
         self._closed = False
 
     def publish_bytes(self, key: str, payload: bytes) -> None:
+        self._publisher(key).put(payload)
+
+    def wait_for_subscribers(self, key: str, timeout_s: float) -> bool:
+        """Poll the key's publisher's matching status (zenoh ``Publisher.matching_status``) until a remote
+        subscriber is known: a peer that publishes right after opening its session may not have heard the
+        others' subscriptions yet, and a put with no matching subscriber goes nowhere."""
+        pub = self._publisher(key)
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        while not pub.matching_status.matching:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def _publisher(self, key: str) -> Any:
         pub = self._publishers.get(key)
         if pub is None:
             with self._lock:
@@ -132,7 +147,7 @@ class ZenohTransport(Transport):
                         express=q.express,
                     )
                     self._publishers[key] = pub
-        pub.put(payload)
+        return pub
 
     def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
         def on_sample(sample: Any) -> None:

@@ -106,6 +106,26 @@ def test_zenoh_matching_cases_are_the_same(corridor_id):
     assert got == _expected()
 
 
+def test_zenoh_waits_for_a_subscriber_of_another_session_before_publishing(corridor_id):
+    """A replay that publishes right after opening its session waits for the listener's subscription to
+    reach it (the CI failure of test_iea_record_and_iea_replay_over_zenoh lost every object list)."""
+    key = keys.rsu_key(corridor_id, "rsu1", "health")
+    got: list[bytes] = []
+    with ZenohTransport() as pub_side:
+        t0 = time.monotonic()
+        assert not pub_side.wait_for_subscribers(key, 0.3)  # nobody listens: False at the timeout
+        assert time.monotonic() - t0 >= 0.3
+        with ZenohTransport() as sub_side:
+            sub_side.subscribe_bytes(f"iea/{corridor_id}/**", lambda k, p: got.append(p))
+            assert pub_side.wait_for_subscribers(key, 10.0)
+            pub_side.publish_bytes(key, b"first")
+            deadline = time.monotonic() + 5.0
+            while not got and time.monotonic() < deadline:
+                time.sleep(0.01)
+    assert got == [b"first"]  # the first message published after the wait arrives
+    assert LocalBus().wait_for_subscribers(key, 0.0)  # in-process: nothing to wait for
+
+
 # ------------------------------------------------------------------ transports
 def test_localbus_rejects_bad_input_and_isolates_handler_errors():
     bus = LocalBus()
