@@ -24,20 +24,18 @@ import numpy as np
 
 from protocol.corridor import CameraConfig, Road
 from protocol.messages import Actor, WorldSnapshot
-from sim.bodies import (
-    BLUE_LAMP_BGR,
-    FACE_IDX,
-    RED_LAMP_BGR,
-    TAIL_OFF_BGR,
-    TAIL_ON_BGR,
-    BodyModel,
-    body_model,
-    body_parts,
-    ev_lamps_on,
-)
+from sim.bodies import FACE_IDX, BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
-from sim.lamps import AMBER_ON_BGR, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
-from sim.render_effects import halo_numbers, line_kernel, queue_lamp_glow, shade_faces
+from sim.lamps import signal_on
+from sim.render_effects import (
+    halo_numbers,
+    line_kernel,
+    lit_bgr,
+    queue_lamp_glow,
+    shade_faces,
+    shadow_hull,
+    unlit_bgr,
+)
 from sim.scenery import LIGHTING, render_scenery
 
 MIN_VISIBLE_FRACTION = 0.3
@@ -135,26 +133,30 @@ class Renderer:
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
-        pool = cv2.blur(pool, (7, 7))
-        roi = img[oy1:oy2, ox1:ox2]
-        cv2.add(roi, pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
+        self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
+
+    def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+        """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,
+        cut to the image); None when the box is under 2 px either way."""
+        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
+        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2 + 1), min(self.h, y2 + 1)
+        if x2 - x1 < 2 or y2 - y1 < 2:
+            return None
+        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
+        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        return (x1, y1, x2, y2), mask
 
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners (N, 3) projected along the sun onto z = 0, darkened
         (v * round(256 (1 - strength)) >> 8, as a LUT, where the anti-aliased polygon covers more than half)."""
-        ground = corners[:, :2] - corners[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
-        hull = cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
+        hull = shadow_hull(corners, sun)
         h = hull @ self.cam.KR[:, :2].T - self.cam.KR @ self.cam.C  # (x, y, 0) projected
         if np.any(h[:, 2] <= NEAR_M):
             return
-        uv = h[:, :2] / h[:, 2:]
-        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
-        x2, y2 = x2 + 1, y2 + 1
-        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
-        if x2 - x1 < 2 or y2 - y1 < 2:
+        cut = self._polygon_mask(h[:, :2] / h[:, 2:])
+        if cut is None:
             return
-        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        (x1, y1, x2, y2), mask = cut
         cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)
         k = int(256 * (1 - strength))
         lut = self._shadow_luts.get(k)
@@ -179,13 +181,7 @@ class Renderer:
         """Per decal, its colour when not lit in ``lighting`` (BGR list), cached per model and lighting."""
         cols = model.off_bgr.get(lighting)
         if cols is None:
-            L = LIGHTING[lighting]
-            gain = L["scene_gain"]
-            tail_off = np.clip(TAIL_OFF_BGR * gain * 1.1, 0, 255).tolist()
-            cols = [tail_off if dc.lamp == "tail" else
-                    np.clip(np.asarray(dc.colour, dtype=float) * (0.85 if dc.lamp else 1.0)
-                            * (L["ambient"] + 0.5 * L["sun"]) * gain * 1.3, 0, 255).tolist() for dc in model.decals]
-            model.off_bgr[lighting] = cols
+            cols = model.off_bgr[lighting] = [unlit_bgr(dc.colour, dc.lamp, LIGHTING[lighting]) for dc in model.decals]
         return cols
 
     def _pose_all(self, actors: list[Actor]) -> list[tuple]:
@@ -225,6 +221,29 @@ class Renderer:
         vec = h[1, :2] / h[1, 2] - h[0, :2] / h[0, 2]
         return vec if math.hypot(vec[0], vec[1]) >= 1.5 else None
 
+    def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
+        """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), a copy of
+        the static scene to draw on and the unit vector towards the sun."""
+        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
+        L = LIGHTING[lighting]
+        if frame_index is None:
+            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
+        sun = np.array(L["sun_dir"], dtype=float)
+        sun /= np.linalg.norm(sun)
+        return lighting, L, frame_index, self.background(lighting).copy(), sun
+
+    def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
+                   frame_index: int) -> np.ndarray:
+        """The lamp halos (``glows`` and the light bars' ``bar_halos``), then exposure and sensor noise."""
+        glows.extend(tuple(v) for v in bar_halos.values())
+        if glows:
+            self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
+        if self.exposure_enabled:
+            img = cv2.LUT(img, self._exposure_lut(t_s, lighting))
+        if self.noise_enabled:
+            img = self._add_noise(img, lighting, frame_index)
+        return img
+
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index).
 
@@ -232,15 +251,9 @@ class Renderer:
         per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the lamp
         halos, exposure and noise: issue 17's drawing (``sim.render_reference``) with each actor's body model
         built once (``sim.bodies.body_model``) and posed, culled and shaded with a few array operations."""
-        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
-        L = LIGHTING[lighting]
-        if frame_index is None:
-            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
-        img = self.background(lighting).copy()
+        lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         C = self.cam.C
-        sun = np.array(L["sun_dir"], dtype=float)
-        sun /= np.linalg.norm(sun)
         glows: list[tuple[np.ndarray, tuple, float]] = []
         lamp_pts: dict[tuple[str, str], list] = {}
         drawn = []
@@ -282,52 +295,45 @@ class Renderer:
             off = self._off_colours(model, lighting)
             for k_dc in np.flatnonzero(vis[model.decal_part, model.decal_face]).tolist():
                 dc = decals[k_dc]
-                lit = False
                 if dc.lamp == "turn" and not sig_on:
                     continue  # the tail light under it shows
-                if dc.lamp == "tail":
-                    if tail_bright:
-                        lit = True
-                        colour = TAIL_ON_BGR if a.brake_on else (50, 50, 200)
-                    else:
-                        colour = off[k_dc]
-                elif dc.lamp == "ev_red" and red_on:
-                    lit, colour = True, RED_LAMP_BGR
-                elif dc.lamp == "ev_blue" and blue_on:
-                    lit, colour = True, BLUE_LAMP_BGR
-                elif dc.lamp in SIGNAL_LAMPS and sig_on:
-                    lit, colour = True, AMBER_ON_BGR if dc.lamp == "hazard" else TURN_ON_BGR
-                else:
-                    colour = off[k_dc]
+                colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
                 q = n_corner + 4 * k_dc
-                cv2.fillConvexPoly(img, uv16[q:q + 4], colour, cv2.LINE_AA, 4)
-                if lit:
-                    puv = uv[q:q + 4]
-                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on, puv,
-                                    colour)
+                cv2.fillConvexPoly(img, uv16[q:q + 4], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
+                if colour is not None:
+                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on,
+                                    uv[q:q + 4], colour)
             if blur_px is not None:
                 self._motion_blur(img, (x_lo, y_lo, x_hi, y_hi), blur_px)
-        glows.extend(tuple(v) for v in lamp_pts.values())
-        if glows:
-            self._draw_glows(img, glows, L["glow"])
-        if self.exposure_enabled:
-            img = cv2.LUT(img, self._exposure_lut(t, lighting))
-        if self.noise_enabled:
-            img = self._add_noise(img, lighting, frame_index)
-        return img
+        return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
 
     def _motion_blur(self, img: np.ndarray, bounds: tuple[float, float, float, float], vec: np.ndarray) -> None:
         """Blur a vehicle's ROI (``bounds``: x_lo, y_lo, x_hi, y_hi of its corners' pixels) along its image
         motion during the exposure: a normalised line kernel of ceil(|vec|) + 1 samples (at most 26)."""
-        n = int(min(25, math.ceil(float(np.hypot(*vec)))))
-        pad = n + 2
-        x1, x2 = max(0, int(bounds[0]) - pad), min(self.w, int(bounds[2]) + pad)
-        y1, y2 = max(0, int(bounds[1]) - pad), min(self.h, int(bounds[3]) + pad)
-        if x2 - x1 < 3 or y2 - y1 < 3:
+        box = self._blur_box(bounds, vec)
+        if box is None:
             return
+        x1, y1, x2, y2 = box
         k, anchor = line_kernel(vec)
         roi = img[y1:y2, x1:x2]
         roi[:] = cv2.filter2D(roi, -1, k, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
+
+    def _blur_box(self, bounds: tuple[float, float, float, float], vec: np.ndarray) -> tuple[int, int, int, int] | None:
+        """The ROI (x1, y1, x2, y2) a motion blur of ``vec`` reaches around ``bounds`` (x_lo, y_lo, x_hi, y_hi px):
+        min(25, ceil(|vec|)) + 2 px beyond them, cut to the image; None when under 3 px either way."""
+        pad = int(min(25, math.ceil(float(np.hypot(*vec))))) + 2
+        x1, x2 = max(0, int(bounds[0]) - pad), min(self.w, int(bounds[2]) + pad)
+        y1, y2 = max(0, int(bounds[1]) - pad), min(self.h, int(bounds[3]) + pad)
+        return None if x2 - x1 < 3 or y2 - y1 < 3 else (x1, y1, x2, y2)
+
+    def _add_at(self, img: np.ndarray, patch: np.ndarray, x1: int, y1: int) -> None:
+        """Saturated add of ``patch`` into the image with its top-left corner at (x1, y1), cut to the image."""
+        ox1, oy1 = max(0, x1), max(0, y1)
+        ox2, oy2 = min(self.w, x1 + patch.shape[1]), min(self.h, y1 + patch.shape[0])
+        if ox2 <= ox1 or oy2 <= oy1:
+            return
+        roi = img[oy1:oy2, ox1:ox2]
+        cv2.add(roi, patch[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
 
     def _glow_sprite(self, r: int, colour: tuple, with_core: bool, core_r: int) -> np.ndarray:
         """Cached halo sprite (4r+1 square): a Gaussian falloff times the lamp colour, optional hot core."""
@@ -351,13 +357,7 @@ class Renderer:
             sprite = self._glow_cache.get((r, col, hot, core))
             if sprite is None:
                 sprite = self._glow_sprite(r, col, hot, core)
-            x1, y1 = cx - 2 * r, cy - 2 * r
-            x2, y2 = x1 + 4 * r + 1, y1 + 4 * r + 1
-            ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
-            if ox2 <= ox1 or oy2 <= oy1:
-                continue
-            roi = img[oy1:oy2, ox1:ox2]
-            cv2.add(roi, sprite[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
+            self._add_at(img, sprite, cx - 2 * r, cy - 2 * r)
 
     def _exposure_lut(self, t_s: float, lighting: str) -> np.ndarray:
         """Auto-exposure drift: a slow gain oscillation and a gamma, as a 256-entry LUT."""

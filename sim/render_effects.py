@@ -3,9 +3,11 @@ per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be te
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from sim.lamps import SIGNAL_GLOW, SIGNAL_LAMPS
+from sim.bodies import BLUE_LAMP_BGR, RED_LAMP_BGR, TAIL_OFF_BGR, TAIL_ON_BGR
+from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR
 
 
 def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -86,3 +88,35 @@ def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_b
             bar_halos[key] = [puv, colour, strength]
     else:
         glows.append((puv, colour, strength))
+
+
+def shadow_hull(corners: np.ndarray, sun: np.ndarray) -> np.ndarray:
+    """A cast shadow's outline on the road: the convex hull (K, 2) of the points (N, 3) projected along the unit
+    vector ``sun`` onto z = 0 (the sun's height taken as at least 0.25, so low sun makes long, bounded shadows)."""
+    ground = corners[:, :2] - corners[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
+    return cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
+
+
+def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool):
+    """The colour of a decal's lamp when it is lit this frame, else None (the decal shows its unlit colour): a tail
+    lamp when ``tail_bright`` (braking, or running lights at dusk and night), brighter when braking; the light bar's
+    red and blue halves as they flash; the flashers (amber) and turn signals (red) as they blink."""
+    if lamp == "tail":
+        return (TAIL_ON_BGR if brake_on else (50, 50, 200)) if tail_bright else None
+    if lamp == "ev_red" and red_on:
+        return RED_LAMP_BGR
+    if lamp == "ev_blue" and blue_on:
+        return BLUE_LAMP_BGR
+    if lamp in SIGNAL_LAMPS and sig_on:
+        return AMBER_ON_BGR if lamp == "hazard" else TURN_ON_BGR
+    return None
+
+
+def unlit_bgr(colour, lamp: str | None, lighting: dict) -> list:
+    """A decal's colour when not lit, in ``lighting`` (a ``sim.scenery.LIGHTING`` entry), BGR list: a tail lamp's
+    dark lens x gain x 1.1; any other decal's colour x (0.85 for a lamp) x (ambient + sun / 2) x gain x 1.3."""
+    gain = lighting["scene_gain"]
+    if lamp == "tail":
+        return np.clip(TAIL_OFF_BGR * gain * 1.1, 0, 255).tolist()
+    return np.clip(np.asarray(colour, dtype=float) * (0.85 if lamp else 1.0)
+                   * (lighting["ambient"] + 0.5 * lighting["sun"]) * gain * 1.3, 0, 255).tolist()

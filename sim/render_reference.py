@@ -11,23 +11,11 @@ import cv2
 import numpy as np
 
 from protocol.messages import Actor, WorldSnapshot
-from sim.bodies import (
-    BLUE_LAMP_BGR,
-    FACE_IDX,
-    FACE_NAMES,
-    FACES,
-    GLASS_BGR,
-    RED_LAMP_BGR,
-    TAIL_OFF_BGR,
-    TAIL_ON_BGR,
-    ev_lamps_on,
-    face_points,
-)
+from sim.bodies import FACE_IDX, FACE_NAMES, FACES, GLASS_BGR, ev_lamps_on, face_points
 from sim.camera import NEAR_M
-from sim.lamps import AMBER_ON_BGR, SIGNAL_LAMPS, TURN_ON_BGR, signal_on
+from sim.lamps import signal_on
 from sim.render import Renderer
-from sim.render_effects import queue_lamp_glow
-from sim.scenery import LIGHTING
+from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
 
 
 class ReferenceRenderer(Renderer):
@@ -52,19 +40,14 @@ class ReferenceRenderer(Renderer):
 
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
-        pts = corners.reshape(-1, 3)
-        ground = pts[:, :2] - pts[:, 2:3] * (sun[:2] / max(sun[2], 0.25))
-        hull = cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
+        hull = shadow_hull(corners.reshape(-1, 3), sun)
         uv, depth = self.cam.project(np.column_stack([hull, np.zeros(len(hull))]))
         if np.any(depth <= NEAR_M):
             return
-        x1, y1 = np.floor(uv.min(axis=0)).astype(int)
-        x2, y2 = np.ceil(uv.max(axis=0)).astype(int) + 1
-        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
-        if x2 - x1 < 2 or y2 - y1 < 2:
+        cut = self._polygon_mask(uv)
+        if cut is None:
             return
-        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        (x1, y1, x2, y2), mask = cut
         roi = img[y1:y2, x1:x2]
         dark = (roi.astype(np.uint16) * int(256 * (1 - strength)) >> 8).astype(np.uint8)
         m = mask > 127
@@ -72,15 +55,9 @@ class ReferenceRenderer(Renderer):
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index)."""
-        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
-        L = LIGHTING[lighting]
-        if frame_index is None:
-            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
-        img = self.background(lighting).copy()
+        lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         C = self.cam.C
-        sun = np.array(L["sun_dir"], dtype=float)
-        sun /= np.linalg.norm(sun)
         gain = L["scene_gain"]
         glows: list[tuple[np.ndarray, tuple, float]] = []
         lamp_pts: dict[tuple[str, str], list] = {}
@@ -135,49 +112,27 @@ class ReferenceRenderer(Renderer):
                     [face_points(corners[dc.part], dc.face, dc.u0, dc.u1, dc.v0, dc.v1) for dc in shown]))
             for k_dc, dc in enumerate(shown):
                 puv = all_uv[4 * k_dc:4 * k_dc + 4]
-                lit = False
                 if dc.lamp == "turn" and not sig_on:
                     continue  # the tail light under it shows
-                if dc.lamp == "tail":
-                    if tail_bright:
-                        lit = True
-                        colour = TAIL_ON_BGR if a.brake_on else (50, 50, 200)
-                    else:
-                        colour = np.clip(TAIL_OFF_BGR * gain * 1.1, 0, 255).tolist()
-                elif dc.lamp == "ev_red" and red_on:
-                    lit, colour = True, RED_LAMP_BGR
-                elif dc.lamp == "ev_blue" and blue_on:
-                    lit, colour = True, BLUE_LAMP_BGR
-                elif dc.lamp in SIGNAL_LAMPS and sig_on:
-                    lit, colour = True, AMBER_ON_BGR if dc.lamp == "hazard" else TURN_ON_BGR
-                else:
-                    colour = np.clip(np.asarray(dc.colour, dtype=float) * (0.85 if dc.lamp else 1.0)
-                                     * (L["ambient"] + 0.5 * L["sun"]) * gain * 1.3, 0, 255).tolist()
+                colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
+                lit = colour is not None
+                if not lit:
+                    colour = unlit_bgr(dc.colour, dc.lamp, L)
                 cv2.fillConvexPoly(img, np.round(puv * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
                 if lit:
                     queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on, puv,
                                     colour)
             if blur_px is not None:
                 self._motion_blur(img, uv, blur_px)
-        glows.extend(tuple(v) for v in lamp_pts.values())
-        if glows:
-            self._draw_glows(img, glows, L["glow"])
-        if self.exposure_enabled:
-            img = cv2.LUT(img, self._exposure_lut(t, lighting))
-        if self.noise_enabled:
-            img = self._add_noise(img, lighting, frame_index)
-        return img
+        return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
 
     def _motion_blur(self, img: np.ndarray, uv: np.ndarray, vec: np.ndarray) -> None:
-        """Blur a vehicle's ROI along its image motion during the exposure."""
-        n = int(min(25, math.ceil(float(np.hypot(*vec)))))
-        pad = n + 2
-        x1 = max(0, int(uv[..., 0].min()) - pad)
-        x2 = min(self.w, int(uv[..., 0].max()) + pad)
-        y1 = max(0, int(uv[..., 1].min()) - pad)
-        y2 = min(self.h, int(uv[..., 1].max()) + pad)
-        if x2 - x1 < 3 or y2 - y1 < 3:
+        """Blur a vehicle's ROI along its image motion during the exposure (the full-grid kernel)."""
+        box = self._blur_box((uv[..., 0].min(), uv[..., 1].min(), uv[..., 0].max(), uv[..., 1].max()), vec)
+        if box is None:
             return
+        x1, y1, x2, y2 = box
+        n = int(min(25, math.ceil(float(np.hypot(*vec)))))
         k = np.zeros((2 * n + 1, 2 * n + 1), np.float32)
         direction = vec / max(1e-6, float(np.hypot(*vec)))
         for i in range(n + 1):
@@ -205,8 +160,7 @@ class ReferenceRenderer(Renderer):
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         col = tuple(int(v * strength) for v in (70, 95, 110))
         cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), col, cv2.LINE_AA, 4)
-        pool = cv2.blur(pool, (7, 7))
-        img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], pool[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1])
+        self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
 
     def _draw_glows(self, img: np.ndarray, glows, scale: float) -> None:
         """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only."""
@@ -216,13 +170,7 @@ class ReferenceRenderer(Renderer):
             r = int(min(60, max(3, size * 0.55 * scale)))
             col = tuple(int(c * min(1.0, strength * (0.6 + 0.25 * scale))) for c in colour)
             sprite = self._glow_sprite(r, col, strength >= 1.0, max(1, int(size / 12)))
-            x1, y1 = int(round(cx)) - 2 * r, int(round(cy)) - 2 * r
-            x2, y2 = x1 + 4 * r + 1, y1 + 4 * r + 1
-            ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
-            if ox2 <= ox1 or oy2 <= oy1:
-                continue
-            sub = sprite[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1]
-            img[oy1:oy2, ox1:ox2] = cv2.add(img[oy1:oy2, ox1:ox2], sub)
+            self._add_at(img, sprite, int(round(cx)) - 2 * r, int(round(cy)) - 2 * r)
 
     def _blur_vector(self, a: Actor, exposure_s: float) -> np.ndarray | None:
         if a.speed_mps < 0.5:
