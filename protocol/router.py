@@ -14,6 +14,8 @@ import sys
 import threading
 import time
 
+from protocol.logsetup import add_log_level_argument, configure_logging
+
 log = logging.getLogger("iea.router")
 
 
@@ -30,7 +32,7 @@ def build_parser(prog: str = "iea-router") -> argparse.ArgumentParser:
                     help="a Zenoh JSON5 router config (TLS, ACL: see deploy/zenoh/); --listen overrides its endpoints")
     ap.add_argument("--no-multicast", action="store_true", help="disable multicast scouting")
     ap.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (for tests)")
-    ap.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+    add_log_level_argument(ap)
     return ap
 
 
@@ -49,9 +51,9 @@ def open_router(listen: list[str], config_file: str | None = None, multicast: bo
 
 
 def main(argv: list[str] | None = None, prog: str = "iea-router") -> int:
-    args = build_parser(prog).parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    configure_logging(parser, args)
     listen = args.listen or ([] if args.config else ["tcp/127.0.0.1:7447"])
     for ep in listen:
         if "/" not in ep:
