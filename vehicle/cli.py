@@ -110,16 +110,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_lockstep(args: argparse.Namespace) -> int:
-    from vehicle.lockstep import field_test_scenario, run_scenario
-    from vehicle.record import write_run
+    from vehicle.lockstep import replay_field_test
 
-    sc = field_test_scenario(args.speed, args.sigma, args.latency, args.rate, args.radius, args.seed)
-    result = run_scenario(sc)
-    write_run(args.out, result.record)
-    if args.plot:
-        from vehicle.plot import plot_run
-        plot_run(args.out)
-    print(json.dumps(result.metrics))
+    print(json.dumps(replay_field_test(args.out, args.speed, args.sigma, args.latency, args.rate, args.radius,
+                                       args.seed, args.plot)))
     return 0
 
 

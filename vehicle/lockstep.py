@@ -149,6 +149,20 @@ def run_scenario(sc: Scenario, on_step: Callable[[SimulatedVehicle, float], None
     return RunResult(rec, metrics, acks, sim)
 
 
+def replay_field_test(out_dir: str, speed_mps: float = 13.4, sigma_m: float = 0.2, latency_s: float = 0.1,
+                      rate_hz: float = 10.0, radius_m: float | None = None, seed: int = 0, plot: bool = False) -> dict:
+    """``iea-vehicle lockstep``: the field test run once, its run folder written to ``out_dir`` (with the PNG
+    figures when ``plot``); returns its figures."""
+    from vehicle.record import write_run
+
+    result = run_scenario(field_test_scenario(speed_mps, sigma_m, latency_s, rate_hz, radius_m, seed))
+    write_run(out_dir, result.record)
+    if plot:
+        from vehicle.plot import plot_run
+        plot_run(out_dir)
+    return result.metrics
+
+
 def compute_metrics(sc: Scenario, sim: SimulatedVehicle, rec: RunRecord, acks: list) -> dict:
     c = rec.columns()
     t = c["t_s"]
