@@ -116,22 +116,13 @@ def build_eval_parser() -> argparse.ArgumentParser:
 def eval_main(argv: list[str]) -> int:
     import json
 
-    from rsu.classify.classifiers import load_classifier
-    from rsu.classify.evaluation import evaluate_fitted, evaluate_models, format_table, scores_json
+    from rsu.classify.evaluation import evaluate_table, format_table, scores_json
 
     args = build_eval_parser().parse_args(argv)
-    scores = []
     try:
-        shipped = []
-        for name in ("cnn", "hsv8-gb"):
-            try:
-                shipped.append(load_classifier(name))
-            except FileNotFoundError as exc:
-                print(f"iea-rsu eval-classifier: {exc}", file=sys.stderr)
-        scores += evaluate_models(args.dataset, shipped)
-        if not args.no_fit:
-            scores += evaluate_fitted(args.dataset, args.features, args.classifiers,
-                                      max_train_per_class=args.max_train_per_class or None)
+        scores = evaluate_table(args.dataset, args.features, args.classifiers, fit=not args.no_fit,
+                                max_train_per_class=args.max_train_per_class or None,
+                                warn=lambda text: print(f"iea-rsu eval-classifier: {text}", file=sys.stderr))
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"iea-rsu eval-classifier: {exc}", file=sys.stderr)
         return 2

@@ -151,6 +151,24 @@ def evaluate_models(root: str | Path, models: Sequence, log=print) -> list[Score
     return out
 
 
+def evaluate_table(root: str | Path, features: Sequence[str], classifiers: Sequence[str], *, fit: bool = True,
+                   max_train_per_class: int | None = 1500, warn=print) -> list[Score]:
+    """``iea-rsu eval-classifier``'s scores: the shipped ONNX classifiers (``warn`` names one that is missing),
+    then, when ``fit``, every feature x classifier pair fitted here."""
+    from rsu.classify.classifiers import load_classifier
+
+    shipped = []
+    for name in ("cnn", "hsv8-gb"):
+        try:
+            shipped.append(load_classifier(name))
+        except FileNotFoundError as exc:
+            warn(str(exc))
+    scores = evaluate_models(root, shipped)
+    if fit:
+        scores += evaluate_fitted(root, features, classifiers, max_train_per_class=max_train_per_class)
+    return scores
+
+
 def format_table(scores: Sequence[Score]) -> str:
     """Table 2.2 layout: one row per (feature, metric), one column per classifier (percent)."""
     clfs = list(dict.fromkeys(s.classifier for s in scores))
