@@ -91,10 +91,7 @@ def _corridor(argv: list[str]) -> int:
 
 
 def _keys(argv: list[str]) -> int:
-    import os
-    from pathlib import Path
-
-    from protocol.security import new_key_pair
+    from deploy.signing import write_new_key
 
     ap = argparse.ArgumentParser(prog="iea keys", description="Manage the Ed25519 keys that sign commands and alerts.")
     sub = ap.add_subparsers(dest="action", required=True)
@@ -107,23 +104,13 @@ def _keys(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     if args.role == "rsu" and not args.rsu_id:
         ap.error("--rsu-id is required for an RSU key")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{args.key_id}.pem"
-    if path.exists():
-        print(f"error: {path} exists; refusing to overwrite a private key", file=sys.stderr)
+    try:
+        path, entry = write_new_key(args.out, args.key_id, args.role, args.rsu_id, args.vehicles)
+    except FileExistsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
-    pem, pub = new_key_pair()
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(pem)
     print(f"# private key written to {path}; add this to the corridor file:")
-    print("[[trust]]")
-    print(f'key_id = "{args.key_id}"\nrole = "{args.role}"\npublic_key = "{pub}"')
-    if args.role == "rsu":
-        print(f'rsu_id = "{args.rsu_id}"')
-    else:
-        print("vehicles = [" + ", ".join(f'"{v.strip()}"' for v in args.vehicles.split(",")) + "]")
+    print(entry)
     return 0
 
 
@@ -225,23 +212,13 @@ def _deploy(argv: list[str]) -> int:
 def _write_compose(args: argparse.Namespace, corridor) -> int:
     from pathlib import Path
 
-    from deploy.compose import HEADER, ZENOH_IMAGE, compose_services, compose_yaml
-    from sim.scenario import ScenarioError, load_scenario
+    from deploy.compose import HEADER, ZENOH_IMAGE, compose_for_scenario, compose_yaml
+    from sim.scenario import ScenarioError
 
     try:
-        sc = load_scenario(args.scenario, corridor)
-        av = {sc.av.vehicle_id: (sc.av.start_s_m, sc.av.lane, sc.av.speed_mps)} if sc.av is not None else None
-        root = Path(__file__).resolve().parent.parent
-        try:
-            corridor_file = str(Path(args.corridor).resolve().relative_to(root))
-        except ValueError:
-            print(f"error: the corridor file must be inside the repository (the image copies {root}); "
-                  f"got {args.corridor}", file=sys.stderr)
-            return 1
-        doc = compose_services(corridor, rsus=args.rsus, scenario=args.scenario, acl=not args.no_acl,
-                               acl_dir=args.acl_dir, zenoh_image=args.zenoh_image or ZENOH_IMAGE,
-                               corridor_file=corridor_file, av_start=av, signed=not args.unsigned,
-                               keys_dir=args.keys_dir)
+        doc = compose_for_scenario(corridor, args.corridor, args.scenario, rsus=args.rsus, acl=not args.no_acl,
+                                   acl_dir=args.acl_dir, zenoh_image=args.zenoh_image or ZENOH_IMAGE,
+                                   signed=not args.unsigned, keys_dir=args.keys_dir)
     except (ValueError, ScenarioError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -142,6 +142,25 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
     return {"services": services}  # no top-level `name`: docker-compose 1.29.2 refuses it (module docstring)
 
 
+def compose_for_scenario(corridor: Corridor, corridor_path: str, scenario: str, **options) -> dict[str, Any]:
+    """``iea deploy compose``: ``compose_services`` for the corridor file at ``corridor_path`` (inside the
+    repository, which the image copies: ValueError otherwise) with the AV where ``scenario`` starts it;
+    ``options``: the rest of ``compose_services``'s. Raises ``ScenarioError`` for an unknown scenario."""
+    from pathlib import Path
+
+    from sim.scenario import load_scenario
+
+    sc = load_scenario(scenario, corridor)
+    av = {sc.av.vehicle_id: (sc.av.start_s_m, sc.av.lane, sc.av.speed_mps)} if sc.av is not None else None
+    root = Path(__file__).resolve().parent.parent
+    try:
+        corridor_file = str(Path(corridor_path).resolve().relative_to(root))
+    except ValueError:
+        raise ValueError(f"the corridor file must be inside the repository (the image copies {root}); "
+                         f"got {corridor_path}") from None
+    return compose_services(corridor, scenario=scenario, corridor_file=corridor_file, av_start=av, **options)
+
+
 def prometheus_config(targets: list[str]) -> list[str]:
     """The lines of prometheus.yml scraping ``targets`` (compose service names) on ``METRICS_PORT``."""
     return ["global: {scrape_interval: 5s, evaluation_interval: 5s}", "scrape_configs:", "  - job_name: iea",

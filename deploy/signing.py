@@ -27,6 +27,27 @@ def signing_services(corridor: Any) -> list[tuple[str, str]]:
             *[(r.rsu_id, f'role = "rsu"\nrsu_id = "{r.rsu_id}"') for r in corridor.rsus]]
 
 
+def write_new_key(out_dir: str | Path, key_id: str, role: str, rsu_id: str | None = None,
+                  vehicles: str = "*") -> tuple[Path, str]:
+    """``iea keys new``: a key pair, its private key written to ``out_dir/KEY_ID.pem`` (mode 0600); returns that
+    path and the key's ``[[trust]]`` entry (an RSU key speaks for ``rsu_id``; a DDM key may command ``vehicles``,
+    comma-separated). Raises ``FileExistsError`` rather than overwrite a private key."""
+    from protocol.security import new_key_pair
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{key_id}.pem"
+    if path.exists():
+        raise FileExistsError(f"{path} exists; refusing to overwrite a private key")
+    pem, pub = new_key_pair()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(pem)
+    scope = (f'rsu_id = "{rsu_id}"' if role == "rsu" else
+             "vehicles = [" + ", ".join(f'"{v.strip()}"' for v in vehicles.split(",")) + "]")
+    return path, f'[[trust]]\nkey_id = "{key_id}"\nrole = "{role}"\npublic_key = "{pub}"\n{scope}'
+
+
 def write_key_bundle(corridor_file: str | Path, out_dir: str | Path, *, key_id_suffix: str,
                      overwrite: bool = False, note: str = "iea deploy keys") -> tuple[Path, dict[str, Path]]:
     """Write a key per signing service and the trusting corridor file into ``out_dir``; returns (the corridor
