@@ -110,6 +110,18 @@ class DecodeTarget(Target):
         return True
 
 
+def mutated_payload(mutator: Mutator, rng: random.Random, msg, probability: float) -> bytes:
+    """``msg`` encoded, its msgpack tree mutated first with ``probability``; its plain encoding when the mutant
+    does not pack."""
+    tree = msgpack.unpackb(encode(msg), raw=False)
+    if rng.random() < probability:
+        tree = mutator.mutate_tree(tree)
+    try:
+        return msgpack.packb(tree, use_bin_type=True)
+    except (OverflowError, ValueError, TypeError):
+        return encode(msg)
+
+
 class _BusTarget(Target):
     """Feeds bytes through a LocalBus: a handler exception is caught and counted by the transport."""
 
@@ -310,13 +322,7 @@ class DdmAckTarget(DdmTarget):
         if cur is not None and self.rng.random() < 0.5:  # an ack naming the command the DDM waits on
             ack = CommandAck(src="av1", stamp=self.clock.now(), command_id=cur.command_id, vehicle_id="av1",
                              status=self.rng.choice(list(AckStatus)), reason=self.rng.choice(("", "x" * 200)))
-            tree = msgpack.unpackb(encode(ack), raw=False)
-            if self.rng.random() < 0.5:
-                tree = self.mutator.mutate_tree(tree)
-            try:
-                return msgpack.packb(tree, use_bin_type=True)
-            except (OverflowError, ValueError, TypeError):
-                return encode(ack)
+            return mutated_payload(self.mutator, self.rng, ack, 0.5)
         return super().payload()
 
     def _keys(self) -> list[str]:

@@ -12,7 +12,7 @@ import random
 
 import msgpack
 
-from bench.fuzz_targets import C, _BusTarget, _corridor
+from bench.fuzz_targets import C, _BusTarget, _corridor, mutated_payload
 from protocol import keys
 from protocol.clock import SimClock
 from protocol.codec import ProtocolError, decode, encode
@@ -161,13 +161,7 @@ class VehicleRsuTarget(VehicleTarget):
                                                                        pos_y_m=t.y_m + self.rng.gauss(0, 1)),
                                                    ol.objects[1]],
                                        "measurement_time": self.clock.now() - self.rng.uniform(-0.5, 2.0)})
-            tree = msgpack.unpackb(encode(ol), raw=False)
-            if self.rng.random() < 0.7:
-                tree = self.mutator.mutate_tree(tree)
-            try:
-                return msgpack.packb(tree, use_bin_type=True)
-            except (OverflowError, ValueError, TypeError):
-                return encode(ol)
+            return mutated_payload(self.mutator, self.rng, ol, 0.7)
         return super().payload()
 
     def _odd_keys(self) -> list[str]:
