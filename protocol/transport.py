@@ -219,16 +219,20 @@ class LocalBus(Transport):
         for cb in targets:
             cb(key, bytes(payload))
 
-    def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
+    def _register(self, table: dict, entry: tuple) -> Subscription:
+        """``entry`` in ``table`` under a fresh id until the returned subscription is closed."""
         with self._lock:
-            sid = next(self._ids)
-            self._subs[sid] = (key_expr, callback)
+            rid = next(self._ids)
+            table[rid] = entry
 
         def close() -> None:
             with self._lock:
-                self._subs.pop(sid, None)
+                table.pop(rid, None)
 
         return Subscription(close)
+
+    def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
+        return self._register(self._subs, (key_expr, callback))
 
     def declare_token(self, key: str) -> Subscription:
         if "*" in key or "$" in key:
@@ -271,15 +275,7 @@ class LocalBus(Transport):
             return sorted({k for k in self._tokens.values() if key_matches(key_expr, k)})
 
     def declare_queryable(self, key_expr: str, handler: QueryHandler) -> Subscription:
-        with self._lock:
-            qid = next(self._ids)
-            self._queryables[qid] = (key_expr, handler)
-
-        def close() -> None:
-            with self._lock:
-                self._queryables.pop(qid, None)
-
-        return Subscription(close)
+        return self._register(self._queryables, (key_expr, handler))
 
     def query_bytes(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
         with self._lock:
