@@ -168,7 +168,7 @@ class ZenohTransport(Transport):
     def _subscribe_bulk(self, key_expr: str, callback: BytesCallback) -> Subscription:
         """A ring channel (zenoh drops the oldest sample when full, without the GIL) drained by a worker."""
         sub = self.session.declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
-        # a decode in the worker holds the GIL; let the network thread's callbacks in every millisecond
+        # a decode in the worker holds the GIL; let the network thread's callbacks in every BULK_SWITCH_INTERVAL_S
         sys.setswitchinterval(min(sys.getswitchinterval(), BULK_SWITCH_INTERVAL_S))
 
         def drain() -> None:
