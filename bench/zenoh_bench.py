@@ -45,8 +45,8 @@ from deploy.procs import stop_process  # noqa: E402
 from protocol import keys, qos  # noqa: E402
 from protocol.codec import encode  # noqa: E402
 from protocol.examples import example_messages  # noqa: E402
-from protocol.runtime import freeze_startup_heap  # noqa: E402
 from protocol.messages import PathSwitchCommand, WorldSnapshot  # noqa: E402
+from protocol.runtime import freeze_startup_heap  # noqa: E402
 from protocol.transport import ZenohSettings, ZenohTransport  # noqa: E402
 
 PY = sys.executable
