@@ -227,7 +227,7 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
                     print("  FALSE", rsu_id, e.track_id, actor, round(snap.sim_time_s, 2), "cues",
                           [c.value for c in evd.cues], "body", np.round(list(evd.body_scores), 2))
                     for name, series in evd._signals.items():
-                        print(f"    {name:18s}", np.round(list(series)[-20:], 3))
+                        print(f"    {name:18s}", np.round(list(series)[-int(os.environ.get("EV_BENCH_DEBUG_N", "20")):], 3))
                 if ok:
                     found.add((rsu_id, actor))
                     first_alert_ev.setdefault(actor, snap.sim_time_s)

@@ -13,6 +13,14 @@ Three sources (README beside the data), one list of :class:`CropSample`:
   the source id, the name before ``.rf.``, over all three of its folders.
 - ``indian_ev_photos``: web photos named by class (ambulance, fire truck, police), all EV, whole image.
 
+**Label review** (``models/ev_train_review.csv``, seventh session): every ``av_emergency_crops`` photo and every
+Open Images Car or Truck box of at least ``MIN_BOX_PX`` (one Roboflow copy per photo) was looked at on contact
+sheets against one written definition (EV = ambulance, fire-service or marked police vehicle). The file lists
+each change (a wrong label, or ``exclude``: no single vehicle dominates, a fragment, an interior, a toy or a
+drawing, or unsure) and the decision for every Car/Truck box: with the review applied, Car and Truck boxes come
+in (18 of the 562 are police cars or fire engines, labelled so), and 266 reviewed items are left out.
+``load_ev_train(root, review=None)`` gives the data as published.
+
 :func:`split_by_group` cuts the groups, not the samples, into train / val / test with a seeded hash,
 so the same photo is never on both sides. :func:`crop_of` reads a sample as the RSU would see it: a
 box grown upwards by ``above_fraction`` of its height (a roof light bar sits above a COCO car box,
@@ -34,7 +42,8 @@ from rsu.classify.ev import crop_above
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".bmp")
 OPENIMAGES_EV_CLASSES = frozenset({0})  # Ambulance; 1 Bus, 2 Car, 3 Motorcycle, 4 Truck
-OPENIMAGES_NOT_EV_CLASSES = frozenset({1, 3})  # Car and Truck include police cars and fire engines: not used
+OPENIMAGES_NOT_EV_CLASSES = frozenset({1, 3})
+OPENIMAGES_REVIEWED_CLASSES = frozenset({2, 4})  # Car and Truck include police cars and fire engines: review only
 MIN_BOX_PX = 40  # the RSU measures no box smaller than this (TrackEvClassifier.min_box_px)
 SPLITS = ("train", "val", "test")
 
@@ -79,7 +88,9 @@ def load_av_crops(root: Path) -> list[CropSample]:
     return out
 
 
-def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX) -> list[CropSample]:
+def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX, with_car_truck: bool = False) -> list[CropSample]:
+    """Ambulance, Bus and Motorcycle boxes; with ``with_car_truck`` also Car and Truck boxes, labelled -1 (unknown)
+    until :func:`apply_review` gives them the review's label or drops them."""
     out = []
     for images in sorted(root.glob("*/images")):
         for path in sorted(images.iterdir()):
@@ -96,15 +107,16 @@ def load_openimages(root: Path, min_box_px: int = MIN_BOX_PX) -> list[CropSample
                 if len(parts) != 5:
                     continue
                 cls = int(parts[0])
-                if cls not in OPENIMAGES_EV_CLASSES | OPENIMAGES_NOT_EV_CLASSES:
+                reviewed_only = with_car_truck and cls in OPENIMAGES_REVIEWED_CLASSES
+                if cls not in OPENIMAGES_EV_CLASSES | OPENIMAGES_NOT_EV_CLASSES and not reviewed_only:
                     continue
                 cx, cy, bw, bh = (float(v) for v in parts[1:])
                 x1, y1 = int(round((cx - bw / 2) * w)), int(round((cy - bh / 2) * h))
                 x2, y2 = int(round((cx + bw / 2) * w)), int(round((cy + bh / 2) * h))
                 if min(x2 - x1, y2 - y1) < min_box_px:
                     continue
-                out.append(CropSample(path, int(cls in OPENIMAGES_EV_CLASSES), group, "openimages_vehicles",
-                                      (x1, y1, x2, y2)))
+                label = -1 if reviewed_only else int(cls in OPENIMAGES_EV_CLASSES)
+                out.append(CropSample(path, label, group, "openimages_vehicles", (x1, y1, x2, y2)))
     return out
 
 
@@ -113,8 +125,45 @@ def load_named_photos(root: Path) -> list[CropSample]:
             if p.suffix.lower() in IMAGE_SUFFIXES]
 
 
-def load_ev_train(root: str | Path) -> list[CropSample]:
-    """Every labelled crop of ``ev_train`` (module docstring); raises when the folder is absent."""
+REVIEW_CSV = Path(__file__).resolve().parents[2] / "models" / "ev_train_review.csv"
+REVIEW_LABELS = {"ev": 1, "not": 0}
+
+
+def load_review(path: str | Path) -> dict[tuple[str, str], str]:
+    """``(source, item) -> 'ev' | 'not' | 'exclude'`` from a label-review CSV (module docstring)."""
+    out = {}
+    with Path(path).open(newline="") as fh:
+        for n, row in enumerate(csv.DictReader(fh), start=2):
+            if row.get("reviewed") not in ("ev", "not", "exclude") or not row.get("item"):
+                raise ValueError(f"{path}:{n}: 'reviewed' must be ev, not or exclude and 'item' set, got {row}")
+            out[(row["source"], row["item"])] = row["reviewed"]
+    return out
+
+
+def review_item(sample: CropSample) -> str:
+    """The review's key of a sample: the file name, or for an Open Images box ``folder/file#x1,y1,x2,y2``."""
+    if sample.box_px is None or sample.source != "openimages_vehicles":
+        return sample.path.name
+    return f"{sample.path.parent.parent.name}/{sample.path.name}#" + ",".join(map(str, sample.box_px))
+
+
+def apply_review(samples: Sequence[CropSample], review: dict[tuple[str, str], str]) -> list[CropSample]:
+    """Relabel or drop the reviewed samples; Open Images Car/Truck boxes (``reviewed_box``) only where reviewed."""
+    out = []
+    for s in samples:
+        decision = review.get((s.source, review_item(s)))
+        if decision is None:
+            if s.source == "openimages_vehicles" and s.label < 0:
+                continue  # a Car/Truck box nobody reviewed (the other Roboflow copy): its label is unknown
+            out.append(s)
+        elif decision != "exclude":
+            out.append(CropSample(s.path, REVIEW_LABELS[decision], s.group, s.source, s.box_px))
+    return out
+
+
+def load_ev_train(root: str | Path, review: str | Path | None = REVIEW_CSV) -> list[CropSample]:
+    """Every labelled crop of ``ev_train`` (module docstring), with the label review applied unless ``review`` is
+    None; raises when the folder is absent."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root} not found: the real training data is ../shared/data/real/ev_train")
@@ -122,12 +171,12 @@ def load_ev_train(root: str | Path) -> list[CropSample]:
     if (root / "av_emergency_crops").is_dir():
         out += load_av_crops(root / "av_emergency_crops")
     if (root / "openimages_vehicles").is_dir():
-        out += load_openimages(root / "openimages_vehicles")
+        out += load_openimages(root / "openimages_vehicles", with_car_truck=review is not None)
     if (root / "indian_ev_photos").is_dir():
         out += load_named_photos(root / "indian_ev_photos")
     if not out:
         raise FileNotFoundError(f"no labelled images under {root}")
-    return out
+    return apply_review(out, load_review(review)) if review is not None else out
 
 
 def split_of(group: str, seed: int = 17, val: float = 0.15, test: float = 0.15) -> str:

@@ -142,12 +142,21 @@ class EvidenceConfig:
     lamp clips the sensor at its brightest point. Sunlit red paint passes the core test (the simulator's red
     truck cab: R 228-243 at its brightest, core share 0.1-0.34; ev_bench tuning seeds 31372/91468: 3 false
     alerts on it) but stays below 250."""
+    bar_flash_min_peak: float = 220 / 255
+    """A light-bar red or blue sample counts as lit for a *flash* only when its brightest channel reaches this
+    share of 255 (the lamp-core level of ``steady_min_core``): a lamp lighting clips the sensor somewhere, while
+    red paint whose lit share wavers with the box does not. Set on ev_bench tuning seed 50857 (a red car's paint,
+    brightest channel 0.71-0.85, read as bar flashes: 1 false alert) and checked on the real tuning clips, whose
+    bars reach 0.86-1.0 (``steady_min_core``)."""
     strong_bar_flashes: int = 3
-    """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes,
-    each after a dark stretch, at most ``max_dark_s`` apart, central, bar-sized (at most
-    ``steady_max_fraction`` of the band) - is a strong flash pattern that confirms alone, like a lamp-bright
-    flash: a far EV whose body the classifier cannot yet judge still alerts. Paint does not flash, and
-    corner lamps (turn signals, hazards) are excluded as for every cue. 0: never."""
+    """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes of
+    lamp-lit samples (``bar_flash_min_peak``), each after a dark stretch, at most ``max_dark_s`` apart, central -
+    is a strong flash pattern that confirms alone, like a lamp-bright flash: a far EV whose body the classifier
+    cannot yet judge still alerts. Paint does not flash, and corner lamps (turn signals, hazards) are excluded as
+    for every cue. 0: never. The lit share of the band is not bounded above (it was, by ``steady_max_fraction``,
+    before the lamp-lit test): an EV driving away close below the mast fills 13-40 % of its band with a 3 Hz red
+    flash (ev_bench tuning seed 21674, ``ev_two_lanes_dense``, rsu1: missed before, its lamp-bright flashes too
+    uneven for the half-peak rule)."""
     body_threshold: float = 0.5
     """EV-body score that counts as confident (the body model's ``confident_threshold``, from its metadata)."""
     body_min_scores: int = 3
@@ -205,13 +214,20 @@ class TrackEvidence:
     _t: deque = field(default_factory=deque)
     _signals: dict = field(default_factory=lambda: {k: deque() for k in SIGNALS})
 
-    def _series(self, now_s: float, window_s: float, kind: str = "bright"):
-        """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind."""
+    def _series(self, now_s: float, window_s: float, kind: str = "bright", lamp_lit: bool = False):
+        """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind.
+        ``lamp_lit``: a light-bar red or blue sample whose brightest channel is under ``bar_flash_min_peak`` reads
+        as dark (a flash is a lamp lighting, not paint whose lit share wavers)."""
         t = np.fromiter(self._t, float)
         keep = t >= now_s - window_s
         sig = self._signals
         out = {c: (np.fromiter(sig[f"{kind}_{c}"], float)[keep], np.fromiter(sig[f"{kind}_{c}_centre"], float)[keep])
                for c in COLOURS[kind]}
+        if lamp_lit and kind == "bar":
+            for c in ("red", "blue"):
+                x, centre = out[c]
+                peak = np.fromiter(sig[f"bar_{c}_peak"], float)[keep]
+                out[c] = (np.where(peak >= self.config.bar_flash_min_peak, x, 0.0), centre)
         return t[keep], out
 
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
@@ -221,7 +237,7 @@ class TrackEvidence:
     def _flash_cue(self, now_s: float, kind: str = "bright") -> EvCue | None:
         cfg = self.config
         on_fraction = cfg.lamp_on_fraction if kind == "bright" else cfg.bar_on_fraction
-        t, series = self._series(now_s, cfg.flash_window_s, kind)
+        t, series = self._series(now_s, cfg.flash_window_s, kind, lamp_lit=True)
         if len(t) < 3:
             return None
         frame_s = float(np.median(np.diff(t)))
@@ -259,14 +275,14 @@ class TrackEvidence:
         cfg = self.config
         if cfg.strong_bar_flashes <= 0:
             return False
-        t, series = self._series(now_s, cfg.flash_window_s, "bar")
+        t, series = self._series(now_s, cfg.flash_window_s, "bar", lamp_lit=True)
         if len(t) < 2 * cfg.strong_bar_flashes:
             return False
         frame_s = float(np.median(np.diff(t)))
         for colour in ("red", "blue"):
             x, centre = series[colour]
-            peak = float(x.max())
-            if not cfg.bar_on_fraction <= peak <= cfg.steady_max_fraction:
+            peak = float(x.max())  # no upper bound: a lamp-lit sample clips (bar_flash_min_peak); paint does not flash
+            if peak < cfg.bar_on_fraction:
                 continue
             on_level = max(cfg.bar_on_fraction, 0.5 * peak)
             if not self._central(x, centre, on_level):
