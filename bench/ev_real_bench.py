@@ -15,7 +15,10 @@ Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent).
   the body model's ``above_fraction`` (0.25), classified by the body model at its own ``threshold``; a
   photo with no vehicle is predicted non-EV. Accuracy, precision, recall, F-measure (thesis App. A);
 - **split**: the held-out ``test`` split of ``ev_train`` (``split_by_group``, by source photo: the
-  training never saw it), crops as the RSU takes them (``crop_of(s, body.above_fraction)``), same metrics;
+  training never saw it), crops as the RSU takes them (``crop_of(s, body.above_fraction)``), same metrics:
+  ``split_*`` with the label review of ``models/ev_train_review.csv`` applied (wrong labels fixed, unusable
+  photos out, the reviewed Open Images Car/Truck boxes in: harder negatives), ``split_published_*`` on the
+  data as published;
 - **crop_ms**: one crop through the body model on one core, median of ``--crop-calls`` single-crop calls.
 
 With ``--json`` the last line is one JSON object: ``real_ev_clips_alerted``, ``real_ev_clips``,
@@ -46,7 +49,7 @@ import numpy as np  # noqa: E402
 from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.body import load_body_classifier  # noqa: E402
 from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # noqa: E402
-from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
+from rsu.classify.real_data import REVIEW_CSV, crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import Detector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
 
@@ -83,18 +86,21 @@ def photo_figures(folder: Path, detector: Detector, body) -> dict:
 
 
 def split_figures(root: Path, body, crop_calls: int) -> dict:
-    """The held-out ``test`` split of ev_train through the body model, and the cost of one crop."""
-    test = split_by_group(load_ev_train(root))["test"]
-    crops, labels = [], []
-    for s in test:
-        c = crop_of(s, body.above_fraction)
-        if c is not None:
-            crops.append(c)
-            labels.append(s.label)
-    prob = np.concatenate([body.predict(crops[i:i + 32]) for i in range(0, len(crops), 32)])
-    acc, p, r, f = metrics(np.array(labels), prob, body.threshold)
-    return dict(split_crops=len(crops), split_ev_crops=int(sum(labels)), split_accuracy=acc, split_precision=p,
-                split_recall=r, split_f_measure=f, crop_ms=ms_per_crop(body, crops, crop_calls), crop_calls=crop_calls)
+    """The held-out ``test`` split of ev_train through the body model, with the label review applied
+    (``split_*``, :mod:`rsu.classify.real_data`) and as published (``split_published_*``), and the cost of one crop."""
+    out = {}
+    for prefix, review in (("split_published", None), ("split", REVIEW_CSV)):
+        crops, labels = [], []
+        for s in split_by_group(load_ev_train(root, review=review))["test"]:
+            c = crop_of(s, body.above_fraction)
+            if c is not None:
+                crops.append(c)
+                labels.append(s.label)
+        prob = np.concatenate([body.predict(crops[i:i + 32]) for i in range(0, len(crops), 32)])
+        acc, p, r, f = metrics(np.array(labels), prob, body.threshold)
+        out.update({f"{prefix}_crops": len(crops), f"{prefix}_ev_crops": int(sum(labels)), f"{prefix}_accuracy": acc,
+                    f"{prefix}_precision": p, f"{prefix}_recall": r, f"{prefix}_f_measure": f})
+    return dict(out, crop_ms=ms_per_crop(body, crops, crop_calls), crop_calls=crop_calls)
 
 
 def main(argv=None) -> int:
@@ -138,10 +144,11 @@ def main(argv=None) -> int:
               f"{figures['photo_with_vehicle']}: accuracy {figures['photo_accuracy']:.3f}, precision "
               f"{figures['photo_precision']:.3f}, recall {figures['photo_recall']:.3f}, F {figures['photo_f_measure']:.3f}")
         figures.update(split_figures(REAL / "ev_train", body, args.crop_calls))
-        print(f"held-out split: {figures['split_crops']} crops ({figures['split_ev_crops']} EV): accuracy "
-              f"{figures['split_accuracy']:.3f}, precision {figures['split_precision']:.3f}, recall "
-              f"{figures['split_recall']:.3f}, F {figures['split_f_measure']:.3f}; "
-              f"{figures['crop_ms']:.2f} ms per crop (one core, median of {args.crop_calls})")
+        for prefix, what in (("split_published", "as published"), ("split", "label review applied")):
+            print(f"held-out split, {what}: {figures[prefix + '_crops']} crops ({figures[prefix + '_ev_crops']} EV): "
+                  f"accuracy {figures[prefix + '_accuracy']:.3f}, precision {figures[prefix + '_precision']:.3f}, "
+                  f"recall {figures[prefix + '_recall']:.3f}, F {figures[prefix + '_f_measure']:.3f}")
+        print(f"{figures['crop_ms']:.2f} ms per crop (one core, median of {args.crop_calls})")
     figures.update(per_clip=per_clip, runtime_s=round(time.perf_counter() - t0, 1))
     if args.json:
         print(json.dumps(figures))

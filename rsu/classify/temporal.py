@@ -143,11 +143,12 @@ class EvidenceConfig:
     truck cab: R 228-243 at its brightest, core share 0.1-0.34; ev_bench tuning seeds 31372/91468: 3 false
     alerts on it) but stays below 250."""
     bar_flash_min_peak: float = 220 / 255
-    """A light-bar red or blue sample counts as lit for a *flash* only when its brightest channel reaches this
-    share of 255 (the lamp-core level of ``steady_min_core``): a lamp lighting clips the sensor somewhere, while
-    red paint whose lit share wavers with the box does not. Set on ev_bench tuning seed 50857 (a red car's paint,
-    brightest channel 0.71-0.85, read as bar flashes: 1 false alert) and checked on the real tuning clips, whose
-    bars reach 0.86-1.0 (``steady_min_core``)."""
+    """A light-bar red or blue lit run counts as a *flash* only when the median of its lit samples' brightest
+    channel reaches this share of 255 (the lamp-core level of ``steady_min_core``): a lamp lighting clips the
+    sensor somewhere, while red paint whose lit share wavers with the box does not. Set on ev_bench tuning seed
+    50857 (a red car's paint, brightest channel 0.71-0.85, read as bar flashes: 1 false alert). A test per
+    *run*, not per sample: masking samples under the level made paint hovering at it (0.84-0.88, seed 91468)
+    flicker into flashes."""
     strong_bar_flashes: int = 3
     """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes of
     lamp-lit samples (``bar_flash_min_peak``), each after a dark stretch, at most ``max_dark_s`` apart, central -
@@ -214,21 +215,27 @@ class TrackEvidence:
     _t: deque = field(default_factory=deque)
     _signals: dict = field(default_factory=lambda: {k: deque() for k in SIGNALS})
 
-    def _series(self, now_s: float, window_s: float, kind: str = "bright", lamp_lit: bool = False):
-        """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind.
-        ``lamp_lit``: a light-bar red or blue sample whose brightest channel is under ``bar_flash_min_peak`` reads
-        as dark (a flash is a lamp lighting, not paint whose lit share wavers)."""
+    def _series(self, now_s: float, window_s: float, kind: str = "bright"):
+        """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind."""
         t = np.fromiter(self._t, float)
         keep = t >= now_s - window_s
         sig = self._signals
         out = {c: (np.fromiter(sig[f"{kind}_{c}"], float)[keep], np.fromiter(sig[f"{kind}_{c}_centre"], float)[keep])
                for c in COLOURS[kind]}
-        if lamp_lit and kind == "bar":
-            for c in ("red", "blue"):
-                x, centre = out[c]
-                peak = np.fromiter(sig[f"bar_{c}_peak"], float)[keep]
-                out[c] = (np.where(peak >= self.config.bar_flash_min_peak, x, 0.0), centre)
         return t[keep], out
+
+    def _lamp_lit(self, runs: list[LampRun], t: np.ndarray, x: np.ndarray, on_level: float, colour: str,
+                  now_s: float, window_s: float) -> list[LampRun]:
+        """The light-bar runs of ``colour`` whose lit samples have a median brightest channel of at least
+        ``bar_flash_min_peak`` (a lamp lighting clips the sensor; red paint whose lit share wavers does not);
+        white has no such measurement and keeps every run."""
+        if colour not in ("red", "blue"):
+            return runs
+        all_t = np.fromiter(self._t, float)
+        peak = np.fromiter(self._signals[f"bar_{colour}_peak"], float)[all_t >= now_s - window_s]
+        lit = x >= on_level
+        return [r for r in runs if (m := lit & (t >= r.start_s) & (t <= r.end_s)).any()
+                and float(np.median(peak[m])) >= self.config.bar_flash_min_peak]
 
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
         lit = x >= on_level
@@ -237,7 +244,7 @@ class TrackEvidence:
     def _flash_cue(self, now_s: float, kind: str = "bright") -> EvCue | None:
         cfg = self.config
         on_fraction = cfg.lamp_on_fraction if kind == "bright" else cfg.bar_on_fraction
-        t, series = self._series(now_s, cfg.flash_window_s, kind, lamp_lit=True)
+        t, series = self._series(now_s, cfg.flash_window_s, kind)
         if len(t) < 3:
             return None
         frame_s = float(np.median(np.diff(t)))
@@ -253,6 +260,8 @@ class TrackEvidence:
             rs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
             if any(r.duration_s > cfg.max_on_s for r in rs):
                 continue  # lit longer than a 1 Hz flash: a steady lamp (tail/brake light, paint, glow)
+            if kind == "bar":
+                rs = self._lamp_lit(rs, t, x, on_level, colour, now_s, cfg.flash_window_s)
             runs[colour] = rs
             lit = np.flatnonzero(x >= on_level)
             span = float(t[-1] - t[lit[0]])
@@ -275,7 +284,7 @@ class TrackEvidence:
         cfg = self.config
         if cfg.strong_bar_flashes <= 0:
             return False
-        t, series = self._series(now_s, cfg.flash_window_s, "bar", lamp_lit=True)
+        t, series = self._series(now_s, cfg.flash_window_s, "bar")
         if len(t) < 2 * cfg.strong_bar_flashes:
             return False
         frame_s = float(np.median(np.diff(t)))
@@ -290,6 +299,7 @@ class TrackEvidence:
             runs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
             if any(r.duration_s > cfg.max_on_s for r in runs):
                 continue
+            runs = self._lamp_lit(runs, t, x, on_level, colour, now_s, cfg.flash_window_s)
             flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
             if len(flashes) >= cfg.strong_bar_flashes and all(
                     b.start_s - a.end_s <= cfg.max_dark_s for a, b in zip(flashes, flashes[1:], strict=False)):

@@ -156,8 +156,11 @@ def test_strong_regular_bar_flashing_confirms_without_a_body_score():
     blue = lambda t: LampMeasurement(0.0, BAR if (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
     ev, states = _bar_run(blue)
     assert first(states) is not None and first(states) <= 1.5 and ev.cues == (EvCue.FLASH,)
-    # ... but not blue paint flickering with the box (covers a third of the band), nor a corner lamp
-    paint = lambda t: LampMeasurement(0.0, 0.35 if (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
+    # ... and a close EV driving away, whose lit bar fills a third of the band (ev_bench tuning seed 21674)
+    close = lambda t: LampMeasurement(0.0, 0.35 if (t * 3.0) % 1.0 < 0.4 else 0.0)  # noqa: E731
+    assert first(_bar_run(close)[1]) is not None
+    # ... but not blue paint flickering with the box (its brightest pixel does not clip), nor a corner lamp
+    paint = lambda t: LampMeasurement(0.0, 0.35 if (t * 3.0) % 1.0 < 0.4 else 0.0, blue_peak=0.8)  # noqa: E731
     corner = lambda t: LampMeasurement(0.0, BAR if (t * 3.0) % 1.0 < 0.4 else 0.0, 1.0, 0.1)  # noqa: E731
     assert first(_bar_run(paint)[1]) is None and first(_bar_run(corner)[1]) is None
     # ... nor two flashes alone (the strong pattern needs three)
@@ -216,3 +219,27 @@ def test_flashes_that_may_be_a_confirmed_ev_ahead_confirm_only_with_a_confident_
                 b, last = body, t
             out.append((t, ev.update(t, alternating(t), body_score=b, lamps_alone=False)))
         assert (first(out) is not None) == confirms
+
+
+def test_a_bar_flash_needs_lamp_lit_runs_and_paint_hovering_at_the_level_does_not_flicker_into_flashes():
+    """Red paint whose lit share wavers with the box (brightest channel 0.71-0.85, ev_bench tuning seed 50857) gives no
+    flash cue even with a confident body, while the same pattern lamp-lit (clipped) does; paint hovering around the
+    lamp level (0.84-0.88, seed 91468) with a steady share gives none either."""
+    cfg = EvidenceConfig()
+
+    def run_bar(share, peak):
+        ev, last, out = TrackEvidence(cfg), None, []
+        for i in range(int(3.0 * FPS)):
+            t = i / FPS
+            b = None
+            if last is None or t - last >= 0.25 - 1e-9:
+                b, last = 0.95, t
+            out.append((t, ev.update(t, LampMeasurement(0.0, 0.0), body_score=b,
+                                     bar=LampMeasurement(share(t), 0.0, red_core=0.0, red_peak=peak(t)))))
+        return first(out)
+
+    flashing = lambda t: 0.03 if (t * 2.0) % 1.0 < 0.3 else 0.002  # noqa: E731
+    assert run_bar(flashing, lambda t: 1.0) is not None
+    assert run_bar(flashing, lambda t: 0.8) is None
+    hovering = lambda t: 0.84 + 0.04 * (int(round(t * FPS)) % 2)  # noqa: E731
+    assert run_bar(lambda t: 0.03, hovering) is None
