@@ -151,13 +151,13 @@ class EvidenceConfig:
     flicker into flashes."""
     strong_bar_flashes: int = 3
     """A light-bar colour (red or blue) that flashes this many times in ``flash_window_s`` - complete flashes of
-    lamp-lit samples (``bar_flash_min_peak``), each after a dark stretch, at most ``max_dark_s`` apart, central -
-    is a strong flash pattern that confirms alone, like a lamp-bright flash: a far EV whose body the classifier
-    cannot yet judge still alerts. Paint does not flash, and corner lamps (turn signals, hazards) are excluded as
-    for every cue. 0: never. The lit share of the band is not bounded above (it was, by ``steady_max_fraction``,
-    before the lamp-lit test): an EV driving away close below the mast fills 13-40 % of its band with a 3 Hz red
-    flash (ev_bench tuning seed 21674, ``ev_two_lanes_dense``, rsu1: missed before, its lamp-bright flashes too
-    uneven for the half-peak rule)."""
+    lamp-lit runs (``bar_flash_min_peak``), each after a dark stretch, at most ``max_dark_s`` apart, central,
+    bar-sized (at most ``steady_max_fraction`` of the band) - is a strong flash pattern that confirms alone, like a
+    lamp-bright flash: a far EV whose body the classifier cannot yet judge still alerts. Paint does not flash, and
+    corner lamps (turn signals, hazards) are excluded as for every cue. 0: never. The size bound stays: without it
+    (tried on tuning seeds, seventh session) a close EV driving away, its bar filling 13-40 % of the band, confirmed
+    (``ev_two_lanes_dense`` 21674, rsu1: missed with it), but so did the EV's red and blue glow on a car beside it
+    at night (11-33 % of the band, clipped, alternating: ``night_ev`` 31372, a false alert)."""
     body_threshold: float = 0.5
     """EV-body score that counts as confident (the body model's ``confident_threshold``, from its metadata)."""
     body_min_scores: int = 3
@@ -290,8 +290,8 @@ class TrackEvidence:
         frame_s = float(np.median(np.diff(t)))
         for colour in ("red", "blue"):
             x, centre = series[colour]
-            peak = float(x.max())  # no upper bound: a lamp-lit sample clips (bar_flash_min_peak); paint does not flash
-            if peak < cfg.bar_on_fraction:
+            peak = float(x.max())
+            if not cfg.bar_on_fraction <= peak <= cfg.steady_max_fraction:
                 continue
             on_level = max(cfg.bar_on_fraction, 0.5 * peak)
             if not self._central(x, centre, on_level):
