@@ -107,22 +107,15 @@ class ZenohTransport(Transport):
     (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
 
     def __init__(self, settings: ZenohSettings | None = None, *,
-                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16,
-                 bulk_nice: int = BULK_THREAD_NICE) -> None:
+                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16) -> None:
         super().__init__()
         import zenoh
 
-        if not 0 <= bulk_nice <= 19:
-            raise ValueError(f"bulk_nice must be a niceness in [0, 19], got {bulk_nice}")
         self._zenoh = zenoh
         self.settings = settings or ZenohSettings()
         self.qos = qos
         self.bulk_queue = bulk_queue
         """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
-        self.bulk_nice = bulk_nice
-        """Niceness of the threads that decode bulk samples: ``BULK_THREAD_NICE`` where bulk is background to the
-        process's work (the DDM's object lists); 0 where the process waits on it (an RSU whose frame source is
-        the simulator's world snapshots: at nice 19 its frames waited for the CPU behind every other process)."""
         self.session = zenoh.open(self.settings.to_config())
         self._publishers: dict[str, Any] = {}
         self._subs: list[Any] = []
@@ -180,8 +173,7 @@ class ZenohTransport(Transport):
 
         def drain() -> None:
             try:  # bulk decoding yields the CPU to the threads that carry commands and alerts (Linux: per thread)
-                if self.bulk_nice:
-                    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.bulk_nice)
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BULK_THREAD_NICE)
             except (AttributeError, OSError):
                 pass
             while True:

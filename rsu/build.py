@@ -205,8 +205,7 @@ def run_rsu(options: ServiceOptions, config: PipelineConfig) -> int:
 
     def open_transport() -> ZenohTransport:
         nonlocal transport
-        # bulk decoded at normal priority: the RSU's one bulk subscription is its simulated camera (its frames)
-        transport = transport or ZenohTransport(options.zenoh, bulk_nice=0)
+        transport = transport or ZenohTransport(options.zenoh)
         return transport
 
     source = open_source(options.source, corridor, options.rsu_id, open_transport, corridor_id=options.corridor_id,

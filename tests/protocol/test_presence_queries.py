@@ -83,28 +83,6 @@ def test_zenoh_bulk_drain_thread_runs_niced(corridor_id):
         t.close()
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
-def test_zenoh_bulk_drain_thread_of_a_frame_source_keeps_normal_priority(corridor_id):
-    """An RSU waits on its simulated camera's snapshots (``bulk_nice=0``): their decoder is not niced, and
-    ``iea-rsu`` builds its transport so."""
-    import inspect
-    import os
-
-    import rsu.build
-
-    t = ZenohTransport(bulk_nice=0)
-    try:
-        t.subscribe_bytes(keys.sim_world_key(corridor_id), lambda key, payload: None)
-        drain = next(th for th in threading.enumerate() if th.name.startswith("bulk "))
-        time.sleep(0.2)
-        assert os.getpriority(os.PRIO_PROCESS, drain.native_id) == os.getpriority(os.PRIO_PROCESS, 0)
-    finally:
-        t.close()
-    assert "bulk_nice=0" in inspect.getsource(rsu.build.run_rsu)
-    with pytest.raises(ValueError, match="bulk_nice"):
-        ZenohTransport(bulk_nice=20)
-
-
 def test_zenoh_close_ends_the_bulk_drain_threads(corridor_id):
     """A bulk subscription's drain thread still waiting in recv() at interpreter exit aborted the RSU (exit -6,
     "FATAL: exception not rethrown"): close() must end every one of them."""
