@@ -38,8 +38,9 @@ EV_IN_VIEW_S = {
 """When each EV is in view with its lights on, box >= 40 px (seconds of video; scoring only)."""
 MAX_DELAY_S = 2.0
 KNOWN_MISSES = {
-    "elevated_police_nyc_redbars.mp4": "the body classifier scores the sunlit police car from above at 0.0: no "
-                                       "confident EV body, so its dim red bar never counts",
+    "elevated_police_nyc_redbars.mp4": "its sunlit red domes never read as lamp activity, so no track becomes a "
+                                       "candidate and the body classifier never runs on the police cars "
+                                       "(iea-rsu scan --json, 2026-11-27: 0 candidate tracks)",
 }
 """Issue 17 is open: these clips do not meet the requirement yet (measured 2026-11-25, bench/ev_real_bench.py)."""
 
