@@ -224,6 +224,11 @@ class TrackEvidence:
                for c in COLOURS[kind]}
         return t[keep], out
 
+    def _recent(self, name: str, now_s: float, window_s: float) -> np.ndarray:
+        """One signal's samples in the window (aligned with the times :meth:`_series` returns)."""
+        keep = np.fromiter(self._t, float) >= now_s - window_s
+        return np.fromiter(self._signals[name], float)[keep]
+
     def _lamp_lit(self, runs: list[LampRun], t: np.ndarray, x: np.ndarray, on_level: float, colour: str,
                   now_s: float, window_s: float) -> list[LampRun]:
         """The light-bar runs of ``colour`` whose lit samples have a median brightest channel of at least
@@ -231,8 +236,7 @@ class TrackEvidence:
         white has no such measurement and keeps every run."""
         if colour not in ("red", "blue"):
             return runs
-        all_t = np.fromiter(self._t, float)
-        peak = np.fromiter(self._signals[f"bar_{colour}_peak"], float)[all_t >= now_s - window_s]
+        peak = self._recent(f"bar_{colour}_peak", now_s, window_s)
         lit = x >= on_level
         return [r for r in runs if (m := lit & (t >= r.start_s) & (t <= r.end_s)).any()
                 and float(np.median(peak[m])) >= self.config.bar_flash_min_peak]
@@ -311,13 +315,12 @@ class TrackEvidence:
         t, series = self._series(now_s, cfg.steady_window_s, "bar")
         if len(t) < 3:
             return False
-        keep = np.fromiter(self._t, float) >= now_s - cfg.steady_window_s
         for colour, (x, centre) in series.items():
             if colour == "white":
                 continue  # steady white is sky, a white roof or headlight glare, never a bar on its own
             lit = x >= cfg.bar_on_fraction
-            core = np.fromiter(self._signals[f"bar_{colour}_core"], float)[keep]
-            peak = np.fromiter(self._signals[f"bar_{colour}_peak"], float)[keep]
+            core = self._recent(f"bar_{colour}_core", now_s, cfg.steady_window_s)
+            peak = self._recent(f"bar_{colour}_peak", now_s, cfg.steady_window_s)
             if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
                     and float(np.median(core[lit])) >= cfg.steady_min_core
                     and float(np.median(peak[lit])) >= cfg.steady_min_peak
