@@ -32,11 +32,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
+from models.train_ev_body import DEFAULT_DATA, teacher_key, usable_crops  # noqa: E402
+from rsu.classify.real_data import load_ev_train, split_by_group  # noqa: E402
 
-DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
 BACKBONES = ((0, 224), (1, 240), (2, 260))
-ABOVE_FRACTION = 0.25
 
 
 def export_features(k: int, size: int, path: Path) -> None:
@@ -103,12 +102,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
     root = Path(args.data)
-    samples, crops = [], []
-    for s in split_by_group(load_ev_train(root))["train"]:
-        c = crop_of(s, ABOVE_FRACTION)
-        if c is not None and min(c.shape[:2]) >= 8:
-            samples.append(s)
-            crops.append(c)
+    pairs = usable_crops(split_by_group(load_ev_train(root))["train"])
+    samples, crops = [s for s, _c in pairs], [c for _s, c in pairs]
     labels = np.array([s.label for s in samples], float)
     print(f"{len(samples)} train crops ({int(labels.sum())} EV)", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -122,8 +117,7 @@ def main(argv=None) -> int:
     scores = out_of_fold_scores(np.concatenate(parts, axis=2), labels, np.array([s.group for s in samples]))
     acc = float(((scores >= 0.5) == (labels == 1)).mean())
     print(f"out-of-fold accuracy at 0.5: {acc:.3f}", flush=True)
-    teacher = {f"{Path(s.path).resolve().relative_to(root.resolve())}|{','.join(map(str, s.box_px or ()))}": float(p)
-               for s, p in zip(samples, scores, strict=True)}
+    teacher = {teacher_key(s, root): float(p) for s, p in zip(samples, scores, strict=True)}
     Path(args.out).write_text(json.dumps(teacher))
     print(f"teacher: {args.out} ({len(teacher)} crops)")
     return 0

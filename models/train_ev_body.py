@@ -38,25 +38,39 @@ if str(ROOT) not in sys.path:
 
 from rsu.classify.classifiers import CnnClassifier  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
-from rsu.classify.real_data import crop_of, load_ev_train, split_by_group  # noqa: E402
+from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_group  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
 SIZE = 192
 ABOVE_FRACTION = 0.25
 
 
-def load_crops(samples, size: int, log=print) -> tuple[np.ndarray, np.ndarray]:
-    """Every sample's crop squashed to ``size`` (BGR uint8) and its label; unreadable ones are skipped."""
-    xs, ys = [], []
+def usable_crops(samples, log=print) -> list[tuple[CropSample, np.ndarray]]:
+    """Every sample with its crop as the RSU takes it (BGR); unreadable or degenerate ones are skipped."""
+    out = []
     for i, s in enumerate(samples):
         c = crop_of(s, ABOVE_FRACTION)
-        if c is None or min(c.shape[:2]) < 8:
-            continue
-        xs.append(cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA))
-        ys.append(s.label)
+        if c is not None and min(c.shape[:2]) >= 8:
+            out.append((s, c))
         if (i + 1) % 500 == 0:
             log(f"  read {i + 1}/{len(samples)}")
-    return np.stack(xs), np.asarray(ys, np.float32)
+    return out
+
+
+def squashed(pairs: list[tuple[CropSample, np.ndarray]], size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The crops squashed to ``size`` x ``size`` (uint8) and their labels."""
+    return (np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for _s, c in pairs]),
+            np.asarray([s.label for s, _c in pairs], np.float32))
+
+
+def load_crops(samples, size: int, log=print) -> tuple[np.ndarray, np.ndarray]:
+    """Every sample's crop squashed to ``size`` (BGR uint8) and its label; unreadable ones are skipped."""
+    return squashed(usable_crops(samples, log), size)
+
+
+def teacher_key(sample: CropSample, data_root: Path) -> str:
+    """A crop's key in a teacher file (:mod:`models.ev_body_teacher`): ``path relative to ev_train|x1,y1,x2,y2``."""
+    return f"{Path(sample.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, sample.box_px or ()))}"
 
 
 def augment(img: np.ndarray, rng: np.random.Generator, size: int) -> np.ndarray:
@@ -226,7 +240,7 @@ def distilled_targets(samples, labels: np.ndarray, teacher: dict[str, float], da
     ``path relative to ev_train|x1,y1,x2,y2`` to p; a sample it lacks keeps its label)."""
     out = labels.astype(np.float32).copy()
     for i, s in enumerate(samples):
-        key = f"{Path(s.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, s.box_px or ()))}"
+        key = teacher_key(s, data_root)
         if key in teacher:
             out[i] = weight * teacher[key] + (1.0 - weight) * labels[i]
     return out
@@ -346,7 +360,8 @@ def main(argv=None) -> int:
         split = {k: [v[i] for i in sorted(pick.choice(len(v), min(len(v), args.max_per_split), replace=False))]
                  for k, v in split.items()}
     print({k: (len(v), sum(s.label for s in v)) for k, v in split.items()}, "(crops, of them EV)", flush=True)
-    data = {k: load_crops(v, args.size) for k, v in split.items()}
+    kept = {k: usable_crops(v) for k, v in split.items()}
+    data = {k: squashed(v, args.size) for k, v in kept.items()}
     model = build_model(args.size, mirror_average=args.mirror_average, head=args.head)
     if args.from_checkpoint:
         model.load_state_dict(torch.load(args.from_checkpoint))
@@ -357,8 +372,8 @@ def main(argv=None) -> int:
             if not 0.0 <= args.distill_weight <= 1.0:
                 raise SystemExit(f"--distill-weight must be in [0, 1], got {args.distill_weight}")
             teacher = json.loads(Path(args.teacher).read_text())
-            kept = [s for s in split["train"] if (c := crop_of(s, ABOVE_FRACTION)) is not None and min(c.shape[:2]) >= 8]
-            targets = distilled_targets(kept, data["train"][1], teacher, Path(args.data), args.distill_weight)
+            targets = distilled_targets([s for s, _c in kept["train"]], data["train"][1], teacher, Path(args.data),
+                                        args.distill_weight)
             print(f"teacher: {sum(abs(t - y) > 1e-6 for t, y in zip(targets, data['train'][1], strict=True))} of "
                   f"{len(targets)} targets softened", flush=True)
         train(model, *data["train"], args.epochs, args.seed, args.budget_s, log=lambda m: print(m, flush=True),
