@@ -192,6 +192,37 @@ def stop_process_group(p: subprocess.Popen, sig: int = signal.SIGINT, timeout_s:
 
 SIM_WAIT_FOR_AV_S = 30.0
 """How long the simulator holds the world for the vehicle process's first state."""
+SIM_WAIT_FOR_RSUS_S = 60.0
+"""At most this long the vehicle and the world wait for the RSUs' liveliness tokens (four RSUs loading their
+models at once on a slow 2-core host took 7-9 s; a world started before them lit the EV's lamps unwatched)."""
+
+
+def start_when_rsus_up(group: ServiceGroup, specs: list[ServiceSpec], transport, corridor_id: str,
+                       settle_s: float = 2.0, timeout_s: float = SIM_WAIT_FOR_RSUS_S,
+                       say=print) -> list[str] | None:
+    """Start ``specs`` in order, the vehicle and the simulator last and together: first every other service,
+    then (``transport``: a session on the corridor) wait until each started RSU has its liveliness token, at
+    most ``timeout_s``, and ``settle_s`` for discovery; returns the RSUs that never came up (None: no
+    presence to wait on, ``settle_s`` only)."""
+    from protocol import presence
+
+    last = [s for s in specs if s.name in ("vehicle", "sim")]
+    first = [s for s in specs if s not in last]
+    for spec in first:
+        group.start(spec.name, spec.args, spec.restart)
+    rsus = [s.name for s in first if "--rsu" in s.args]
+    missing = None
+    if rsus and transport is not None:
+        t0 = time.monotonic()
+        missing = presence.wait_for_tokens(transport, corridor_id, "rsu", rsus, timeout_s)
+        if missing:
+            say(f"RSU(s) {', '.join(missing)} not up after {timeout_s:.0f} s: starting the world without them")
+        elif missing is not None:
+            say(f"every RSU up after {time.monotonic() - t0:.1f} s ({', '.join(rsus)})")
+    time.sleep(settle_s)  # every client joins the router before the AV and the world start
+    for spec in last:
+        group.start(spec.name, spec.args, spec.restart)
+    return missing
 
 
 def detector_args(detector: str) -> list[str]:
@@ -249,6 +280,9 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     sim = ["-m", "sim", "run", scenario, *common]
     if av is not None:  # the world starts when the vehicle process is up and driving, not before
         sim += ["--wait-for-av", str(SIM_WAIT_FOR_AV_S)]
+    elif rsus:  # no vehicle process: the world waits for the RSUs itself (with one, the vehicle and the world
+        # start together once the RSUs are up: ``start_when_rsus_up``)
+        sim += ["--wait-for-rsus", ",".join(rsus), "--wait-timeout", str(SIM_WAIT_FOR_RSUS_S)]
     if duration_s is not None:
         sim += ["--duration", str(duration_s)]
     if seed is not None:

@@ -24,7 +24,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from deploy.procs import ROOT, ServiceGroup, corridor_services
+from deploy.procs import ROOT, ServiceGroup, corridor_services, start_when_rsus_up
 from protocol.runtime import stop_on_ctrl_c
 from scenario.monitor import RunMonitor, print_summary
 
@@ -125,12 +125,10 @@ class Up:
 
                 self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id})
                 self.transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
-        settled = False
-        for spec in self.specs:
-            if spec.name in ("vehicle", "sim") and not settled:
-                time.sleep(settle_s)  # every client joins the router before the AV and the world start
-                settled = True
-            self.group.start(spec.name, spec.args, spec.restart)
+        # the AV and the world start together once every RSU is up (its token), or the scenario would measure
+        # the RSUs' start-up (7-9 s for four on a slow 2-core host) instead of the corridor
+        start_when_rsus_up(self.group, self.specs, self.transport, self.corridor_id, settle_s=settle_s,
+                           say=lambda line: print(f"[up] {line}", flush=True))
 
     def restart_router(self, down_s: float = 0.5) -> None:
         """Stop the router, wait ``down_s``, start it again on the same endpoint."""

@@ -13,7 +13,9 @@ and the service falls back to its Health and stream timeouts.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+import threading
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from protocol.keys import KeyError_, alive_expr, alive_key, parse_alive_key
@@ -74,6 +76,53 @@ def watch(transport: Transport, corridor_id: str, callback: Callable[[str, bool]
     except NotImplementedError:
         log.debug("%s has no liveliness subscribers", type(transport).__name__)
         return None
+
+
+class AliveSet:
+    """The ids of ``role`` whose tokens are alive now in ``corridor_id``, kept by a watch (history included).
+    ``watching`` is False when the transport has no presence; ``close()`` ends the watch."""
+
+    def __init__(self, transport: Transport, corridor_id: str, role: str) -> None:
+        self.role = role
+        self._ids: set[str] = set()
+        self._lock = threading.Lock()
+        self._sub = watch(transport, corridor_id, self._on_token, role=role)
+        self.watching = self._sub is not None
+
+    def _on_token(self, key: str, is_alive: bool) -> None:
+        try:
+            _, role, node = parse_alive_key(key)
+        except KeyError_:
+            return
+        if role == self.role:
+            with self._lock:
+                (self._ids.add if is_alive else self._ids.discard)(node)
+
+    def missing(self, ids: Iterable[str]) -> list[str]:
+        """Those of ``ids`` without a live token, sorted."""
+        with self._lock:
+            return sorted(set(ids) - self._ids)
+
+    def close(self) -> None:
+        if self._sub is not None:
+            self._sub.close()
+            self._sub = None
+
+
+def wait_for_tokens(transport: Transport, corridor_id: str, role: str, ids: Iterable[str], timeout_s: float,
+                    poll_s: float = 0.05) -> list[str] | None:
+    """Block until every id of ``ids`` (of ``role``) has a live token, or ``timeout_s``; returns the ids still
+    missing ([] when all came), None when the transport has no presence (nothing to wait for)."""
+    alive = AliveSet(transport, corridor_id, role)
+    try:
+        if not alive.watching:
+            return None
+        deadline = time.monotonic() + timeout_s
+        while (missing := alive.missing(ids)) and time.monotonic() < deadline:
+            time.sleep(poll_s)
+        return missing
+    finally:
+        alive.close()
 
 
 def serve(transport: Transport, key_expr: str, handler: QueryHandler) -> Subscription | None:

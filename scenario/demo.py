@@ -26,7 +26,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from deploy.procs import ServiceGroup, child_env, corridor_services
+from deploy.procs import ServiceGroup, child_env, corridor_services, start_when_rsus_up
 from scenario.monitor import RunMonitor, print_summary
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,11 +83,8 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     specs = corridor_services(corridor, cid, scenario=scenario, duration_s=duration_s, run_dir=run_dir,
                               detector=detector, seed=seed, zenoh_args=common, keys=key_args)
     try:
-        for spec in specs[:-2]:
-            group.start(spec.name, spec.args)
-        time.sleep(2.0)  # let every session discover the others before the world starts
-        for spec in specs[-2:]:
-            group.start(spec.name, spec.args)
+        # DDM and RSUs; once every RSU is up (its token) and discovery settled, the vehicle and the world
+        start_when_rsus_up(group, specs, transport, cid, say=lambda line: say(f"[demo] {line}"))
         say("[demo] started: " + ", ".join(f"{k} (pid {p.pid})" for k, p in procs.items()))
         deadline = time.monotonic() + duration_s + 30
         last_alerts = last_cmds = 0

@@ -34,6 +34,12 @@ def _add_run(sub) -> None:
                    help="hold the world at t = 0 until the scenario's AV reports its state from a vehicle process "
                         "(at most S seconds, then start with the scripted AV); use it when a vehicle process drives "
                         "the AV, so the world and the car start together")
+    p.add_argument("--wait-for-rsus", default=None, metavar="IDS",
+                   help="hold the world at t = 0 until these RSUs are up (their liveliness tokens): 'all' for every "
+                        "RSU of the corridor, or comma-separated ids; a scenario started before its cameras measures "
+                        "their start-up, not the corridor")
+    p.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
+                   help="with --wait-for-rsus: start anyway after S seconds, naming who is missing (default 60)")
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
     ZenohSettings.add_arguments(p)
     metrics.add_arguments(p)
@@ -98,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
             return run_scenario(args.scenario, ZenohSettings.from_args(args), corridor_file=args.corridor,
                                 corridor_id=args.corridor_id, record=args.record, speed=args.speed,
                                 duration_s=args.duration, seed=args.seed, lighting=args.lighting,
-                                wait_for_av_s=args.wait_for_av)
+                                wait_for_av_s=args.wait_for_av, wait_for_rsus=args.wait_for_rsus,
+                                wait_timeout_s=args.wait_timeout)
         if args.cmd == "render":
             for path in render_views(args.scenario, args.t, args.out, rsus=args.rsu, seed=args.seed,
                                      lighting=args.lighting, boxes=args.boxes):

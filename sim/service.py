@@ -140,33 +140,63 @@ class SimService:
                       detail=f"scenario {self.scenario.name} t={self.world.t_s:.2f}s av_updates={self.av_updates}")
 
     def wait_for_avs(self, timeout_s: float, poll_s: float = 0.02) -> bool:
-        """Hold the world at t = 0 until every AV of the scenario has sent its state (or ``timeout_s``).
+        """Hold the world at t = 0 until every AV of the scenario has sent its state (``wait_to_start``)."""
+        return self.wait_to_start(timeout_s, poll_s=poll_s)
+
+    def wait_to_start(self, timeout_s: float, *, avs: bool = True, rsu_ids: tuple[str, ...] | list[str] = (),
+                      poll_s: float = 0.02) -> bool:
+        """Hold the world at t = 0 until the corridor is up (or ``timeout_s``): every AV of the scenario has sent
+        its state (``avs``) and every RSU of ``rsu_ids`` has declared its liveliness token (issue 21).
 
         A vehicle process starts driving its own plant as soon as it is up. Started beside the simulator
         it may be up seconds later (imports, Zenoh discovery on a loaded host); a world that ran from the
         scenario's script meanwhile would see its AV jump back to the start pose, and the traffic behind
-        it (the EV) close up. Returns True when every AV reported; False: the world starts scripted.
+        it (the EV) close up. An RSU declares its token once its pipeline is built; on a slow two-core host
+        four RSUs loading their models at once took 7-9 s, and a world started before them lit the EV's lamps
+        with no camera watching (the scenario then measured the RSUs' start-up, not the pipeline).
+        A vehicle process drives from the moment it is up, so a world held for RSUs after its AV reported
+        would see the AV far ahead: start the vehicle once the RSUs are up (``iea up`` and ``iea demo`` do).
+        Returns True when everything reported; False: the world starts anyway, and the log names who is missing.
         """
+        alive = presence.AliveSet(self.transport, self.corridor_id, "rsu") if rsu_ids else None
+        if alive is not None and not alive.watching:
+            log.warning("this transport has no liveliness tokens: the world does not wait for the RSUs")
+            rsu_ids = ()
         deadline = self.clock.now() + timeout_s
-        while not self._stop.is_set():
-            with self._lock:
-                missing = self._vehicle_ids - set(self._pending_states)
-            if not missing:
-                log.info("every AV reported (%s): the world starts", ", ".join(sorted(self._vehicle_ids)))
-                return True
-            if self.clock.now() >= deadline:
-                log.warning("no state from %s within %.1f s: the world starts with the scripted AV",
-                            ", ".join(sorted(missing)), timeout_s)
-                return False
-            self.clock.sleep(poll_s)
-        return False
+        t0 = self.clock.now()
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    missing = sorted(self._vehicle_ids - set(self._pending_states)) if avs else []
+                if rsu_ids:
+                    missing += alive.missing(rsu_ids)
+                if not missing:
+                    waited = [*sorted(self._vehicle_ids if avs else ()), *sorted(rsu_ids)]
+                    if waited:
+                        log.info("every service reported (%s) after %.1f s: the world starts", ", ".join(waited),
+                                 self.clock.now() - t0)
+                    return True
+                if self.clock.now() >= deadline:
+                    log.warning("nothing from %s within %.1f s: the world starts without them",
+                                ", ".join(missing), timeout_s)
+                    return False
+                self.clock.sleep(poll_s)
+            return False
+        finally:
+            if alive is not None:
+                alive.close()
 
-    def run(self, wait_for_av_s: float | None = None) -> int:
+    def run(self, wait_for_av_s: float | None = None, wait_for_rsus: tuple[str, ...] | list[str] = (),
+            wait_timeout_s: float = 60.0) -> int:
         """Run until the scenario's duration or stop(); returns the number of snapshots published.
-        ``wait_for_av_s``: first hold the world until the AVs report (:meth:`wait_for_avs`)."""
+        ``wait_for_av_s``: first hold the world until the AVs report; ``wait_for_rsus``: and until these RSUs
+        are up, at most ``wait_timeout_s`` for them (:meth:`wait_to_start`)."""
         freeze_startup_heap()  # full GC passes scan only what the service makes from now on
-        if wait_for_av_s is not None and self._vehicle_ids:
-            self.wait_for_avs(wait_for_av_s)
+        avs = wait_for_av_s is not None and bool(self._vehicle_ids)
+        if wait_for_rsus:
+            self.wait_to_start(max(wait_timeout_s, wait_for_av_s or 0.0), avs=avs, rsu_ids=tuple(wait_for_rsus))
+        elif avs:
+            self.wait_to_start(wait_for_av_s)
         start = self.clock.now()
         health_timer = RateTimer(HEALTH_PERIOD_S)
         next_t = start
@@ -197,7 +227,8 @@ class SimService:
 
 def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corridor_id: str | None = None,
                  record: list[str] = (), speed: float = 1.0, duration_s: float | None = None, seed: int | None = None,
-                 lighting: str | None = None, wait_for_av_s: float | None = None) -> int:
+                 lighting: str | None = None, wait_for_av_s: float | None = None, wait_for_rsus: str | None = None,
+                 wait_timeout_s: float = 60.0) -> int:
     """``iea-sim run``: scenario ``scenario`` (a name or a .toml path) in real time over Zenoh (``zenoh``:
     ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. Raises ValueError
     (ScenarioError, CorridorError) and KeyError (an unknown RSU) before anything is published."""
@@ -209,6 +240,8 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
 
     if wait_for_av_s is not None and not wait_for_av_s >= 0:
         raise ValueError(f"--wait-for-av wants seconds >= 0, got {wait_for_av_s}")
+    if not wait_timeout_s >= 0:
+        raise ValueError(f"--wait-timeout wants seconds >= 0, got {wait_timeout_s}")
     corridor = load_corridor(corridor_file) if corridor_file else None
     sc = load_scenario(scenario, corridor).with_overrides(seed=seed, lighting=lighting)
     recs = []
@@ -218,13 +251,27 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
             raise ValueError(f"--record wants RSU:FILE.mp4, got {item!r}")
         sc.corridor.rsu(rsu)
         recs.append(Recording(rsu, path))
+    rsu_ids = rsus_to_wait_for(wait_for_rsus, sc.corridor)
     transport = ZenohTransport(zenoh)
     try:
         svc = SimService(sc, transport, corridor_id=corridor_id, speed=speed, duration_s=duration_s, recordings=recs)
         signal.signal(signal.SIGTERM, lambda *_: svc.stop())
         signal.signal(signal.SIGINT, lambda *_: svc.stop())
-        n = svc.run(wait_for_av_s=wait_for_av_s)
+        n = svc.run(wait_for_av_s=wait_for_av_s, wait_for_rsus=rsu_ids, wait_timeout_s=wait_timeout_s)
         log.info("published %d snapshots", n)
     finally:
         transport.close()
     return 0
+
+
+def rsus_to_wait_for(spec: str | None, corridor) -> list[str]:
+    """``--wait-for-rsus``: ``None``/``""`` -> none, ``all`` -> every RSU of the corridor, else comma-separated ids
+    (each checked against the corridor: an unknown id raises KeyError naming the corridor's RSUs)."""
+    if not spec:
+        return []
+    if spec.strip() == "all":
+        return [r.rsu_id for r in corridor.rsus]
+    ids = [i.strip() for i in spec.split(",") if i.strip()]
+    for i in ids:
+        corridor.rsu(i)
+    return ids

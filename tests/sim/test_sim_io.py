@@ -243,3 +243,74 @@ def test_export_cli_reports_bad_arguments(tmp_path):
     r = subprocess.run([sys.executable, "-m", "sim", "export-dataset", "--out", str(tmp_path), "--frames", "0"],
                        capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 2 and "frames must be" in r.stderr
+
+
+def test_service_holds_the_world_until_the_rsus_are_up():
+    """--wait-for-rsus: the world starts once every named RSU has its liveliness token, so no camera misses the
+    scenario's start (on a slow host the RSUs came up 7-9 s after a world that did not wait); an RSU that never
+    comes is named and the world starts after the timeout."""
+    import threading
+
+    from protocol import presence
+    from sim.service import rsus_to_wait_for
+
+    bus = LocalBus()
+    sc = load_scenario("rellis_ev_yield")
+    assert rsus_to_wait_for("all", sc.corridor) == [r.rsu_id for r in sc.corridor.rsus]
+    assert rsus_to_wait_for(" rsu2,rsu1 ", sc.corridor) == ["rsu2", "rsu1"] and rsus_to_wait_for(None, sc.corridor) == []
+    with pytest.raises(KeyError):
+        rsus_to_wait_for("rsu1,rsu9", sc.corridor)
+    svc = SimService(sc, bus, corridor_id="tr", duration_s=0.1)
+    presence.announce(bus, "tr", "rsu", "rsu1")
+    assert not svc.wait_to_start(0.2, avs=False, rsu_ids=("rsu1", "rsu2"))  # rsu2 never came: gives up
+    handles = []
+    timer = threading.Timer(0.3, lambda: handles.append(presence.announce(bus, "tr", "rsu", "rsu2")))
+    got: list[WorldSnapshot] = []
+    bus.subscribe(sim_world_key("tr"), lambda _k, m: got.append(m))
+    t0 = time.monotonic()
+    timer.start()
+    try:
+        svc.run(wait_for_rsus=("rsu1", "rsu2"), wait_timeout_s=10.0)
+    finally:
+        timer.cancel()
+    assert 0.25 < time.monotonic() - t0 < 5.0  # held until rsu2's token, not the 10 s timeout
+    assert got and got[0].sim_time_s == pytest.approx(0.05)
+
+
+def test_iea_up_starts_the_vehicle_and_the_world_once_its_rsus_are_up(tmp_path):
+    """iea up / iea demo: DDM and RSUs first; the vehicle (which drives from the moment it is up) and the world
+    together once every RSU started has its liveliness token; an RSU that never comes is named."""
+    import threading
+
+    from deploy.procs import ServiceSpec, corridor_services, start_when_rsus_up
+    from protocol import presence
+    from protocol.corridor import load_corridor
+
+    corridor = load_corridor("deploy/corridors/rellis.toml")
+    specs = corridor_services(corridor, "tw", scenario="rellis_ev_yield", duration_s=5.0, run_dir=tmp_path,
+                              detector="project", zenoh_args=[], rsu_ids=["rsu1", "rsu3"])
+    assert "--wait-for-rsus" not in next(s for s in specs if s.name == "sim").args  # the AV's process is the gate
+
+    class Group:
+        def __init__(self):
+            self.started: list[tuple[str, float]] = []
+
+        def start(self, name, args, restart="no"):
+            self.started.append((name, time.monotonic()))
+
+    bus, group, said = LocalBus(), Group(), []
+    handles = []
+    timer = threading.Timer(0.3, lambda: handles.extend(presence.announce(bus, "tw", "rsu", r) for r in ("rsu1", "rsu3")))
+    t0 = time.monotonic()
+    timer.start()
+    try:
+        assert start_when_rsus_up(group, specs, bus, "tw", settle_s=0.0, timeout_s=10.0, say=said.append) == []
+    finally:
+        timer.cancel()
+    names = [n for n, _ in group.started]
+    assert names == ["ddm", "rsu1", "rsu3", "vehicle", "sim"]
+    assert all(t - t0 < 0.2 for n, t in group.started[:3]) and all(0.25 < t - t0 < 5.0 for n, t in group.started[3:])
+    assert "every RSU up" in said[-1]
+    one = [ServiceSpec("rsu2", ["-m", "rsu", "--rsu", "rsu2"]), ServiceSpec("sim", ["-m", "sim"])]
+    assert start_when_rsus_up(Group(), one, bus, "tw", settle_s=0.0, timeout_s=0.2, say=said.append) == ["rsu2"]
+    assert "rsu2 not up" in said[-1]
