@@ -99,3 +99,35 @@ def test_minimal_file_gets_sensible_defaults():
     cam = c.rsus[0].camera
     assert (cam.width_px, cam.height_px, cam.cx_px, cam.cy_px, cam.fy_px) == (1280, 720, 640.0, 360.0, 1000.0)
     assert c.road.lane_width_m == 3.7 and c.transport.dsrc_range_m == 300.0
+
+
+def test_frenet_and_pose_fast_paths_match_the_full_search_on_curved_roads():
+    """``Road.to_frenet`` looks only at the two pieces meeting at the nearest sample (k-d tree) and ``pose_at``
+    of one point runs on plain floats: both give what the vectorised full search over every piece gives."""
+    import numpy as np
+
+    from protocol.corridor import Road, Segment
+
+    road = Road(10.0, -3.0, 0.3, (Segment("straight", 100.0), Segment("arc", 150.0, 60.0),
+                                   Segment("straight", 50.0), Segment("arc", 200.0, -100.0)))
+    rng = np.random.default_rng(1)
+    s = rng.uniform(-20.0, road.length_m + 20.0, 500)
+    d = rng.uniform(-15.0, 20.0, 500)
+    x, y, h = road.pose_at(s, d)
+    for k in range(0, 500, 25):
+        assert road.pose_at(float(s[k]), float(d[k])) == pytest.approx((x[k], y[k], h[k]), abs=1e-9)
+    x = x + rng.normal(0.0, 2.0, 500)
+    got_s, got_d = road.to_frenet(x, y)
+    # brute force: project every point onto every piece of the sampled line, then the same refinement
+    _, xs, ys, _ = road._samples
+    ax, ay, bx, by = xs[:-1], ys[:-1], np.diff(xs), np.diff(ys)
+    t = np.clip(((x[:, None] - ax) * bx + (y[:, None] - ay) * by) / (bx * bx + by * by), 0.0, 1.0)
+    i = np.argmin((x[:, None] - ax - t * bx) ** 2 + (y[:, None] - ay - t * by) ** 2, axis=1)
+    s0 = road._samples[0][i] + t[np.arange(500), i] * road.sample_step_m
+    for k in range(500):
+        sk = float(s0[k])
+        for _ in range(2):
+            rx, ry, rh = road.pose_at(sk)
+            sk = min(max(sk + (x[k] - rx) * np.cos(rh) + (y[k] - ry) * np.sin(rh), 0.0), road.length_m)
+        assert got_s[k] == pytest.approx(sk, abs=1e-6)
+    assert road.to_frenet(float(x[3]), float(y[3])) == pytest.approx((got_s[3], got_d[3]))
