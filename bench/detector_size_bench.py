@@ -2,11 +2,13 @@
 
     python bench/detector_size_bench.py [--quick] [--json] [--scales 0.5 0.45 0.4 0.35 0.3 0.25]
 
-``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but exported with a fixed
-[1, 3, 384, 640] input: the 1280x720 frame letterboxed at scale 0.5. For each scale s the same weights are saved
-with the input ceil(1280 s / 32) 32 x ceil(720 s / 32) 32 (strides 8/16/32 need multiples of 32) and its anchor
-count, in a temporary folder (the ``onnx`` package edits the graph's declared shapes; nothing else changes), and run
-exactly as an RSU runs the shipped model (``rsu.build``: Framework B, score threshold 0.3, one thread). Per size:
+``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but saved with a fixed
+input: trained at [1, 3, 384, 640] (the 1280x720 frame letterboxed at scale 0.5), shipped at the size this bench
+chose (``models.resize_detector.RSU_INPUT_HW``, 288x512). For each scale s the same weights are saved with the input
+ceil(1280 s / 32) 32 x ceil(720 s / 32) 32 (strides 8/16/32 need multiples of 32) and its anchor count, in a
+temporary folder (``models.resize_detector.resized_model``: the ``onnx`` package edits the graph's declared shapes;
+nothing else changes), and run exactly as an RSU runs the shipped model (``rsu.build``: Framework B, score threshold
+0.3, one thread). Per size:
 
 - ``mota`` / ``idf1``: the whole pipeline (detector -> ``FrameworkTracker('B')``) on held-out simulator renders with
   the simulator's labels as truth, as ``bench/rsu_bench.py`` scores it (``bench.rsu_sim_clips.sim_mot``:
@@ -18,7 +20,9 @@ exactly as an RSU runs the shipped model (``rsu.build``: Framework B, score thre
   ``OnnxDetector.detect`` (letterbox + inference + decode + NMS) on one thread, mean over the first 60 held-out
   frames.
 
-``chosen_input``: the smallest input whose MOTA is >= ``--mota-min`` (0.9); ``--write PATH`` saves that model. ``--quick``: rsu1 only, 6 s, mAP on 40 frames.
+``chosen_input``: the smallest input whose MOTA is >= ``--mota-min`` (0.9); ``--write PATH`` saves that model;
+``cpu_ms_saved_vs_trained``: its CPU per frame against the training size, 384x640. ``--quick``: rsu1 only, 6 s, mAP on
+40 frames.
 With ``--json`` the last line is one JSON object of the figures. Needs the ``onnx`` package (dev extra).
 """
 
@@ -29,7 +33,6 @@ from bench._setup import ROOT  # noqa: F401  first: one thread per numeric libra
 # isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
-import math  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -38,65 +41,14 @@ import cv2  # noqa: E402
 
 from bench.rsu_sim_clips import render_sim_clip, sim_mot  # noqa: E402
 from models.evaluate_detector import ZONE_M, cpu_latency, evaluate, render_held_out, restrict  # noqa: E402
+from models.resize_detector import RSU_INPUT_HW, anchors, input_hw, resized_model  # noqa: E402, F401
 from protocol.corridor import load_corridor  # noqa: E402
 from rsu.build import PipelineConfig  # noqa: E402
-from rsu.detect import PROJECT_MODEL, YOLOX_STRIDES  # noqa: E402
+from rsu.detect import PROJECT_MODEL  # noqa: E402
 
 MOT_SCENARIO, MOT_SEED = "rellis_ev_yield", 900_003
 """As ``bench/rsu_bench.py``: held out (never used to train the detector)."""
 SCALES = (0.5, 0.45, 0.4, 0.35, 0.3, 0.25)
-FRAME_WH = (1280, 720)
-
-
-def input_hw(scale: float, frame_wh: tuple[int, int] = FRAME_WH, multiple: int = 32) -> tuple[int, int]:
-    """Model input (h, w) that holds the frame letterboxed at ``scale``, each side a multiple of ``multiple``."""
-    if not 0.05 <= scale <= 1.0:
-        raise ValueError(f"scale must be in [0.05, 1], got {scale}")
-    return (int(math.ceil(frame_wh[1] * scale / multiple)) * multiple,
-            int(math.ceil(frame_wh[0] * scale / multiple)) * multiple)
-
-
-def anchors(hw: tuple[int, int], strides=YOLOX_STRIDES) -> int:
-    return sum((hw[0] // s) * (hw[1] // s) for s in strides)
-
-
-def resized_model(src: Path, hw: tuple[int, int], folder: Path) -> Path:
-    """``src`` with its declared input [1, 3, h, w] and output [1, anchors, C] (intermediate shapes dropped: the
-    runtime infers them); the weights and nodes are unchanged."""
-    try:
-        import onnx
-    except ImportError as e:  # pragma: no cover - depends on the environment
-        raise SystemExit("detector_size_bench needs the onnx package (pip install onnx; in the dev extra)") from e
-    from onnx import numpy_helper
-
-    model = onnx.load(str(src))
-    dims = model.graph.input[0].type.tensor_type.shape.dim
-    if len(dims) != 4:
-        raise ValueError(f"{src.name}: expected a [1, 3, h, w] input, got {len(dims)} dimensions")
-    old_hw = (dims[2].dim_value, dims[3].dim_value)
-    dims[2].dim_value, dims[3].dim_value = hw
-    # the FPN's upsampling (Resize) was traced with its output size as a constant [h, w] (concatenated after the
-    # batch and channel dims): scale it with the input
-    nodes = {out: n for n in model.graph.node for out in n.output}
-    for resize in (n for n in model.graph.node if n.op_type == "Resize"):
-        concat = nodes.get(resize.input[3]) if len(resize.input) > 3 else None
-        for name in (concat.input if concat is not None and concat.op_type == "Concat" else ()):
-            const = nodes.get(name)
-            if const is None or const.op_type != "Constant":
-                continue
-            value = numpy_helper.to_array(const.attribute[0].t)
-            if value.shape != (2,):
-                continue
-            new = value.copy()
-            new[0], new[1] = value[0] * hw[0] // old_hw[0], value[1] * hw[1] // old_hw[1]
-            const.attribute[0].t.CopyFrom(numpy_helper.from_array(new))
-    model.graph.output[0].type.tensor_type.shape.dim[1].dim_value = anchors(hw)
-    del model.graph.value_info[:]
-    out = folder / f"{src.stem}_{hw[0]}x{hw[1]}.onnx"
-    onnx.save(model, str(out))
-    return out
-
-
 def measure(model: Path, clips, held_out, corridor, latency_frames: int) -> dict:
     mot = sim_mot(clips, PipelineConfig(detector=str(model), ev_classifier=False), corridor)
     ap = evaluate(model, restrict(held_out, max_range_m=ZONE_M))
@@ -109,7 +61,7 @@ def measure(model: Path, clips, held_out, corridor, latency_frames: int) -> dict
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scales", type=float, nargs="+", default=list(SCALES),
-                    help="letterbox scales of the 1280x720 frame to measure (0.5 is the shipped 384x640 input)")
+                    help="letterbox scales of the 1280x720 frame to measure (0.5: 384x640, the training size; 0.4: 288x512, shipped)")
     ap.add_argument("--mota-min", type=float, default=0.9, help="MOTA the chosen input must keep")
     ap.add_argument("--quick", action="store_true", help="rsu1 only, 6 s, mAP on 40 frames (smoke run)")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
@@ -139,14 +91,15 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
     ok = [(v["input_h"] * v["input_w"], k) for k, v in sizes.items() if v["mota"] >= args.mota_min]
     chosen = min(ok)[1] if ok else None
-    shipped = f"{input_hw(0.5)[0]}x{input_hw(0.5)[1]}"
+    shipped = f"{RSU_INPUT_HW[0]}x{RSU_INPUT_HW[1]}"
     figures: dict = {"sizes": sizes, "mota_min": args.mota_min, "chosen_input": chosen, "shipped_input": shipped,
                      "mot_source": f"{MOT_SCENARIO} seed {MOT_SEED}, cameras {cams}, {duration_s:g} s"}
     if chosen:
         figures["chosen_mota"] = sizes[chosen]["mota"]
         figures["chosen_cpu_ms"] = sizes[chosen]["cpu_ms"]
-        if shipped in sizes:
-            figures["cpu_ms_saved_vs_shipped"] = sizes[shipped]["cpu_ms"] - sizes[chosen]["cpu_ms"]
+        trained = f"{input_hw(0.5)[0]}x{input_hw(0.5)[1]}"
+        if trained in sizes:
+            figures["cpu_ms_saved_vs_trained"] = sizes[trained]["cpu_ms"] - sizes[chosen]["cpu_ms"]
     print(f"smallest input with MOTA >= {args.mota_min:g}: {chosen or 'none'} (shipped: {shipped})")
     if chosen and args.write:
         with tempfile.TemporaryDirectory() as tmp:

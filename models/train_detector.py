@@ -29,9 +29,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from models.resize_detector import RSU_INPUT_HW
+
 STRIDES = (8, 16, 32)
 INPUT_HW = (384, 640)
-"""Model input (h, w): the 1280x720 frame letterboxed at scale 0.5 fills 360x640 of it."""
+"""Training input (h, w): the 1280x720 frame letterboxed at scale 0.5 fills 360x640 of it (the exported model is
+re-declared at ``RSU_INPUT_HW``)."""
 PAD_VALUE = 114
 N_CLASSES = 2
 CENTRE_RADIUS = 1.5
@@ -350,7 +353,9 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
 def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
           seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None,
           input_hw: tuple[int, int] = INPUT_HW, flip: bool = False, assigner: str = "simota",
-          neck: int = 64) -> nn.Module:
+          neck: int = 64, rsu_input_hw: tuple[int, int] | None = None) -> nn.Module:
+    """Train on ``det_dirs`` at ``input_hw``; export to ``out_path`` re-declared at ``rsu_input_hw`` (the size the
+    RSUs run, ``models.resize_detector.RSU_INPUT_HW``; None: the training size)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     torch.set_num_threads(threads)
@@ -398,6 +403,12 @@ def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, 
             print(f"time budget {time_budget_s:.0f} s reached at iteration {it}", flush=True)
             break
     export_onnx(model, out_path, input_hw)
+    if rsu_input_hw is not None and tuple(rsu_input_hw) != tuple(input_hw):
+        from models.resize_detector import resized_model
+
+        resized_model(out_path, tuple(rsu_input_hw), out_path)
+        print(f"{out_path}: input re-declared at {rsu_input_hw[0]}x{rsu_input_hw[1]} (trained at "
+              f"{input_hw[0]}x{input_hw[1]})", flush=True)
     return model
 
 
@@ -419,7 +430,10 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=3000)
     p.add_argument("--batch", type=int, default=8)
     p.add_argument("--input", type=int, nargs=2, default=INPUT_HW, metavar=("H", "W"),
-                   help="model input (multiples of 32); the frame is letterboxed into it")
+                   help="training input (multiples of 32); the frame is letterboxed into it")
+    p.add_argument("--rsu-input", type=int, nargs=2, default=RSU_INPUT_HW, metavar=("H", "W"),
+                   help="input of the exported model, the size the RSUs run (default %(default)s: the smallest with "
+                        "MOTA >= 0.9, bench/detector_size_bench.py)")
     p.add_argument("--crop", type=int, nargs=2, default=(256, 320), metavar=("H", "W"))
     p.add_argument("--lr", type=float, default=4e-3)
     p.add_argument("--flip", action="store_true", help="random horizontal flips (off: fixed cameras, one-sided shadows)")
@@ -433,9 +447,12 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.crop[0] % 32 or a.crop[1] % 32 or a.input[0] % 32 or a.input[1] % 32:
         p.error("--crop and --input sides must be multiples of 32")
+    if a.rsu_input[0] % 32 or a.rsu_input[1] % 32:
+        p.error("--rsu-input sides must be multiples of 32")
     train([Path(d) / "det" for d in a.data], Path(a.out), iterations=a.iterations, batch=a.batch,
           crop_hw=tuple(a.crop), lr=a.lr, seed=a.seed, threads=a.threads, limit=a.limit,
-          time_budget_s=a.time_budget_s, input_hw=tuple(a.input), flip=a.flip, assigner=a.assigner, neck=a.neck)
+          time_budget_s=a.time_budget_s, input_hw=tuple(a.input), flip=a.flip, assigner=a.assigner, neck=a.neck,
+          rsu_input_hw=tuple(a.rsu_input))
     print(f"exported {a.out} ({Path(a.out).stat().st_size / 1e6:.2f} MB)")
     return 0
 

@@ -1,18 +1,18 @@
-"""bench/detector_size_bench.py (issue 19, point 3): the project detector re-declared at another input size runs
-through the RSU's OnnxDetector; at the shipped size it is the shipped model."""
+"""models/resize_detector.py (issue 19, point 3, bench/detector_size_bench.py): the project detector re-declared at
+another input size runs through the RSU's OnnxDetector; at the shipped size it is the shipped model."""
 
 import numpy as np
 import pytest
 
-from bench.detector_size_bench import anchors, input_hw, resized_model
+from models.resize_detector import RSU_INPUT_HW, anchors, input_hw, resized_model
 from rsu.detect import PROJECT_MODEL, OnnxDetector
 
 pytest.importorskip("onnx", reason="the onnx package (dev extra) is needed to re-declare the model's input size")
 
 
 def test_input_sizes_hold_the_letterboxed_frame_in_multiples_of_32():
-    assert input_hw(0.5) == (384, 640) and anchors((384, 640)) == 5040  # the shipped model
-    assert input_hw(0.4) == (288, 512) and input_hw(0.3) == (224, 384)
+    assert input_hw(0.5) == (384, 640) and anchors((384, 640)) == 5040  # the training size
+    assert input_hw(0.4) == (288, 512) == RSU_INPUT_HW and input_hw(0.3) == (224, 384)  # the shipped size
     with pytest.raises(ValueError):
         input_hw(0.0)
 
@@ -22,7 +22,8 @@ def test_resized_model_detects_like_the_shipped_one_at_its_size_and_runs_smaller
     image = np.clip(110 + rng.normal(0, 8, (720, 1280, 3)), 0, 255).astype(np.uint8)
     image[400:470, 500:640] = (40, 60, 160)  # a car-sized block
     shipped = OnnxDetector(PROJECT_MODEL, score_threshold=0.01)
-    same = OnnxDetector(resized_model(PROJECT_MODEL, (384, 640), tmp_path), score_threshold=0.01)
+    assert shipped.input_hw == RSU_INPUT_HW
+    same = OnnxDetector(resized_model(PROJECT_MODEL, RSU_INPUT_HW, tmp_path), score_threshold=0.01)
     a, b = shipped.detect(image), same.detect(image)
     np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-3)
     np.testing.assert_allclose(a.scores, b.scores, atol=1e-5)
@@ -31,3 +32,6 @@ def test_resized_model_detects_like_the_shipped_one_at_its_size_and_runs_smaller
     blob = np.full((1, 3, 224, 384), 114.0, np.float32)
     assert small.raw_output(blob).shape == (anchors((224, 384)), 7)
     small.detect(image)  # decodes with its own grid
+    trained = OnnxDetector(resized_model(PROJECT_MODEL, (384, 640), tmp_path), score_threshold=0.01)
+    assert trained.raw_output(np.full((1, 3, 384, 640), 114.0, np.float32)).shape == (5040, 7)
+    assert len(trained.detect(image))  # back at the training size, the same weights still find the block
