@@ -99,7 +99,7 @@ def crypto_costs(repeat: int) -> dict[str, float]:
 # ----------------------------------------------------------------------------- end to end over Zenoh
 def end_to_end(n_commands: int, timeout_s: float = 120.0) -> dict[str, float]:
     from protocol.corridor import DEFAULT_CORRIDOR
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
 
     cid = f"secb{uuid.uuid4().hex[:8]}"
     private = Ed25519PrivateKey.generate()

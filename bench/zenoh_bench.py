@@ -47,7 +47,7 @@ from protocol.codec import encode  # noqa: E402
 from protocol.examples import example_messages  # noqa: E402
 from protocol.messages import PathSwitchCommand, WorldSnapshot  # noqa: E402
 from protocol.runtime import freeze_startup_heap  # noqa: E402
-from protocol.transport import ZenohSettings, ZenohTransport  # noqa: E402
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport  # noqa: E402
 
 PY = sys.executable
 CMD_PERIOD_S = 0.02

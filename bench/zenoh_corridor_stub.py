@@ -44,7 +44,8 @@ from protocol.messages import (  # noqa: E402
     VehicleMode,
     VehicleState,
 )
-from protocol.transport import Transport, ZenohSettings, ZenohTransport  # noqa: E402
+from protocol.transport import Transport  # noqa: E402
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport  # noqa: E402
 
 LANE_W_M = 3.7
 AV_X_M, AV_LANE, AV_SPEED_MPS = 120.0, 1, 10.0

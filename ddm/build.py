@@ -20,7 +20,8 @@ from protocol.clock import Clock, WallClock
 from protocol.corridor import Corridor, load_corridor
 from protocol.keys import all_rsus_expr
 from protocol.security import Signer, TrustList, load_signer
-from protocol.transport import Transport, ZenohSettings, ZenohTransport
+from protocol.transport import Transport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 log = logging.getLogger("ddm")
 

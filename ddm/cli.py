@@ -11,7 +11,7 @@ from protocol.logsetup import add_log_level_argument, configure_logging
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from protocol.transport import ZenohSettings
+    from protocol.zenoh_transport import ZenohSettings
 
     p = argparse.ArgumentParser(
         prog="iea-ddm",
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(parser, args, stream=sys.stderr)
     from ddm.build import DdmOptions, run_ddm
     from protocol.corridor import CorridorError
-    from protocol.transport import ZenohSettings
+    from protocol.zenoh_transport import ZenohSettings
 
     try:
         options = DdmOptions(

@@ -234,7 +234,7 @@ def _write_compose(args: argparse.Namespace, corridor) -> int:
 def _health(argv: list[str]) -> int:
     from deploy.status import check_health, health_key
     from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
-    from protocol.transport import ZenohSettings
+    from protocol.zenoh_transport import ZenohSettings
 
     ap = argparse.ArgumentParser(prog="iea health", description="Wait for a service's Health message and report it "
                                  "(exit 0: ok or degraded; 1: error status or none within the timeout). Used as the "

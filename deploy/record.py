@@ -206,7 +206,7 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
            keys: str | None = None, say: Callable[[str], None] = print, stop: threading.Event | None = None) -> dict:
     """Record ``keys`` (default every key of the corridor) over Zenoh until ``stop``, Ctrl-C or ``duration_s``."""
     from protocol.keys import corridor_expr
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
 
     expr = keys or corridor_expr(corridor_id)
     stop = stop or threading.Event()
@@ -234,7 +234,7 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
 def main(argv: list[str] | None = None) -> int:
     stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     from protocol.corridor import CorridorError, load_corridor
-    from protocol.transport import ZenohSettings
+    from protocol.zenoh_transport import ZenohSettings
 
     ap = argparse.ArgumentParser(prog="iea record", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

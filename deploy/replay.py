@@ -181,7 +181,7 @@ def replay_into_ddm(path: str | Path, corridor: Any, config: Any = None, *, dura
 
 def main(argv: list[str] | None = None) -> int:
     stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     ap = argparse.ArgumentParser(prog="iea replay", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

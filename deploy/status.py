@@ -124,7 +124,7 @@ def check_health(settings, key: str, timeout_s: float) -> int:
     error or none (the docker-compose health check)."""
     import threading
 
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
 
     got: list[Health] = []
     done = threading.Event()
@@ -144,7 +144,7 @@ def check_health(settings, key: str, timeout_s: float) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from protocol.corridor import DEFAULT_CORRIDOR, CorridorError, load_corridor
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     ap = argparse.ArgumentParser(prog="iea status", description="Print every service of a running corridor as one "
                                  "table: liveliness token (UP), latest Health (STATUS, UPTIME) and state (DDM picture, "

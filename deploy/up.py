@@ -109,7 +109,7 @@ class Up:
         """Router, then the services, then (after ``settle_s``) the simulator. ``extra_subscribers``:
         more ``callback(key, message)`` for every message of the corridor (the monitor's session)."""
         from protocol import keys
-        from protocol.transport import ZenohSettings, ZenohTransport
+        from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
         if not self.peer:
             self._start_router()

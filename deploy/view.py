@@ -79,7 +79,7 @@ class ViewServer:
     # ------------------------------------------------------------------ Zenoh
     def connect(self, settings: Any) -> None:
         """Join the corridor: subscriptions, presence, the state at start, the DDM state poll."""
-        from protocol.transport import ZenohTransport
+        from protocol.zenoh_transport import ZenohTransport
 
         t = self.transport = ZenohTransport(settings)
         c = self.corridor_id
@@ -210,7 +210,7 @@ def _handler(view: ViewServer) -> type[BaseHTTPRequestHandler]:
 def main(argv: list[str] | None = None) -> int:
     stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
     from protocol.corridor import CorridorError, load_corridor
-    from protocol.transport import ZenohSettings
+    from protocol.zenoh_transport import ZenohSettings
 
     ap = argparse.ArgumentParser(prog="iea view", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

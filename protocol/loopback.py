@@ -21,7 +21,7 @@ from collections import Counter
 
 from protocol import keys
 from protocol.examples import example_messages, object_list
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 
 def _send(t: ZenohTransport, args: argparse.Namespace) -> dict:

@@ -3,8 +3,9 @@
 One small interface, ``publish(key, message)`` / ``subscribe(key_expr, callback) -> handle`` /
 ``close()``, and three implementations:
 
-- ``ZenohTransport``: eclipse-zenoh 1.x; peer mode on loopback by default (multicast scouting on
-  ``lo``, no router needed), client mode against routers with ``connect``.
+- ``ZenohTransport`` (``protocol.zenoh_transport``, the only module that imports zenoh): eclipse-zenoh 1.x;
+  peer mode on loopback by default (multicast scouting on ``lo``, no router needed), client mode against
+  routers with ``connect``.
 - ``LocalBus``: in-process and synchronous (a publish delivers before it returns), with the same
   key-expression matching as Zenoh; for tests and the lockstep runner.
 - ``DsrcLink``: wraps any transport with a seeded radio channel model (``protocol/channel.py``):
@@ -40,7 +41,6 @@ import threading
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from protocol import metrics
 from protocol.channel import ChannelModel, ChannelState
@@ -418,16 +418,3 @@ class DsrcLink(Transport):
             self._cv.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
-
-
-_ZENOH_NAMES = ("ZenohSettings", "ZenohTransport", "ENV_MODE", "ENV_CONNECT", "ENV_LISTEN", "ENV_CONFIG")
-
-
-def __getattr__(name: str) -> Any:
-    """``protocol.transport.ZenohTransport`` (and its settings) live in ``protocol.zenoh_transport``;
-    imported on first use so that this module never imports zenoh."""
-    if name in _ZENOH_NAMES:
-        from protocol import zenoh_transport
-
-        return getattr(zenoh_transport, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -3,8 +3,8 @@
 ``ZenohSettings`` says how a service joins (peer on loopback by default, client of routers with
 ``--connect``); ``ZenohTransport`` maps the interface onto a session: publishers declared once per key
 with their kind's QoS (``protocol.qos``), subscribers (bulk kinds through a ring channel drained by a
-worker thread), liveliness tokens and subscribers, queryables and ``session.get``. Importable as
-``protocol.transport.ZenohTransport`` too.
+worker thread), liveliness tokens and subscribers, queryables and ``session.get``. Only this module
+imports zenoh: ``protocol.transport`` holds the interface, ``LocalBus`` and ``DsrcLink``.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ import cv2
 
 from protocol.corridor import Corridor, load_corridor
 from protocol.security import TrustList, load_signer
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from rsu.classify.body import load_body_classifier
 from rsu.classify.classifiers import load_classifier
 from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier

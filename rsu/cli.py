@@ -10,7 +10,7 @@ import cv2
 from protocol import metrics
 from protocol.corridor import CorridorError
 from protocol.logsetup import add_log_level_argument, configure_logging
-from protocol.transport import ZenohSettings
+from protocol.zenoh_transport import ZenohSettings
 from rsu.build import PipelineConfig, ServiceOptions, run_rsu
 from rsu.classify.evaluation import CLASSIFIERS
 from rsu.frames import SourceError, SourceStalled

@@ -45,7 +45,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
              corridor_id: str | None = None, quiet: bool = False, detector: str = "project",
              seed: int | None = None, signed: bool = True, record: bool = True) -> dict[str, Any]:
     from protocol import keys
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
     from sim.scenario import load_scenario
 
     sc = load_scenario(scenario)

@@ -15,7 +15,7 @@ import sys
 
 from protocol import metrics
 from protocol.logsetup import add_log_level_argument, configure_logging
-from protocol.transport import ZenohSettings
+from protocol.zenoh_transport import ZenohSettings
 
 
 def _add_run(sub) -> None:

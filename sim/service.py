@@ -235,7 +235,7 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
     import signal
 
     from protocol.corridor import load_corridor
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
     from sim.scenario import load_scenario
 
     if wait_for_av_s is not None and not wait_for_av_s >= 0:

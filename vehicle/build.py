@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from protocol.clock import Clock, WallClock
 from protocol.corridor import Corridor, load_corridor
 from protocol.security import TrustList
-from protocol.transport import Transport, ZenohSettings, ZenohTransport
+from protocol.transport import Transport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from vehicle.commands import CommandGate
 from vehicle.core import CoreConfig
 from vehicle.failsafe import FailsafeConfig

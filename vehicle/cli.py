@@ -9,7 +9,7 @@ import sys
 from protocol import metrics
 from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.runtime import stop_on_ctrl_c
-from protocol.transport import ZenohSettings
+from protocol.zenoh_transport import ZenohSettings
 
 
 def _positive(text: str) -> float:

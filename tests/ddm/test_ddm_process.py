@@ -26,7 +26,7 @@ zenoh = pytest.importorskip("zenoh")
 @pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_ddm_process_pulls_over_and_retransmits_until_acked():
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     cid = f"t{uuid4().hex[:8]}"
     cor = load_corridor()

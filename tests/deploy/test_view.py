@@ -74,7 +74,7 @@ def test_page_draws_a_live_lockstep_run_in_headless_chromium(tmp_path):
         pytest.skip("Debian's chromium is not installed (apt-get install chromium): the page is not checked")
     from deploy.up import free_port
     from protocol import keys
-    from protocol.transport import ZenohTransport
+    from protocol.zenoh_transport import ZenohTransport
     from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     port = free_port()

@@ -163,7 +163,7 @@ def test_vehicle_process_steers_from_its_dashcam_over_zenoh(nets):
     from protocol.corridor import load_corridor
     from protocol.keys import sim_world_key, vehicle_key
     from protocol.messages import WorldSnapshot
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
     from sim.dashcam import debris_actor
 
     root = Path(__file__).resolve().parents[2]

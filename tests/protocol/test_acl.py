@@ -8,7 +8,7 @@ import time
 from protocol import keys
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 
 def _free_port() -> int:

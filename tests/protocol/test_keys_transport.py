@@ -14,7 +14,8 @@ from protocol.clock import RateTimer, SimClock, WallClock
 from protocol.codec import ProtocolError, encode
 from protocol.examples import example_messages
 from protocol.messages import CommandAck, Health, ObjectList
-from protocol.transport import DsrcLink, LocalBus, ZenohSettings, ZenohTransport
+from protocol.transport import DsrcLink, LocalBus
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 
 # ------------------------------------------------------------------ key layout

@@ -22,7 +22,8 @@ from protocol import keys, presence, qos
 from protocol.clock import SimClock, WallClock
 from protocol.corridor import load_corridor
 from protocol.messages import Health
-from protocol.transport import LocalBus, ZenohSettings, ZenohTransport
+from protocol.transport import LocalBus
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))

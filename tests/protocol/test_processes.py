@@ -13,7 +13,8 @@ from protocol import keys
 from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.examples import example_messages
-from protocol.transport import DsrcLink, LocalBus, ZenohSettings, ZenohTransport
+from protocol.transport import DsrcLink, LocalBus
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 KINDS = {m.KIND for _, m in example_messages()}
 

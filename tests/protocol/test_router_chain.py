@@ -15,7 +15,7 @@ import pytest
 from ddm.build import DdmOptions, build_ddm
 from protocol import keys
 from protocol.clock import WallClock
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from tests.protocol.test_presence_queries import ROOT, _acl_checks, _free_port, _wait, _wait_line
 
 

@@ -15,7 +15,8 @@ from protocol.clock import SimClock
 from protocol.corridor import load_corridor
 from protocol.keys import all_rsus_expr, rsu_key
 from protocol.messages import Health, HealthStatus, ObjectList, ObjectType
-from protocol.transport import LocalBus, ZenohTransport
+from protocol.transport import LocalBus
+from protocol.zenoh_transport import ZenohTransport
 from rsu.build import MOTION, PipelineConfig, build_detector, build_pipeline, build_tracker
 from rsu.classify.ev import EvVerdict
 from rsu.frames import ArraySource, Frame, SourceStalled

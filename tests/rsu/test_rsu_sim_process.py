@@ -13,7 +13,7 @@ import pytest
 from deploy.procs import stop_process
 from protocol.keys import rsu_key
 from protocol.messages import AlertState, EvAlert
-from protocol.transport import ZenohTransport
+from protocol.zenoh_transport import ZenohTransport
 
 ROOT = Path(__file__).resolve().parents[2]
 

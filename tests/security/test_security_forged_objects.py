@@ -16,7 +16,7 @@ from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
 from protocol.messages import AlertState, EvAlert, ObjectList, VehicleMode, VehicleState
 from protocol.security import new_key_pair
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from scenario.faults import _detected
 
 ROOT = Path(__file__).resolve().parents[2]

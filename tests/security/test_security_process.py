@@ -14,7 +14,7 @@ from deploy.procs import stop_process
 from protocol.corridor import DEFAULT_CORRIDOR
 from protocol.keys import vehicle_key
 from protocol.messages import AckStatus
-from protocol.transport import ZenohSettings, ZenohTransport
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 ROOT = Path(__file__).resolve().parents[2]
 

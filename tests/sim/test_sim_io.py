@@ -215,7 +215,7 @@ def test_cli_help_and_render(tmp_path):
 
 def test_sim_process_publishes_over_zenoh(tmp_path, spawn):
     """Real process over real Zenoh (peer mode, loopback): snapshots at ~20 Hz, recorded video."""
-    from protocol.transport import ZenohSettings, ZenohTransport
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     cid = f"t{uuid4().hex[:8]}"
     video = tmp_path / "rsu1.mp4"
