@@ -113,6 +113,7 @@ def wait_for_tokens(transport: Transport, corridor_id: str, role: str, ids: Iter
                     poll_s: float = 0.05) -> list[str] | None:
     """Block until every id of ``ids`` (of ``role``) has a live token, or ``timeout_s``; returns the ids still
     missing ([] when all came), None when the transport has no presence (nothing to wait for)."""
+    ids = list(ids)  # looked at on every poll
     alive = AliveSet(transport, corridor_id, role)
     try:
         if not alive.watching:
