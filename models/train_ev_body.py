@@ -63,11 +63,6 @@ def squashed(pairs: list[tuple[CropSample, np.ndarray]], size: int) -> tuple[np.
             np.asarray([s.label for s, _c in pairs], np.float32))
 
 
-def load_crops(samples, size: int, log=print) -> tuple[np.ndarray, np.ndarray]:
-    """Every sample's crop squashed to ``size`` (BGR uint8) and its label; unreadable ones are skipped."""
-    return squashed(usable_crops(samples, log), size)
-
-
 def teacher_key(sample: CropSample, data_root: Path) -> str:
     """A crop's key in a teacher file (:mod:`models.ev_body_teacher`): ``path relative to ev_train|x1,y1,x2,y2``."""
     return f"{Path(sample.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, sample.box_px or ()))}"

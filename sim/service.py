@@ -139,10 +139,6 @@ class SimService:
                       latency_ms={"world_step": self._step_ms}, rejected=rej,
                       detail=f"scenario {self.scenario.name} t={self.world.t_s:.2f}s av_updates={self.av_updates}")
 
-    def wait_for_avs(self, timeout_s: float, poll_s: float = 0.02) -> bool:
-        """Hold the world at t = 0 until every AV of the scenario has sent its state (``wait_to_start``)."""
-        return self.wait_to_start(timeout_s, poll_s=poll_s)
-
     def wait_to_start(self, timeout_s: float, *, avs: bool = True, rsu_ids: tuple[str, ...] | list[str] = (),
                       poll_s: float = 0.02) -> bool:
         """Hold the world at t = 0 until the corridor is up (or ``timeout_s``): every AV of the scenario has sent

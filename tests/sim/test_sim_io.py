@@ -182,7 +182,7 @@ def test_service_holds_the_world_until_the_av_reports():
 
     bus = LocalBus()
     svc = SimService(load_scenario("rellis_ev_yield"), bus, corridor_id="tw", duration_s=0.1)
-    assert not svc.wait_for_avs(0.2)  # nobody drives av1: gives up after the timeout
+    assert not svc.wait_to_start(0.2)  # nobody drives av1: gives up after the timeout
     st = VehicleState(src="veh", stamp=1.0, vehicle_id="av1", pos_x_m=40.0, pos_y_m=5.5, lat_deg=30.6,
                       lon_deg=-96.4, heading_rad=0.0, speed_mps=13.4, mode=VehicleMode.DRIVING)
     timer = threading.Timer(0.3, lambda: bus.publish(vehicle_key("tw", "av1", "state"), st))
