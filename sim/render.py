@@ -29,6 +29,7 @@ from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
     halo_numbers,
+    hidden_lamps,
     line_kernel,
     lit_bgr,
     queue_lamp_glow,
@@ -248,13 +249,14 @@ class Renderer:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index).
 
         The cached static scene, then per actor its cast shadow and headlight pool (all actors, far to near), then
-        per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the lamp
-        halos, exposure and noise: issue 17's drawing (``sim.render_reference``) with each actor's body model
+        per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the halos of
+        the lamps no nearer vehicle hides (``sim.render_effects.hidden_lamps``), exposure and noise: issue 17's drawing (``sim.render_reference``) with each actor's body model
         built once (``sim.bodies.body_model``) and posed, culled and shaded with a few array operations."""
         lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         C = self.cam.C
         glows: list[tuple[np.ndarray, tuple, float]] = []
+        glow_rank: list[int] = []  # per glow, its vehicle's place in ``drawn`` (far to near)
         lamp_pts: dict[tuple[str, str], list] = {}
         drawn = []
         cast = L["sun"] > 0.05 and self.shadows
@@ -293,6 +295,7 @@ class Renderer:
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             off = self._off_colours(model, lighting)
+            n_glows = len(glows)
             for k_dc in np.flatnonzero(vis[model.decal_part, model.decal_face]).tolist():
                 dc = decals[k_dc]
                 if dc.lamp == "turn" and not sig_on:
@@ -305,7 +308,24 @@ class Renderer:
                                     uv[q:q + 4], colour)
             if blur_px is not None:
                 self._motion_blur(img, (x_lo, y_lo, x_hi, y_hi), blur_px)
+            glow_rank.extend([k_a] * (len(glows) - n_glows))
+        if glows or lamp_pts:
+            glows, lamp_pts = self._lamps_in_view(glows, glow_rank, lamp_pts, drawn)
         return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+
+    @staticmethod
+    def _lamps_in_view(glows: list, glow_rank: list[int], bar_halos: dict, drawn: list) -> tuple[list, dict]:
+        """The lit lamps (``glows`` with their vehicles' places in ``drawn``, and the light bars' ``bar_halos``)
+        that no nearer vehicle hides (``sim.render_effects.hidden_lamps``)."""
+        rank = {d[0].actor_id: k for k, d in enumerate(drawn)}
+        keys = list(bar_halos)
+        hidden = hidden_lamps([(g[0], r) for g, r in zip(glows, glow_rank, strict=True)]
+                              + [(bar_halos[key][0], rank[key[0]]) for key in keys],
+                              np.array([(d[5], d[7], d[6], d[8]) for d in drawn], float),
+                              [d[4][:8 * len(d[1].parts)].reshape(-1, 8, 2)[[p.silhouette for p in d[1].parts]]
+                               for d in drawn])
+        return ([g for g, h in zip(glows, hidden, strict=False) if not h],
+                {key: bar_halos[key] for key, h in zip(keys, hidden[len(glows):], strict=True) if not h})
 
     def _motion_blur(self, img: np.ndarray, bounds: tuple[float, float, float, float], vec: np.ndarray) -> None:
         """Blur a vehicle's ROI (``bounds``: x_lo, y_lo, x_hi, y_hi of its corners' pixels) along its image

@@ -75,8 +75,10 @@ class ReferenceRenderer(Renderer):
                 self._draw_shadow(img, geo[2], sun, 0.45 * L["sun"] / 0.55)
             if L["running_lights"] and a.kind.value != "debris":
                 self._draw_headlight_pool(img, a, 1.0 if lighting == "night" else 0.4)
-        for a, geo in drawn:
+        glow_rank: list[int] = []
+        for rank, (a, geo) in enumerate(drawn):
             parts, decals, corners, uv, depth, rot = geo
+            n_glows = len(glows)
             allx, ally = uv[..., 0], uv[..., 1]
             if allx.max() < 0 or allx.min() >= self.w:
                 continue
@@ -124,6 +126,13 @@ class ReferenceRenderer(Renderer):
                                     colour)
             if blur_px is not None:
                 self._motion_blur(img, uv, blur_px)
+            glow_rank.extend([rank] * (len(glows) - n_glows))
+        ranks = {a.actor_id: k for k, (a, _g) in enumerate(drawn)}
+        keys = list(lamp_pts)
+        hidden = [lamp_hidden(pts, r, drawn) for pts, r in
+                  [(g[0], r) for g, r in zip(glows, glow_rank, strict=True)] + [(lamp_pts[k][0], ranks[k[0]]) for k in keys]]
+        lamp_pts = {k: lamp_pts[k] for k, h in zip(keys, hidden[len(glows):], strict=True) if not h}
+        glows = [g for g, h in zip(glows, hidden, strict=False) if not h]
         return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
 
     def _motion_blur(self, img: np.ndarray, uv: np.ndarray, vec: np.ndarray) -> None:
@@ -183,3 +192,15 @@ class ReferenceRenderer(Renderer):
             return None
         vec = uv[1] - uv[0]
         return vec if float(np.hypot(*vec)) >= 1.5 else None
+
+
+def lamp_hidden(points_xy: np.ndarray, rank: int, drawn: list) -> bool:
+    """Is every face centre of a lamp (quads ``points_xy`` (4k, 2) px) inside a silhouette part of a vehicle drawn
+    after its own (``drawn[rank]``: (actor, geometry) far to near)? The plain loop that
+    ``sim.render_effects.hidden_lamps`` batches."""
+    for cx, cy in points_xy.reshape(-1, 4, 2).mean(axis=1).tolist():
+        if not any(cv2.pointPolygonTest(cv2.convexHull(uv[p].astype(np.float32)), (cx, cy), False) > 0
+                   for _a, (parts, _d, _c, uv, _z, _r) in drawn[rank + 1:] for p in range(len(parts))
+                   if parts[p].silhouette):
+            return False
+    return True

@@ -38,6 +38,11 @@ import numpy as np
 
 from protocol.messages import EvState, LightState
 from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
+from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined here before)
+    band_exclusions,
+    farther_boxes,
+    rect_mask,
+)
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, lamp_activity
 from rsu.track import associate
 
@@ -161,68 +166,6 @@ class EvVerdict:
     keeps none."""
 
 
-def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int, int] | None]
-                    ) -> list[tuple[int, int, int, int]]:
-    """The parts of track ``k``'s crop that belong to other vehicles, left out of its lamp band so that a lamp
-    is counted for one vehicle only: the whole crop of every vehicle nearer the camera (its box's bottom edge
-    lower in the image: it occludes this one), and, of every other vehicle whose crop overlaps this one, the
-    columns nearer its box centre than this box's (the two crops split at the midpoint between the centres),
-    and, of every farther vehicle (bottom edge higher) seen above this box's top, its own box above that top.
-    Without the split, a car beside an EV counts the EV's roof bar, which its own upward-grown crop takes in;
-    without the last part, a truck or bus behind a car or an EV counts the tail lights or the light bar of the
-    vehicle ahead, which its upward-grown band takes in (simulator tuning seeds 31372/91468: 4 false alerts)."""
-    out: list[tuple[int, int, int, int]] = []
-    box = boxes[k]
-    cx = 0.5 * (box[0] + box[2])
-    for j, other in enumerate(boxes):
-        ob = bounds[j]
-        if j == k or ob is None:
-            continue
-        if other[3] > box[3]:
-            out.append(ob)
-            continue
-        ocx = 0.5 * (other[0] + other[2])
-        if ocx != cx:
-            mid = int(round(0.5 * (cx + ocx)))
-            out.append((mid, ob[1], ob[2], ob[3]) if ocx > cx else (ob[0], ob[1], mid, ob[3]))
-        if other[1] < box[1] and other[2] > box[0] and other[0] < box[2]:
-            # a farther vehicle seen above this one's roof: its own box, where it rises above this box's top,
-            # is that vehicle (its tail lights, its light bar), not a roof bar of this one
-            out.append((int(np.floor(other[0])), int(np.floor(other[1])), int(np.ceil(other[2])),
-                        int(np.ceil(min(other[3], box[1])))))
-    return out
-
-
-def farther_boxes(k: int, boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
-    """The boxes of the farther vehicles (bottom edge higher) that rise above track ``k``'s box top and overlap its
-    columns, left out of its *light-bar* measurement (not of the lamp-bright one): within this box's band such a
-    vehicle's tail lights and red paint show where a roof bar would (a dark truck at night behind a car: the
-    car's lit tail light inside the truck's box; simulator tuning seed 31372). The light-bar cues count only
-    with a confident EV body, which a black truck at night can get; the lamp-bright flash of a sim EV behind a
-    car is not affected. Above this box's top :func:`band_exclusions` leaves such a box out of both."""
-    box = boxes[k]
-    out = []
-    for j, other in enumerate(boxes):
-        if j != k and other[3] <= box[3] and other[1] < box[1] and other[2] > box[0] and other[0] < box[2]:
-            out.append((int(np.floor(other[0])), int(np.floor(other[1])), int(np.ceil(other[2])),
-                        int(np.ceil(other[3]))))
-    return out
-
-
-def _rect_mask(bounds: tuple[int, int, int, int], rects: Iterable[tuple[int, int, int, int]]) -> np.ndarray | None:
-    """A boolean mask of the crop ``bounds`` (xyxy pixels), True in the image rectangles ``rects``; None when none
-    of them overlaps it."""
-    xa, ya, xb, yb = bounds
-    mask = None
-    for ob in rects:
-        if ob[0] >= xb or ob[2] <= xa or ob[1] >= yb or ob[3] <= ya:
-            continue
-        if mask is None:
-            mask = np.zeros((yb - ya, xb - xa), bool)
-        mask[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
-    return mask
-
-
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -323,10 +266,10 @@ class TrackEvClassifier:
             return LampMeasurement(0.0, 0.0), LampMeasurement(0.0, 0.0), None, None
         xa, ya, xb, yb = bounds
         crop = image[ya:yb, xa:xb]
-        ignore = _rect_mask(bounds, occluders)
+        ignore = rect_mask(bounds, occluders)
         bar_ignore = ignore
         if bar_occluders:
-            extra = _rect_mask(bounds, bar_occluders)
+            extra = rect_mask(bounds, bar_occluders)
             bar_ignore = extra if ignore is None else ignore if extra is None else ignore | extra
         score = None
         if self.crop_score is not None:
@@ -370,6 +313,7 @@ class TrackEvClassifier:
             self._hand_over(now, ids, boxes)
         h, w = image.shape[:2]
         bounds = [self.crop_bounds(b, w, h) for b in boxes]  # each track's crop, once per frame
+        lost_evs = None  # confirmed EVs lost within the hand-over time (their moved-on boxes), found when needed
         for k, (tid, box) in enumerate(zip(ids, boxes, strict=True)):
             info = self.tracks.get(tid)
             if info is None:
@@ -389,24 +333,50 @@ class TrackEvClassifier:
             else:
                 lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds),
                                                         farther_boxes(k, boxes))
+                if lost_evs is None:
+                    lost_evs = self._lost_evs(now, ids)
                 state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar,
-                                  lamps_alone=not self._ev_ahead(k, ids, boxes, bounds))
+                                  lamps_alone=not self._ev_ahead(k, ids, boxes, bounds, lost_evs))
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)
         return out
 
-    def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list) -> bool:
-        """Is a confirmed EV just ahead of track ``k``: a farther track (bottom edge higher), confirmed, whose box
-        reaches into ``k``'s crop? Its flashes light this vehicle's roof (a bus behind the EV: the bar's red
-        glow on the bus roof, outside the EV's box, flashed in step with it; simulator tuning seed 91468), so
-        ``k``'s flash pattern then confirms only with a confident body (``TrackEvidence.update``)."""
+    def _lost_evs(self, now_s: float, ids: list[int]) -> np.ndarray:
+        """The boxes (N, 4), moved on at their own velocity, of confirmed EV tracks not in this frame's ``ids`` and
+        lost within ``handover_after_s``: SORT drops a track after one missed detection, and an EV just ahead is
+        still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof
+        lit by the EV's strobe, confirmed in that frame)."""
+        current = set(ids)
+        out = [extrapolate_box(i.box, i.centre_velocity_pxps, now_s - i.last_seen_s)
+               for tid, i in self.tracks.items() if tid not in current and i.box is not None
+               and i.evidence.state == EvState.CONFIRMED and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
+        return np.asarray(out, float).reshape(-1, 4)
+
+    def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,
+                  lost_evs: np.ndarray | None = None) -> bool:
+        """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
+        higher) whose box reaches into ``k``'s crop and that is either a confirmed EV (or one lost within the hand-over
+        time: ``lost_evs``) or too small for its own
+        lamps to be measured (``min_box_px``) while it rises above ``k``'s roof? Its flashes light this vehicle's
+        roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
+        the EV's box, flashed in step with it; simulator tuning seeds 91468, and 44077, where the EV, 28 px tall,
+        was never measured and its strobe confirmed the bus), so ``k``'s flash pattern then confirms only with a
+        confident body (``TrackEvidence.update``)."""
         box, crop = boxes[k], bounds[k]
         if crop is None:
             return False
         for j, other in enumerate(boxes):
+            if j == k or other[3] > box[3] or not (other[0] < crop[2] and other[2] > crop[0]
+                                                   and other[1] < crop[3] and other[3] > crop[1]):
+                continue
             info = self.tracks.get(ids[j])
-            if (j != k and info is not None and info.evidence.state == EvState.CONFIRMED and other[3] <= box[3]
-                    and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3] and other[3] > crop[1]):
+            if info is not None and info.evidence.state == EvState.CONFIRMED:
+                return True
+            if other[1] < box[1] and min(other[2] - other[0], other[3] - other[1]) < self.min_box_px:
+                return True
+        for other in () if lost_evs is None else lost_evs:
+            if (other[3] <= box[3] and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3]
+                    and other[3] > crop[1]):
                 return True
         return False
 

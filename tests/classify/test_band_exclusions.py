@@ -56,3 +56,41 @@ def test_a_truck_behind_a_car_does_not_measure_the_cars_tail_lights():
     image[98:103, 130:150] = (40, 40, 255)  # a red bar on the truck's own roof, at its box's top edge
     _, bar_truck, _, _ = clf._measure(image, bounds[0], band_exclusions(0, boxes, bounds))
     assert bar_truck.red > 0.0
+
+
+def _bus_behind_ev():
+    """A bus near the camera and, just ahead of it in the image, the EV (farther: bottom edge higher)."""
+    boxes = np.array([[100.0, 120.0, 200.0, 260.0],   # the bus
+                      [130.0, 90.0, 175.0, 125.0]])   # the EV, rising above the bus roof, 35 px tall
+    clf = TrackEvClassifier()
+    bounds = [clf.crop_bounds(b, 400, 300) for b in boxes]
+    return clf, boxes, bounds
+
+
+def test_a_vehicle_just_ahead_too_small_to_measure_may_own_the_lamps_on_the_bus_roof():
+    """Its flashes may be what the bus's band sees (sim tuning seed 44077): the bus then needs a confident body."""
+    clf, boxes, bounds = _bus_behind_ev()
+    assert clf._ev_ahead(0, [1, 2], boxes, bounds)
+    big = boxes.copy()
+    big[1] = (120.0, 60.0, 190.0, 125.0)  # measured (65 px tall) and not confirmed: its lamps are judged as its own
+    assert not clf._ev_ahead(0, [1, 2], big, [clf.crop_bounds(b, 400, 300) for b in big])
+    assert not clf._ev_ahead(1, [1, 2], boxes, bounds)  # the bus is nearer the camera than the EV, not ahead of it
+
+
+def test_a_confirmed_ev_lost_for_a_frame_still_counts_as_just_ahead():
+    """SORT drops a track after one missed detection: the EV's confirmed track, lost in this frame, is still just
+    ahead of the bus, so the bus's flashes do not confirm alone in that frame (sim tuning seed 44077)."""
+    from protocol.messages import EvState
+    from rsu.classify.ev import TrackInfo
+    from rsu.classify.temporal import TrackEvidence
+
+    clf, boxes, _ = _bus_behind_ev()
+    ev = TrackInfo(TrackEvidence(), 0.0, 1.0, box=np.array([120.0, 60.0, 190.0, 125.0]))
+    ev.evidence.state = EvState.CONFIRMED
+    clf.tracks = {7: ev}
+    bus = boxes[:1]
+    bounds = [clf.crop_bounds(bus[0], 400, 300)]
+    assert clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.2, [1]))
+    assert not clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.0 + clf.handover_after_s + 0.1, [1]))
+    ev.evidence.state = EvState.CANDIDATE
+    assert not clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.2, [1]))

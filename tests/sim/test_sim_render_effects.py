@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.render_effects import halo_numbers, line_kernel
+from sim.render_effects import halo_numbers, hidden_lamps, line_kernel
 
 
 def _grid_kernel(vec):
@@ -77,3 +77,50 @@ def test_shade_faces_of_several_actors_equal_each_actors_own():
         np.testing.assert_array_equal(vis[first[k]:first[k + 1]], own_vis)
         np.testing.assert_allclose(colours[first[k]:first[k + 1]], own, atol=1e-9)
         assert own_vis.any() and not own_vis.all()
+
+
+def _box_corners(x1, y1, x2, y2):
+    return np.array([[x1, y1], [x2, y1], [x2, y2], [x1, y2]] * 2, float)
+
+
+def test_a_lamp_behind_a_nearer_vehicle_is_hidden_and_one_beside_it_is_not():
+    bounds = np.array([(100, 100, 140, 130), (90, 110, 160, 200)], float)  # far to near
+    parts = [np.array([_box_corners(*b)]) for b in bounds]
+    behind = np.array([[118, 118], [122, 118], [122, 122], [118, 122]], float)  # inside the nearer box
+    above = behind - (0, 14)  # above the nearer box's top: in view
+    lamps = [(behind, 0), (above, 0), (behind, 1), (np.vstack([behind, above]), 0)]
+    # the last: a light bar over two faces, in view while any face is; nothing is drawn after the nearest vehicle
+    assert hidden_lamps(lamps, bounds, parts) == [True, False, False, False]
+    assert hidden_lamps([], bounds, parts) == []
+
+
+@pytest.mark.parametrize("renderer", ["cached", "reference"])
+def test_an_ev_hidden_behind_a_bus_throws_no_halo(renderer):
+    from protocol.corridor import load_corridor
+    from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot
+    from sim.render import Renderer
+    from sim.render_reference import ReferenceRenderer
+    from sim.vehicles import LIVERY_AMBULANCE, make_style
+
+    corridor = load_corridor()
+    cls = Renderer if renderer == "cached" else ReferenceRenderer
+    r = cls(corridor.rsu("rsu1").camera, corridor.road, seed=1, noise=False)
+    bus = Actor(actor_id="bus", kind=ActorKind("bus"), pos_x_m=50.0, pos_y_m=1.85, heading_rad=0.0, length_m=12.0,
+                width_m=2.5, height_m=3.2, speed_mps=0.0, colour_bgr=(40, 40, 200), style=make_style(0, 1))
+    ev = Actor(actor_id="ev", kind=ActorKind("ev"), pos_x_m=59.0, pos_y_m=1.85, heading_rad=0.0, length_m=4.8,
+               width_m=1.9, height_m=1.5, speed_mps=0.0, colour_bgr=(230, 230, 230),
+               light_bar=LightBar(on=True, pattern="alternating", frequency_hz=2.0), style=make_style(LIVERY_AMBULANCE, 2))
+
+    def lamp_pixels(actors):
+        snap = WorldSnapshot(src="t", stamp=0.3, scenario="t", sim_time_s=0.3, lighting=Lighting("day"), actors=actors)
+        hsv = cv2.cvtColor(r.render(snap, 0), cv2.COLOR_BGR2HSV)
+        h = hsv[..., 0]
+        return int(np.count_nonzero((hsv[..., 1] >= 120) & (hsv[..., 2] >= 240)
+                                    & ((h <= 10) | (h >= 170) | ((h >= 100) & (h <= 130)))))
+
+    visible = {lb.actor_id: lb.visible_fraction for lb in r.labels(
+        WorldSnapshot(src="t", stamp=0.3, scenario="t", sim_time_s=0.3, lighting=Lighting("day"), actors=[bus, ev]),
+        min_visible_fraction=0.0, include_dropped=True)}
+    assert visible["ev"] < 0.1  # the bus hides the EV, its light bar included
+    assert lamp_pixels([ev]) > 50  # alone, its lit bar and halo are lamp-bright
+    assert lamp_pixels([bus, ev]) == 0
