@@ -37,9 +37,22 @@ random (sixth session), held out, and run once after that change (``python bench
 recall 1.0 (24/24), **2 false alerts** (``ev_two_lanes_dense``: rsu4 vehicle v1 of 80442, rsu2 vehicle v4 of 44077;
 traced after the run: the EV's own flashes, red and blue, seen in the neighbouring vehicle's lamp band),
 median lights-on -> alert 0.37 s (max 0.60 s), 18 flasher/turn-signal cars seen; tuning seeds from now on. The
-held-out seeds are ``HELD_OUT_SEEDS`` = 90289, 76285, drawn at random once (2026-11-27, seventh session) and not
-run: do not tune on them; run them once, when done. With ``--json`` the last line is one JSON object of the
-figures.
+held-out seeds 90289/76285 were drawn at random once (2026-11-27, seventh session) and run once in the ninth
+(2026-11-27, after the changes below: ``python bench/ev_bench.py --seeds 90289 76285 --json``, 287 s): track recall
+0.958 (23/24: rsu1 missed ev1 of ``ev_two_lanes_dense`` 76285), 1 false alert (rsu4, vehicle v9 of
+``ev_two_lanes_dense`` 90289, a box of 289 x 318 px), median lights-on -> alert 0.47 s (max 3.93 s), 9
+flasher/turn-signal cars seen, 0 false alerts on them; not traced: they are tuning seeds from now on. Ninth session,
+on tuning seeds 80442/44077 (all four scenarios): false alerts 4 -> 2, recall 1.0 (24/24), median 0.37 s. Traced:
+(1) a hidden EV's light bar glowed through the bus in front of it (rsu4, 80442): a renderer artefact, mended (a
+lamp hidden behind a nearer vehicle throws no halo, ``sim.render_effects.hidden_lamps``); (2) the EV's strobe on
+the roof of the bus just behind it (rsu2, 44077), confirmed in the one frame where SORT had dropped the EV's
+confirmed track: a confirmed EV lost within the hand-over time, or a vehicle just ahead too small to measure,
+now holds back a flash-alone confirmation (``TrackEvClassifier._ev_ahead``). Left: (3) a car whose box, 2x
+its height, took in the red turn signal of the van ahead (rsu1, 80442: the 288x512 detector's box); (4) the AV's
+track switched onto the EV overtaking it and alerted on the EV's box (IoU 0.86 with the EV; rsu4, 44077 of
+``rellis_ev_yield``), counted false because the track was mostly the AV. The held-out seeds are now
+``HELD_OUT_SEEDS`` = 30023, 41751, drawn at random once (ninth session) and not run: do not tune on them. With
+``--json`` the last line is one JSON object of the figures.
 
 Fifth session (2026-11-25), lamps counted for one vehicle only (``rsu.classify.ev``, ``rsu.classify.temporal``):
 on tuning seeds 31372/91468 the figures were recall 1.0 (24/24), 8 false alerts, median 0.20 s. Causes traced:
@@ -133,9 +146,9 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (90289, 76285)
-"""Drawn at random once (2026-11-27, sixth session of issue 17), not run yet; 1-4, 101/102, 301/302, 1142/1527,
-5441/6538, 31372/91468 and 50857/21674 are tuning seeds (module docstring)."""
+HELD_OUT_SEEDS = (30023, 41751)
+"""Drawn at random once (2026-11-27, ninth session of issue 17), not run yet; 1-4, 101/102, 301/302, 1142/1527,
+5441/6538, 31372/91468, 50857/21674, 80442/44077 and 90289/76285 are tuning seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
@@ -268,7 +281,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 90289 76285; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 30023 41751; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
