@@ -250,8 +250,9 @@ class Renderer:
 
         The cached static scene, then per actor its cast shadow and headlight pool (all actors, far to near), then
         per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the halos of
-        the lamps no nearer vehicle hides (``sim.render_effects.hidden_lamps``), exposure and noise: issue 17's drawing (``sim.render_reference``) with each actor's body model
-        built once (``sim.bodies.body_model``) and posed, culled and shaded with a few array operations."""
+        the lamps no nearer vehicle hides (``sim.render_effects.hidden_lamps``), exposure and noise: issue 17's
+        drawing (``sim.render_reference``) with each actor's body model built once (``sim.bodies.body_model``) and
+        posed, culled and shaded with a few array operations."""
         lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         C = self.cam.C

@@ -355,10 +355,9 @@ class TrackEvClassifier:
     def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,
                   lost_evs: np.ndarray | None = None) -> bool:
         """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
-        higher) whose box reaches into ``k``'s crop and that is either a confirmed EV (or one lost within the hand-over
-        time: ``lost_evs``) or too small for its own
-        lamps to be measured (``min_box_px``) while it rises above ``k``'s roof? Its flashes light this vehicle's
-        roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
+        higher) whose box reaches into ``k``'s crop and that is either a confirmed EV (or one lost within the
+        hand-over time: ``lost_evs``) or too small for its own lamps to be measured (``min_box_px``) while it rises
+        above ``k``'s roof? Its flashes light this vehicle's roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
         the EV's box, flashed in step with it; simulator tuning seeds 91468, and 44077, where the EV, 28 px tall,
         was never measured and its strobe confirmed the bus), so ``k``'s flash pattern then confirms only with a
         confident body (``TrackEvidence.update``)."""
