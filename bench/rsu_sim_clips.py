@@ -118,7 +118,7 @@ def sim_mot(clips: list[SimClip], config: PipelineConfig, corridor) -> dict[str,
     out_of_zone = 0
     for n_clip, clip in enumerate(clips):
         id_offset = 1_000_000 * n_clip  # one evaluator for all clips: ids of different clips must not meet
-        detector, tracker = build_detector(config), build_tracker(config)
+        detector, tracker = build_detector(config, corridor, clip.rsu_id), build_tracker(config)
         localizers = {m: Localizer(corridor, clip.rsu_id, method=m) for m in loc_err}
         camera = corridor.rsu(clip.rsu_id).camera
         for frame, truth in zip(clip.frames, clip.truths, strict=True):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from rsu.detect import YOLOX_STRIDES
 
 RSU_INPUT_HW = (288, 512)
@@ -70,3 +72,62 @@ def resized_model(src: Path, hw: tuple[int, int], folder: Path) -> Path:
     return out
 
 
+
+
+def any_size_model(src: Path, out: Path, default_hw: tuple[int, int] = RSU_INPUT_HW) -> Path:
+    """``src`` saved with a symbolic input [1, 3, height, width] (and output [1, anchors, C]), so that one file runs
+    at any input whose sides are multiples of 32: its two FPN upsamplings (``Resize``, nearest, asymmetric, floor),
+    traced with a constant output size, are given the equivalent constant scale 2 instead. The RSU letterboxes only
+    the part of the frame where its zone of responsibility lies (``rsu.detect_roi``) at the input that part needs;
+    ``default_hw`` (metadata ``input_hw``) is the input for a whole 1280x720 frame. Same weights and the same outputs
+    as :func:`resized_model` at every size (``tests/rsu/test_resize_detector.py``)."""
+    try:
+        import onnx
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise SystemExit("re-declaring the detector's input needs the onnx package (pip install onnx; dev extra)") from e
+    from onnx import numpy_helper
+
+    model = onnx.load(str(src))
+    dims = model.graph.input[0].type.tensor_type.shape.dim
+    if len(dims) != 4:
+        raise ValueError(f"{src.name}: expected a [1, 3, h, w] input, got {len(dims)} dimensions")
+    resizes = [n for n in model.graph.node if n.op_type == "Resize"]
+    for k, resize in enumerate(resizes):
+        modes = {a.name: a.s.decode() for a in resize.attribute if a.type == onnx.AttributeProto.STRING}
+        if modes.get("mode") != "nearest" or modes.get("coordinate_transformation_mode") != "asymmetric":
+            raise ValueError(f"{src.name}: Resize {resize.name} is not a nearest, asymmetric upsampling")
+        if len(resize.input) == 3 and resize.input[2]:
+            continue  # given by scale already (a model made by this function)
+        name = f"any_size_upsample_scales_{k}"
+        model.graph.initializer.append(numpy_helper.from_array(np.array([1.0, 1.0, 2.0, 2.0], np.float32), name))
+        x = resize.input[0]
+        del resize.input[:]
+        resize.input.extend([x, "", name])
+    _drop_unused_nodes(model.graph)
+    dims[2].ClearField("dim_value")
+    dims[3].ClearField("dim_value")
+    dims[2].dim_param, dims[3].dim_param = "height", "width"
+    anchors_dim = model.graph.output[0].type.tensor_type.shape.dim[1]
+    anchors_dim.ClearField("dim_value")
+    anchors_dim.dim_param = "anchors"
+    del model.graph.value_info[:]
+    meta = {p.key: p for p in model.metadata_props}
+    if "input_hw" not in meta:
+        meta["input_hw"] = model.metadata_props.add()
+        meta["input_hw"].key = "input_hw"
+    meta["input_hw"].value = f"{default_hw[0]},{default_hw[1]}"
+    onnx.checker.check_model(model)
+    onnx.save(model, str(out))
+    return out
+
+
+def _drop_unused_nodes(graph) -> None:
+    """Remove the nodes whose outputs nothing reads (the traced upsampling sizes), until none is left."""
+    outputs = {o.name for o in graph.output}
+    while True:
+        used = outputs | {i for n in graph.node for i in n.input}
+        dead = [n for n in graph.node if not any(o in used for o in n.output)]
+        if not dead:
+            return
+        for n in dead:
+            graph.node.remove(n)

@@ -403,12 +403,12 @@ def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, 
             print(f"time budget {time_budget_s:.0f} s reached at iteration {it}", flush=True)
             break
     export_onnx(model, out_path, input_hw)
-    if rsu_input_hw is not None and tuple(rsu_input_hw) != tuple(input_hw):
-        from models.resize_detector import resized_model
+    if rsu_input_hw is not None:
+        from models.resize_detector import any_size_model
 
-        resized_model(out_path, tuple(rsu_input_hw), out_path)
-        print(f"{out_path}: input re-declared at {rsu_input_hw[0]}x{rsu_input_hw[1]} (trained at "
-              f"{input_hw[0]}x{input_hw[1]})", flush=True)
+        any_size_model(out_path, out_path, tuple(rsu_input_hw))
+        print(f"{out_path}: any input size, {rsu_input_hw[0]}x{rsu_input_hw[1]} for a whole frame (trained at "
+              f"{input_hw[0]}x{input_hw[1]}; an RSU letterboxes only its zone: rsu.detect_roi)", flush=True)
     return model
 
 

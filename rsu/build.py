@@ -24,6 +24,7 @@ from rsu.classify.body import load_body_classifier
 from rsu.classify.classifiers import load_classifier
 from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, vehicle_detector
+from rsu.detect_roi import ROI_MARGIN_M, detection_roi, zone_box_px
 from rsu.frames import FrameSource, ImageFolderSource, VideoSource
 from rsu.hazard import HazardDetector
 from rsu.localize import INTERPOLATIONS, METHODS, Localizer
@@ -62,6 +63,9 @@ class PipelineConfig:
     localization: str = "transform"
     """``transform``: ray-plane back-projection; ``reference``: interpolate the calibration pairs."""
     interpolation: str = "homography+rbf"
+    detect_roi: bool = True
+    """An ONNX detector of any input size searches only the part of the frame where the RSU's zone of
+    responsibility (``max_range_m`` + ``rsu.detect_roi.ROI_MARGIN_M``) lies (needs the camera's calibration)."""
     ev_classifier: bool = True
     """Per-track lamp evidence (:class:`~rsu.classify.ev.TrackEvClassifier`) and EV alerts."""
     ev_body: str | None = "default"
@@ -88,18 +92,27 @@ class PipelineConfig:
             raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
 
 
-def build_detector(config: PipelineConfig) -> Detector:
+def build_detector(config: PipelineConfig, corridor: Corridor | None = None, rsu_id: str | None = None) -> Detector:
     """The configured detector; an ONNX model runs as an RSU runs it (:func:`rsu.detect.vehicle_detector`:
-    in Framework B a project-layout model scores its two classes as one). Raises FileNotFoundError for a
-    missing model."""
+    in Framework B a project-layout model scores its two classes as one). Given the corridor and the RSU, a model
+    of any input size searches only where the RSU's zone of responsibility lies in its frame (``detect_roi``,
+    :mod:`rsu.detect_roi`). Raises FileNotFoundError for a missing model."""
     if config.detector == MOTION:
         return MotionDetector(min_area_px=config.motion_min_area_px)
     providers = config.providers
     if isinstance(providers, tuple):
         providers = list(providers)
     model = PROJECT_MODEL if config.detector == PROJECT else Path(config.detector)
-    return vehicle_detector(model, framework=config.framework, score_threshold=config.score_threshold,
-                            providers=providers, intra_op_threads=config.threads)
+    det = vehicle_detector(model, framework=config.framework, score_threshold=config.score_threshold,
+                           providers=providers, intra_op_threads=config.threads)
+    if config.detect_roi and corridor is not None and rsu_id is not None and det.any_input_size:
+        rsu = corridor.rsu(rsu_id)
+        if rsu.max_range_m is not None:
+            cam = rsu.camera
+            box = zone_box_px(cam, corridor.road, rsu.position, rsu.max_range_m + ROI_MARGIN_M)
+            scale = min(det.input_hw[0] / cam.height_px, det.input_hw[1] / cam.width_px)
+            det.roi, det.input_hw = detection_roi(box, (cam.width_px, cam.height_px), scale)
+    return det
 
 
 def build_tracker(config: PipelineConfig) -> FrameworkTracker:
@@ -150,7 +163,7 @@ def build_pipeline(config: PipelineConfig, corridor: Corridor | None = None, rsu
             raise ValueError("build_pipeline needs the corridor and the RSU id, or a localizer")
         localizer = Localizer(corridor, rsu_id, method=config.localization, interpolation=config.interpolation)
     hazards = build_hazards(config, corridor, rsu_id, localizer) if config.hazards else None
-    return RsuPipeline(build_detector(config), build_tracker(config), localizer,
+    return RsuPipeline(build_detector(config, corridor, rsu_id), build_tracker(config), localizer,
                        build_classifier(config, corridor, rsu_id), hazards=hazards)
 
 

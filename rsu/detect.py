@@ -176,7 +176,8 @@ class OnnxDetector:
                  class_map: Mapping[int, int] | None = None, classes_wanted: Sequence[int] | None = None,
                  score_threshold: float = 0.3, nms_threshold: float = 0.45, decoded: bool = False,
                  providers: Sequence[str] | str | None = None, intra_op_threads: int | None = None,
-                 input_size: tuple[int, int] | None = None, warmup_runs: int = 1, name: str | None = None) -> None:
+                 input_size: tuple[int, int] | None = None, warmup_runs: int = 1, name: str | None = None,
+                 roi: tuple[int, int, int, int] | None = None) -> None:
         import onnxruntime as ort
 
         path = Path(model_path)
@@ -203,12 +204,20 @@ class OnnxDetector:
         out = self.session.get_outputs()[0]
         self.input_name, self.output_name = inp.name, out.name
         shape = inp.shape
+        declared = self.session.get_modelmeta().custom_metadata_map.get("input_hw")
         if input_size is not None:
             self.input_hw = tuple(input_size)
         elif len(shape) == 4 and all(isinstance(d, int) for d in shape[2:]):
             self.input_hw = (int(shape[2]), int(shape[3]))
+        elif declared:  # a model of any input size (models.resize_detector.any_size_model) names its default
+            self.input_hw = tuple(int(v) for v in declared.split(","))
         else:
             self.input_hw = (416, 416)
+        if roi is not None and (len(roi) != 4 or roi[2] <= roi[0] or roi[3] <= roi[1] or min(roi) < 0):
+            raise ValueError(f"roi must be x1, y1, x2, y2 pixels with x2 > x1 >= 0 and y2 > y1 >= 0, got {roi}")
+        self.roi = None if roi is None else tuple(int(v) for v in roi)
+        """The part of the frame that is letterboxed and searched (x1, y1, x2, y2 pixels; None: all of it): an RSU
+        searches only where its zone of responsibility lies in the image (``rsu.detect_roi``)."""
         columns = out.shape[-1] if out.shape and isinstance(out.shape[-1], int) else None
         if layout is None:
             layout = {85: "yolox-coco", 7: "project"}.get(columns or 0)
@@ -229,6 +238,12 @@ class OnnxDetector:
             self.session.run([self.output_name], {self.input_name: np.full((1, 3, *self.input_hw), PAD_VALUE,
                                                                             np.float32)})
 
+    @property
+    def any_input_size(self) -> bool:
+        """Does the model take any input size (symbolic height and width), so that ``input_hw`` and ``roi`` may be
+        changed after loading?"""
+        return not all(isinstance(d, int) for d in self.session.get_inputs()[0].shape[2:])
+
     def raw_output(self, blob: np.ndarray) -> np.ndarray:
         """Model output (A, 5+C) for one letterboxed blob (batch of one)."""
         out = self.session.run([self.output_name], {self.input_name: blob})[0]
@@ -236,12 +251,19 @@ class OnnxDetector:
 
     def detect(self, image: np.ndarray) -> Detections:
         image = _image_of(image)
+        x0 = y0 = 0
+        if self.roi is not None:  # the ROI (cut to the image) is letterboxed; boxes go back to frame pixels
+            x0, y0 = min(self.roi[0], image.shape[1] - 1), min(self.roi[1], image.shape[0] - 1)
+            image = image[y0:self.roi[3], x0:self.roi[2]]
         blob, ratio = letterbox(image, self.input_hw)
         rows = self.raw_output(blob)
         if not self.decoded:
             rows = decode_yolox(rows, self.input_hw)
-        return postprocess(rows, ratio, (image.shape[1], image.shape[0]), self.class_map, self.score_threshold,
-                           self.nms_threshold, self.classes_wanted)
+        found = postprocess(rows, ratio, (image.shape[1], image.shape[0]), self.class_map, self.score_threshold,
+                            self.nms_threshold, self.classes_wanted)
+        if (x0 or y0) and len(found):
+            found = Detections(found.boxes + np.array([x0, y0, x0, y0], np.float32), found.scores, found.classes)
+        return found
 
 
 # ----------------------------------------------------------------------------- motion detector

@@ -35,3 +35,18 @@ def test_resized_model_detects_like_the_shipped_one_at_its_size_and_runs_smaller
     trained = OnnxDetector(resized_model(PROJECT_MODEL, (384, 640), tmp_path), score_threshold=0.01)
     assert trained.raw_output(np.full((1, 3, 384, 640), 114.0, np.float32)).shape == (5040, 7)
     assert len(trained.detect(image))  # back at the training size, the same weights still find the block
+
+
+def test_the_any_size_model_gives_the_outputs_of_the_model_re_declared_at_each_size(tmp_path):
+    """The shipped model takes any input (models.resize_detector.any_size_model: the FPN's traced upsampling sizes
+    given as scale 2): at every size it computes what the model re-declared at that size computes."""
+    from models.resize_detector import any_size_model
+
+    again = OnnxDetector(any_size_model(PROJECT_MODEL, tmp_path / "any.onnx"), warmup_runs=0)
+    assert again.any_input_size and again.input_hw == RSU_INPUT_HW
+    rng = np.random.default_rng(3)
+    for hw in ((288, 512), (224, 352), (384, 640)):
+        fixed = OnnxDetector(resized_model(PROJECT_MODEL, hw, tmp_path), warmup_runs=0)
+        assert not fixed.any_input_size
+        blob = rng.uniform(0, 255, (1, 3, *hw)).astype(np.float32)
+        np.testing.assert_allclose(again.raw_output(blob), fixed.raw_output(blob), atol=1e-5)
