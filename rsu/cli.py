@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="EV-body classifier trained on real vehicles (issue 17): default (models/ev_body.onnx), "
                          "none, or PATH.onnx. It scores a track only while its lamps are lit, a few times a second; "
                          "a steady lit roof bar raises an alert only with a confident EV body")
+    ap.add_argument("--whole-frame", action="store_true",
+                    help="search the whole frame for vehicles; by default a detector of any input size (the "
+                         "project's) letterboxes only the part of the frame where this RSU's zone of responsibility "
+                         "lies (max_range_m + 15 m of road, from the corridor file's calibration; rsu.detect_roi)")
     ap.add_argument("--ev-box-gate", action="store_true",
                     help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
                          "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
@@ -211,7 +215,7 @@ def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
         providers=providers, threads=args.threads, framework=args.framework, max_age=args.max_age,
         min_hits=args.min_hits, iou_threshold=args.iou_threshold, localization=args.localization,
         interpolation=args.interpolation, ev_classifier=args.ev_classifier == "lamps", ev_body=args.ev_body,
-        ev_crop_classifier=args.ev_crop_classifier, ev_box_gate=args.ev_box_gate,
+        ev_crop_classifier=args.ev_crop_classifier, ev_box_gate=args.ev_box_gate, detect_roi=not args.whole_frame,
         hazards=args.hazards == "static", hazard_background=args.hazard_background)
 
 

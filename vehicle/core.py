@@ -20,13 +20,14 @@ The closed loop of the simulator, the tests and the service (plant, simulated se
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
 from vehicle.commands import CommandBook, CommandLimits, Decision
 from vehicle.failsafe import FailsafeConfig, Watchdog
+from vehicle.forward_guard import braking_for_lead, guarded_accel, lead_vehicle
 from vehicle.lateral import LateralController, LateralGains, LateralOutput
 from vehicle.localisation import (
     Fix,
@@ -38,6 +39,9 @@ from vehicle.reference import ReferencePath, lane_centre_waypoints, offset_chang
 
 ROAD_END_MARGIN_M = 10.0
 PICTURE_MAX_AGE_S = 2.0
+GUARD_PICTURE_AGE_S = 0.5
+"""The forward guard uses only objects reported this recently (positions moved on at their velocity)."""
+OWN_CHECK_M = 3.0
 """The car's picture (objects the RSUs reported) counts for the fail-safe's curb check this long."""
 MRM_LAT_ACCEL_MPS2 = 2.0
 MRM_MAX_CURVATURE_1PM = 0.08
@@ -94,8 +98,9 @@ class VehicleCore:
         self._lane_paths: dict[int, ReferencePath] = {}
         self._vy = 0.0
         self._accel = 0.0
-        self.pictures: dict[str, tuple[float, list[tuple[float, float, float, float]]]] = {}
-        """Per source (RSU): (time, [(x, y, length, width)]) of the objects it last reported (``on_picture``)."""
+        self.pictures: dict[str, tuple[float, list[tuple[float, ...]]]] = {}
+        """Per source (RSU): (time, [(x, y, length, width[, vx, vy])]) of the objects it last reported
+        (``on_picture``)."""
         self._detail_undegraded: str | None = None
         self.mrm_where = ""
         """Where the minimal-risk stop ends: at the curb, or in its lane when the curb side was occupied."""
@@ -144,10 +149,33 @@ class VehicleCore:
         """A valid, authenticated DDM heartbeat heard."""
         self.watchdog.link_seen(now_s)
 
-    def on_picture(self, now_s: float, objects: list[tuple[float, float, float, float]], source: str = "") -> None:
-        """The objects (x, y, length, width) of one source's (an RSU's) latest report: the car's picture of
-        its surroundings, for the fail-safe's curb check (the car itself is among them and is left out)."""
+    def on_picture(self, now_s: float, objects: list[tuple[float, ...]], source: str = "") -> None:
+        """The objects (x, y, length, width[, vx, vy]) of one source's (an RSU's) latest report: the car's picture
+        of its surroundings, for the fail-safe's curb check and the forward guard (the car itself is among them and
+        is left out)."""
         self.pictures[source] = (now_s, list(objects))
+
+    def lead_braking_mps2(self, now_s: float, speed_mps: float) -> float:
+        """Deceleration needed not to run into the nearest vehicle ahead in the car's last picture
+        (``vehicle.forward_guard``): objects reported within ``GUARD_PICTURE_AGE_S``, moved on at their reported
+        velocity to now; only those within the car's braking reach ahead of it are placed on the road."""
+        x, y, yaw = self.estimator.pose
+        reach = 10.0 + speed_mps * speed_mps / 2.0
+        c, s = math.cos(yaw), math.sin(yaw)
+        near = []
+        for t, objects in self.pictures.values():
+            age = now_s - t
+            if age > GUARD_PICTURE_AGE_S:
+                continue
+            for o in objects:
+                ox, oy = (o[0] + o[4] * age, o[1] + o[5] * age) if len(o) >= 6 else (o[0], o[1])
+                dx, dy = ox - x, oy - y
+                if dx * c + dy * s > -OWN_CHECK_M and dx * dx + dy * dy <= reach * reach:
+                    near.append((ox, oy, *o[2:]))
+        if not near:
+            return 0.0
+        lead = lead_vehicle(near, self.road, x, y, self.config.params.length_m, self.config.params.width_m)
+        return 0.0 if lead is None else braking_for_lead(speed_mps, *lead)
 
     def curb_offset_m(self) -> float:
         """Lateral offset d of the minimal-risk stop: the middle of the shoulder when the car fits on it
@@ -280,6 +308,10 @@ class VehicleCore:
             target = min(target, self.config.failsafe.degraded_speed_mps)
         self.longitudinal.plan_decel_mps2 = self.plan_decel_mps2
         lon = self.longitudinal.step(speed_mps, target, dist, ff)
+        accel = guarded_accel(lon.accel_cmd_mps2, self.lead_braking_mps2(now_s, speed_mps),
+                              self.longitudinal.emergency_decel_mps2)
+        if accel < lon.accel_cmd_mps2:  # the vehicle ahead needs harder braking than the plan (vehicle.forward_guard)
+            lon = replace(lon, accel_cmd_mps2=accel, emergency=True)
         decisions += self._progress(lat, speed_mps, dist)
         out = ControlOutput(now_s, lat.steer_cmd_rad, lon.accel_cmd_mps2, lat, lon, self.mode, tuple(decisions))
         self.last = out

@@ -280,8 +280,8 @@ class VehicleService:
             elif kind == "alert":
                 self._hear_alert(*msg, now_s)
             elif kind == "rsu":
-                core.on_picture(now_s, [(o.pos_x_m, o.pos_y_m, o.length_m, o.width_m) for o in msg.objects],
-                                msg.rsu_id)
+                core.on_picture(now_s, [(o.pos_x_m, o.pos_y_m, o.length_m, o.width_m, o.vel_x_mps, o.vel_y_mps)
+                                        for o in msg.objects], msg.rsu_id)
                 if self.localisation in ("rsu", "both"):
                     self._rsu_fix(msg)
 

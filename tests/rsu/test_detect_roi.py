@@ -75,3 +75,11 @@ def _iou(box, boxes):
     inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
     area = lambda b: (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])  # noqa: E731
     return inter / (area(box) + area(boxes) - inter)
+
+
+def test_the_rsu_cli_searches_its_zone_unless_told_the_whole_frame():
+    from rsu.cli import build_parser, pipeline_config
+
+    base = ["--rsu", "rsu1", "--source", "sim"]
+    assert pipeline_config(build_parser().parse_args(base)).detect_roi
+    assert not pipeline_config(build_parser().parse_args([*base, "--whole-frame"])).detect_roi
