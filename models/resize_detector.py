@@ -34,10 +34,8 @@ def anchors(hw: tuple[int, int], strides=YOLOX_STRIDES) -> int:
     return sum((hw[0] // s) * (hw[1] // s) for s in strides)
 
 
-def resized_model(src: Path, hw: tuple[int, int], folder: Path) -> Path:
-    """``src`` with its declared input [1, 3, h, w] and output [1, anchors, C] (intermediate shapes dropped: the
-    runtime infers them), saved in ``folder`` as ``<stem>_<h>x<w>.onnx`` (or at ``folder`` when it ends in .onnx);
-    the weights and nodes are unchanged."""
+def _load_model(src: Path):
+    """The ``onnx`` module, its ``numpy_helper``, the model at ``src`` and its input's four dimensions."""
     try:
         import onnx
     except ImportError as e:  # pragma: no cover - depends on the environment
@@ -48,6 +46,14 @@ def resized_model(src: Path, hw: tuple[int, int], folder: Path) -> Path:
     dims = model.graph.input[0].type.tensor_type.shape.dim
     if len(dims) != 4:
         raise ValueError(f"{src.name}: expected a [1, 3, h, w] input, got {len(dims)} dimensions")
+    return onnx, numpy_helper, model, dims
+
+
+def resized_model(src: Path, hw: tuple[int, int], folder: Path) -> Path:
+    """``src`` with its declared input [1, 3, h, w] and output [1, anchors, C] (intermediate shapes dropped: the
+    runtime infers them), saved in ``folder`` as ``<stem>_<h>x<w>.onnx`` (or at ``folder`` when it ends in .onnx);
+    the weights and nodes are unchanged."""
+    onnx, numpy_helper, model, dims = _load_model(src)
     old_hw = (dims[2].dim_value, dims[3].dim_value)
     dims[2].dim_value, dims[3].dim_value = hw
     # the FPN's upsampling (Resize) was traced with its output size as a constant [h, w] (concatenated after the
@@ -81,16 +87,7 @@ def any_size_model(src: Path, out: Path, default_hw: tuple[int, int] = RSU_INPUT
     the part of the frame where its zone of responsibility lies (``rsu.detect_roi``) at the input that part needs;
     ``default_hw`` (metadata ``input_hw``) is the input for a whole 1280x720 frame. Same weights and the same outputs
     as :func:`resized_model` at every size (``tests/rsu/test_resize_detector.py``)."""
-    try:
-        import onnx
-    except ImportError as e:  # pragma: no cover - depends on the environment
-        raise SystemExit("re-declaring the detector's input needs the onnx package (pip install onnx; dev extra)") from e
-    from onnx import numpy_helper
-
-    model = onnx.load(str(src))
-    dims = model.graph.input[0].type.tensor_type.shape.dim
-    if len(dims) != 4:
-        raise ValueError(f"{src.name}: expected a [1, 3, h, w] input, got {len(dims)} dimensions")
+    onnx, numpy_helper, model, dims = _load_model(src)
     resizes = [n for n in model.graph.node if n.op_type == "Resize"]
     for k, resize in enumerate(resizes):
         modes = {a.name: a.s.decode() for a in resize.attribute if a.type == onnx.AttributeProto.STRING}
