@@ -3,8 +3,9 @@
     python bench/detector_size_bench.py [--quick] [--json] [--scales 0.5 0.45 0.4 0.35 0.3 0.25]
 
 ``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but saved with a fixed
-input: trained at [1, 3, 384, 640] (the 1280x720 frame letterboxed at scale 0.5), shipped at the size this bench
-chose (``models.resize_detector.RSU_INPUT_HW``, 288x512). For each scale s the same weights are saved with the input
+input: trained at [1, 3, 384, 640] (the 1280x720 frame letterboxed at scale 0.5); shipped at any input size, each RSU
+searching its zone of responsibility at scale 0.5 (``rsu.detect_roi``; the eighth session had chosen 288x512, scale
+0.4, here, which missed falling debris in ``bench/hazard_bench.py``). For each scale s the same weights are saved with the input
 ceil(1280 s / 32) 32 x ceil(720 s / 32) 32 (strides 8/16/32 need multiples of 32) and its anchor count, in a
 temporary folder (``models.resize_detector.resized_model``: the ``onnx`` package edits the graph's declared shapes;
 nothing else changes), and run exactly as an RSU runs the shipped model (``rsu.build``: Framework B, score threshold

@@ -1,10 +1,11 @@
 """The project detector re-declared at another input size (issue 19, point 3): same weights, same nodes.
 
 ``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but exported with a fixed
-input. ``resized_model`` saves it with the input [1, 3, h, w] and its anchor count; ``input_hw`` is the input that
-holds the 1280x720 frame letterboxed at a scale (strides 8/16/32 need multiples of 32). The training script
-exports through it at ``RSU_INPUT_HW``, the size ``bench/detector_size_bench.py`` chose; the bench measures every
-size with it. Needs the ``onnx`` package (dev and train extras); the runtime only loads the result.
+input. ``resized_model`` saves it with the input [1, 3, h, w] and its anchor count (``bench/detector_size_bench.py``
+measures every size with it); ``input_hw`` is the input that holds the 1280x720 frame letterboxed at a scale (strides
+8/16/32 need multiples of 32). ``any_size_model`` saves it with a symbolic input, as shipped: the training script
+exports through it with ``RSU_INPUT_HW`` as the default, and each RSU letterboxes only its zone of responsibility at
+that scale (``rsu.detect_roi``). Needs the ``onnx`` package (dev and train extras); the runtime only loads the result.
 """
 
 from __future__ import annotations
@@ -16,9 +17,12 @@ import numpy as np
 
 from rsu.detect import YOLOX_STRIDES
 
-RSU_INPUT_HW = (288, 512)
-"""The input the RSUs run: the frame letterboxed at scale 0.4, the smallest whose MOTA stays >= 0.9
-(``bench/detector_size_bench.py``; the network is trained at 384x640)."""
+RSU_INPUT_HW = (384, 640)
+"""A whole 1280x720 frame at the scale the network is trained at (0.5): the model's default input (metadata
+``input_hw``). An RSU letterboxes only its zone of responsibility at that scale (``rsu.detect_roi``: 288x448 on the
+RELLIS cameras). The eighth session ran the whole frame at 0.4 (288x512: MOTA 0.923, ``bench/detector_size_bench.py``);
+the ninth found that smaller scale missed debris falling off a truck (``bench/hazard_bench.py``, hazard_falls seed 102:
+the AV drove into it), which scale 0.5 finds."""
 FRAME_WH = (1280, 720)
 
 

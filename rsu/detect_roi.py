@@ -3,9 +3,10 @@
 An RSU reports nothing farther than ``max_range_m`` from its mast (the next RSU covers it), and vehicles drive on
 the road; from an elevated camera the road within that range is about half of the 1280x720 frame (the sky, the far
 road and the verges are the rest). So the project detector letterboxes only that part, at the pixel scale it runs
-at on the whole frame (0.4: the same vehicles in the same pixels), and its input shrinks with it: 224x352 instead of
-288x512 on the RELLIS corridor's cameras, about 40 % less CPU per frame on two cores, where four RSUs, the
-simulator, the DDM and the vehicle share one machine.
+at on the whole frame (0.5, its training scale: the same vehicles in the same pixels), and its input shrinks with it:
+288x448 instead of 384x640 on the RELLIS corridor's cameras, about 45 % less CPU per frame on two cores, where four
+RSUs, the simulator, the DDM and the vehicle share one machine; cheaper than the whole frame at 0.4 (288x512), which
+missed falling debris (``models.resize_detector.RSU_INPUT_HW``).
 
 :func:`zone_box_px` is the image box of the road (its lanes and shoulders, 1 m beyond) within a range of the mast,
 from the ground up to the top of a tall vehicle, projected with the RSU's own calibration (no ground truth);
@@ -27,8 +28,8 @@ ROI_MARGIN_M = 15.0
 tracked (SORT reports a track after 3 hits) and the benches' 100 m scoring zone (``ZONE_M``) is covered."""
 VEHICLE_TOP_M = 4.5
 """The top of the tallest vehicle (a truck or a bus with its light bar) above the road."""
-PROJECT_SCALE = 0.4
-"""The letterbox scale the project detector runs at (a 1280x720 frame in its 288x512 input)."""
+PROJECT_SCALE = 0.5
+"""The letterbox scale the project detector runs at (a 1280x720 frame in its 384x640 input, the training scale)."""
 
 
 def zone_box_px(camera: CameraConfig, road: Road, mast_xy: tuple[float, float], range_m: float, *,

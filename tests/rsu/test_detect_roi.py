@@ -53,8 +53,8 @@ def test_the_rsu_detector_finds_in_its_window_what_the_whole_frame_finds_there()
     whole = build_detector(PipelineConfig(detect_roi=False), CORRIDOR, "rsu1")
     rsu = CORRIDOR.rsu("rsu1")
     box = zone_box_px(rsu.camera, CORRIDOR.road, rsu.position, rsu.max_range_m + ROI_MARGIN_M)
-    assert windowed.roi == detection_roi(box, (1280, 720), PROJECT_SCALE)[0] and windowed.input_hw == (224, 352)
-    assert whole.roi is None and whole.input_hw == (288, 512)
+    assert windowed.roi == detection_roi(box, (1280, 720), PROJECT_SCALE)[0] and windowed.input_hw == (288, 448)
+    assert whole.roi is None and whole.input_hw == (384, 640)
     x1, y1, x2, y2 = windowed.roi
     found = matched = 0
     for frame in clip.frames[::5]:

@@ -12,7 +12,8 @@ pytest.importorskip("onnx", reason="the onnx package (dev extra) is needed to re
 
 def test_input_sizes_hold_the_letterboxed_frame_in_multiples_of_32():
     assert input_hw(0.5) == (384, 640) and anchors((384, 640)) == 5040  # the training size
-    assert input_hw(0.4) == (288, 512) == RSU_INPUT_HW and input_hw(0.3) == (224, 384)  # the shipped size
+    assert input_hw(0.5) == RSU_INPUT_HW  # a whole frame at the training scale: the shipped model's default input
+    assert input_hw(0.4) == (288, 512) and input_hw(0.3) == (224, 384)
     with pytest.raises(ValueError):
         input_hw(0.0)
 

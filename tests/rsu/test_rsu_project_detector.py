@@ -36,11 +36,11 @@ def held_out():
 def test_model_has_the_project_layout():
     det = OnnxDetector(MODEL, warmup_runs=0)
     assert det.layout == "project"
-    assert det.input_hw == (288, 512)  # trained at 384x640, a whole frame at the size bench/detector_size_bench.py chose
+    assert det.input_hw == (384, 640)  # a whole frame at the training scale; an RSU searches its zone at that scale
     assert det.any_input_size  # an RSU letterboxes only its zone (rsu.detect_roi) at the input that needs
     out = det.session.get_outputs()[0].shape
     assert out[-1] == 5 + len(PROJECT_CLASSES)
-    for hw in ((288, 512), (224, 352)):
+    for hw in ((384, 640), (288, 448), (224, 352)):
         rows = det.raw_output(np.full((1, 3, *hw), 114.0, np.float32))
         assert rows.shape == (len(yolox_grids(hw)[0]), 5 + len(PROJECT_CLASSES))
     assert MODEL.stat().st_size < 5e6
