@@ -59,7 +59,10 @@ def test_the_rsu_detector_finds_in_its_window_what_the_whole_frame_finds_there()
     found = matched = 0
     for frame in clip.frames[::5]:
         a, b = whole.detect(frame.image), windowed.detect(frame.image)
-        inside = (a.boxes[:, 0] >= x1 + 8) & (a.boxes[:, 1] >= y1 + 8) & (a.boxes[:, 2] <= x2 - 8)
+        # away from the window's edges (40 px): there the network sees the window's border padding, not the road
+        # beyond it, and at scale 0.5 the window's grid is not the whole frame's (144 px down: 72 input px, not a
+        # multiple of the 32-px stride), so boxes near an edge may differ
+        inside = (a.boxes[:, 0] >= x1 + 40) & (a.boxes[:, 1] >= y1 + 40) & (a.boxes[:, 2] <= x2 - 40)
         for box_a in a.boxes[inside]:
             found += 1
             ious = _iou(box_a, b.boxes)
