@@ -111,7 +111,7 @@ def build_detector(config: PipelineConfig, corridor: Corridor | None = None, rsu
             cam = rsu.camera
             box = zone_box_px(cam, corridor.road, rsu.position, rsu.max_range_m + ROI_MARGIN_M)
             scale = min(det.input_hw[0] / cam.height_px, det.input_hw[1] / cam.width_px)
-            det.roi, det.input_hw = detection_roi(box, (cam.width_px, cam.height_px), scale)
+            det.search_window(*detection_roi(box, (cam.width_px, cam.height_px), scale))
     return det
 
 

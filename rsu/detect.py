@@ -176,8 +176,7 @@ class OnnxDetector:
                  class_map: Mapping[int, int] | None = None, classes_wanted: Sequence[int] | None = None,
                  score_threshold: float = 0.3, nms_threshold: float = 0.45, decoded: bool = False,
                  providers: Sequence[str] | str | None = None, intra_op_threads: int | None = None,
-                 input_size: tuple[int, int] | None = None, warmup_runs: int = 1, name: str | None = None,
-                 roi: tuple[int, int, int, int] | None = None) -> None:
+                 input_size: tuple[int, int] | None = None, warmup_runs: int = 1, name: str | None = None) -> None:
         import onnxruntime as ort
 
         path = Path(model_path)
@@ -213,11 +212,9 @@ class OnnxDetector:
             self.input_hw = tuple(int(v) for v in declared.split(","))
         else:
             self.input_hw = (416, 416)
-        if roi is not None and (len(roi) != 4 or roi[2] <= roi[0] or roi[3] <= roi[1] or min(roi) < 0):
-            raise ValueError(f"roi must be x1, y1, x2, y2 pixels with x2 > x1 >= 0 and y2 > y1 >= 0, got {roi}")
-        self.roi = None if roi is None else tuple(int(v) for v in roi)
+        self.roi: tuple[int, int, int, int] | None = None
         """The part of the frame that is letterboxed and searched (x1, y1, x2, y2 pixels; None: all of it): an RSU
-        searches only where its zone of responsibility lies in the image (``rsu.detect_roi``)."""
+        searches only where its zone of responsibility lies in the image (``search_window``, ``rsu.detect_roi``)."""
         columns = out.shape[-1] if out.shape and isinstance(out.shape[-1], int) else None
         if layout is None:
             layout = {85: "yolox-coco", 7: "project"}.get(columns or 0)
@@ -243,6 +240,16 @@ class OnnxDetector:
         """Does the model take any input size (symbolic height and width), so that ``input_hw`` and ``roi`` may be
         changed after loading?"""
         return not all(isinstance(d, int) for d in self.session.get_inputs()[0].shape[2:])
+
+    def search_window(self, roi: tuple[int, int, int, int], input_hw: tuple[int, int]) -> None:
+        """Letterbox only ``roi`` (x1, y1, x2, y2 pixels) of each frame, at the model input ``input_hw``; needs a model
+        of any input size."""
+        if not self.any_input_size:
+            raise ValueError(f"{self.name}: the model has a fixed input {self.input_hw}; a search window needs a model "
+                             "of any input size (models.resize_detector.any_size_model)")
+        if len(roi) != 4 or roi[2] <= roi[0] or roi[3] <= roi[1] or min(roi) < 0:
+            raise ValueError(f"roi must be x1, y1, x2, y2 pixels with x2 > x1 >= 0 and y2 > y1 >= 0, got {roi}")
+        self.roi, self.input_hw = tuple(int(v) for v in roi), tuple(int(v) for v in input_hw)
 
     def raw_output(self, blob: np.ndarray) -> np.ndarray:
         """Model output (A, 5+C) for one letterboxed blob (batch of one)."""

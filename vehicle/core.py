@@ -27,7 +27,7 @@ import numpy as np
 from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
 from vehicle.commands import CommandBook, CommandLimits, Decision
 from vehicle.failsafe import FailsafeConfig, Watchdog
-from vehicle.forward_guard import braking_for_lead, guarded_accel, lead_vehicle
+from vehicle.forward_guard import OWN_RADIUS_M, braking_for_lead, guarded_accel, lead_vehicle
 from vehicle.lateral import LateralController, LateralGains, LateralOutput
 from vehicle.localisation import (
     Fix,
@@ -41,7 +41,6 @@ ROAD_END_MARGIN_M = 10.0
 PICTURE_MAX_AGE_S = 2.0
 GUARD_PICTURE_AGE_S = 0.5
 """The forward guard uses only objects reported this recently (positions moved on at their velocity)."""
-OWN_CHECK_M = 3.0
 """The car's picture (objects the RSUs reported) counts for the fail-safe's curb check this long."""
 MRM_LAT_ACCEL_MPS2 = 2.0
 MRM_MAX_CURVATURE_1PM = 0.08
@@ -170,7 +169,7 @@ class VehicleCore:
             for o in objects:
                 ox, oy = (o[0] + o[4] * age, o[1] + o[5] * age) if len(o) >= 6 else (o[0], o[1])
                 dx, dy = ox - x, oy - y
-                if dx * c + dy * s > -OWN_CHECK_M and dx * dx + dy * dy <= reach * reach:
+                if dx * c + dy * s > -OWN_RADIUS_M and dx * dx + dy * dy <= reach * reach:
                     near.append((ox, oy, *o[2:]))
         if not near:
             return 0.0
