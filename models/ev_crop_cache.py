@@ -1,0 +1,95 @@
+"""The ``ev_train`` crops in one small file, for training where ``../shared`` is not (a GPU machine).
+
+    python -m models.ev_crop_cache --out CACHE.npz [--data ../shared/data/real/ev_train] [--side 224] [--splits train]
+
+Each crop is taken as the RSU takes it (:func:`rsu.classify.real_data.crop_of`: the box grown 25 % of its height
+upwards), with the label review applied (:func:`rsu.classify.real_data.load_ev_train`), squashed to
+``side`` x ``side`` (the RSU squashes every crop to the classifier's square input, so squashing first loses nothing
+but resolution above ``side``) and stored as a JPEG (quality 85; training adds its own compression anyway). ``--splits train`` keeps the file
+under 30 MB (what a GPU job can carry beside the repository).
+The file holds, per crop: the JPEG bytes, the label, the split (``split_by_group``, seed 17), the source-photo
+group and the crop's teacher key (:func:`models.train_ev_body.teacher_key`). :func:`read_crop_cache` needs only
+numpy and OpenCV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
+
+
+def write_crop_cache(data_root: str | Path, out: str | Path, side: int = 224, quality: int = 85,
+                     splits: tuple[str, ...] = ("train", "val", "test"), log=print) -> int:
+    """Write the cache of the crops in ``splits``; returns the number of crops stored."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from models.train_ev_body import ABOVE_FRACTION, teacher_key
+    from rsu.classify.real_data import crop_of, load_ev_train, split_of
+
+    data_root = Path(data_root)
+    if not data_root.is_dir():
+        raise SystemExit(f"no ev_train folder at {data_root}: pass --data")
+    samples = load_ev_train(data_root)
+    blobs, labels, split_names, groups, keys = [], [], [], [], []
+    t0 = time.time()
+    for i, s in enumerate(samples):
+        if split_of(s.group) not in splits:
+            continue
+        c = crop_of(s, ABOVE_FRACTION)
+        if c is None or min(c.shape[:2]) < 8:
+            continue
+        sq = cv2.resize(c, (side, side), interpolation=cv2.INTER_AREA)
+        ok, enc = cv2.imencode(".jpg", sq, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        if not ok:
+            continue
+        blobs.append(enc.reshape(-1))
+        labels.append(s.label)
+        split_names.append(split_of(s.group))
+        groups.append(s.group)
+        keys.append(teacher_key(s, data_root))
+        if (i + 1) % 500 == 0:
+            log(f"  {i + 1}/{len(samples)} crops ({time.time() - t0:.0f} s)")
+    offsets = np.cumsum([0] + [len(b) for b in blobs]).astype(np.int64)
+    np.savez(out, jpeg=np.concatenate(blobs), offsets=offsets, label=np.asarray(labels, np.int8),
+             split=np.asarray(split_names), group=np.asarray(groups), key=np.asarray(keys), side=np.int32(side))
+    log(f"{len(blobs)} crops -> {out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
+    return len(blobs)
+
+
+def read_crop_cache(path: str | Path) -> dict[str, np.ndarray | list[np.ndarray]]:
+    """``crops`` (uint8 BGR side x side), ``label``, ``split``, ``group``, ``key`` per crop."""
+    z = np.load(path, allow_pickle=False)
+    jpeg, off = z["jpeg"], z["offsets"]
+    crops = [cv2.imdecode(jpeg[off[i]:off[i + 1]], cv2.IMREAD_COLOR) for i in range(len(off) - 1)]
+    if any(c is None for c in crops):
+        raise ValueError(f"{path}: a crop does not decode: write the cache again")
+    return {"crops": crops, "label": z["label"].astype(np.float32), "split": z["split"], "group": z["group"],
+            "key": z["key"]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=str(DEFAULT_DATA), help="the ev_train folder")
+    ap.add_argument("--out", required=True, help="the .npz to write")
+    ap.add_argument("--side", type=int, default=224, help="the square side each crop is stored at (pixels)")
+    ap.add_argument("--quality", type=int, default=85, help="JPEG quality (1-100)")
+    ap.add_argument("--splits", nargs="+", default=["train", "val", "test"], choices=["train", "val", "test"])
+    args = ap.parse_args(argv)
+    if not 32 <= args.side <= 1024:
+        raise SystemExit(f"--side must be 32-1024 pixels, got {args.side}")
+    if not 1 <= args.quality <= 100:
+        raise SystemExit(f"--quality must be 1-100, got {args.quality}")
+    write_crop_cache(args.data, args.out, args.side, args.quality, tuple(args.splits))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
