@@ -55,6 +55,21 @@ def binary_scores(y: np.ndarray, p: np.ndarray, threshold: float = 0.5) -> dict[
             "recall": round(float(recall_score(y, pred, zero_division=0)), 4)}
 
 
+def mean_teacher(keys, own: list[np.ndarray], files: list[str], log=print) -> np.ndarray:
+    """The mean of out-of-fold teacher scores per crop: ``own`` arrays (aligned with ``keys``) and teacher files
+    (key -> p); every file must score every crop."""
+    parts = list(own)
+    for f in files:
+        scores = json.loads(Path(f).read_text())
+        missing = [str(k) for k in keys if str(k) not in scores]
+        if missing:
+            raise SystemExit(f"{f} has no score for {len(missing)} of {len(keys)} crops (e.g. {missing[0]}): "
+                             "it was made from other data")
+        parts.append(np.asarray([scores[str(k)] for k in keys], np.float32))
+        log(f"teacher scores from {f}")
+    return np.mean(parts, axis=0).astype(np.float32)
+
+
 def parse_student(spec: str) -> tuple[int, float]:
     try:
         size_s, weight_s = spec.split(":")
@@ -86,6 +101,10 @@ def main(argv=None) -> int:
     ap.add_argument("--teacher-size", type=int, default=224)
     ap.add_argument("--teacher-epochs", type=int, default=12)
     ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--teacher-json", action="append", default=None,
+                    help="out-of-fold teacher scores made elsewhere (models.ev_body_teacher or an earlier run's "
+                         "teacher.json); repeatable; the students learn from their mean (with --folds 0, no teacher "
+                         "is trained here)")
     ap.add_argument("--student", action="append", default=None,
                     help="SIZE:WEIGHT, a Lite0 student at SIZE px trained on WEIGHT x teacher + (1 - WEIGHT) x label; "
                          "repeatable (default 224:0.5 and 192:0.5)")
@@ -96,8 +115,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     students = [parse_student(s) for s in (args.student or ["224:0.5", "192:0.5"])]
-    if args.folds < 2:
-        raise SystemExit(f"--folds must be at least 2, got {args.folds}")
+    if args.folds == 1 or args.folds < 0 or (args.folds == 0 and not args.teacher_json):
+        raise SystemExit(f"--folds must be 0 (with --teacher-json) or at least 2, got {args.folds}")
 
     import torch
 
@@ -122,11 +141,11 @@ def main(argv=None) -> int:
     x = np.stack([cache["crops"][i] for i in train_idx])
     y = cache["label"][train_idx]
     keys = cache["key"][train_idx]
-    folds = group_folds(cache["group"][train_idx], args.folds, args.seed)
+    folds = group_folds(cache["group"][train_idx], max(args.folds, 1), args.seed)
     log(f"device {device} ({torch.cuda.get_device_name() if device == 'cuda' else 'cpu'}); {len(x)} train crops "
-        f"({int(y.sum())} EV), folds {np.bincount(folds, minlength=args.folds).tolist()}")
+        f"({int(y.sum())} EV), folds {np.bincount(folds, minlength=args.folds).tolist() if args.folds else 'none'}")
 
-    stages = args.folds + len(students)
+    stages = max(args.folds, 0) + len(students)
 
     def stage_budget(done: int) -> float:
         return max(10.0, (args.budget_s - (time.time() - t_start)) / max(stages - done, 1))
@@ -141,11 +160,18 @@ def main(argv=None) -> int:
         oof[~fit] = predict_torch(model, squash(x[~fit], args.teacher_size), device=device)
         log(f"teacher fold {f + 1}/{args.folds}: {binary_scores(y[~fit], oof[~fit])} on its {int((~fit).sum())} "
             f"left-out crops ({time.time() - t_start:.0f} s)")
-    teacher = {str(k): round(float(p), 5) for k, p in zip(keys, oof, strict=True)}
-    (out / "teacher.json").write_text(json.dumps(teacher))
-    summary = {"teacher": {"variant": args.teacher_variant, "size": args.teacher_size, "epochs": args.teacher_epochs,
-                           "folds": args.folds, "out_of_fold": binary_scores(y, oof)}, "students": []}
-    log(f"teacher out of fold: {summary['teacher']['out_of_fold']}")
+    summary = {"teacher": {}, "students": []}
+    if args.folds:
+        teacher = {str(k): round(float(p), 5) for k, p in zip(keys, oof, strict=True)}
+        (out / "teacher.json").write_text(json.dumps(teacher))
+        summary["teacher"] = {"variant": args.teacher_variant, "size": args.teacher_size, "epochs": args.teacher_epochs,
+                              "folds": args.folds, "out_of_fold": binary_scores(y, oof)}
+        log(f"teacher out of fold: {summary['teacher']['out_of_fold']}")
+    oof = mean_teacher(keys, [oof] if args.folds else [], args.teacher_json or [], log)
+    if args.teacher_json:
+        summary["teacher"]["mean_with"] = args.teacher_json
+        summary["teacher"]["mean_out_of_fold"] = binary_scores(y, oof)
+        log(f"mean teacher out of fold: {summary['teacher']['mean_out_of_fold']}")
 
     sw = weights_for("lite0", args.weights_dir)
     for j, (size, weight) in enumerate(students):
