@@ -53,7 +53,10 @@ track switched onto the EV overtaking it and alerted on the EV's box (IoU 0.86 w
 ``rellis_ev_yield``), counted false because the track was mostly the AV. Held-out seeds 30023/41751, drawn at
 random once (ninth session), were run once in the tenth (2026-11-27, with the zone-window detector at scale 0.5 and
 the retrained EV-body classifier; ``python bench/ev_bench.py --seeds 30023 41751 --json``, 297 s): track recall
-0.958 (23/24: rsu1 missed ev1 of ``ev_two_lanes_dense`` 41751, as it did on 21674 and 76285), 0 false alerts,
+0.958 (23/24: rsu1 missed ev1 of ``ev_two_lanes_dense`` 41751, as it did on 21674 and 76285; traced after the
+run: the EV drives away from rsu1, lit from 25 m, measurable to 61 m; its red bar flashes regularly at 3 Hz but
+fills 14-42 % of the band, over the strong flash's size bound ``steady_max_fraction``; blue never shows from
+behind; the body classifier scores its rear 0.1-0.35), 0 false alerts,
 median lights-on -> alert 0.40 s (max 4.07 s), 7 flasher/turn-signal cars seen, 0 false alerts on them; they are
 tuning seeds from now on (80442/44077 at the same code: recall 1.0, 0 false alerts, median 0.37 s). The held-out
 seeds are now ``HELD_OUT_SEEDS`` = 30788, 36737, drawn at random once (tenth session) and not run: do not tune on
