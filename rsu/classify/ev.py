@@ -292,8 +292,10 @@ class TrackEvClassifier:
                     crop: np.ndarray | None) -> float | None:
         """The EV-body score of this frame's crop, when the band shows lamp activity
         (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least ``body_period_s`` old;
-        else None."""
-        if self.body is None or crop is None:
+        else None. A confirmed EV is not scored again: confirmation is what the body score is for, and only the
+        lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
+        on four RSUs at once halved their processed fps while the EV was in view)."""
+        if self.body is None or crop is None or info.evidence.state == EvState.CONFIRMED:
             return None
         cue_s = info.evidence.last_lamp_cue_s  # e.g. a white strobe's flashes, which lamp_activity does not see
         if not lamp_activity(lamps, bar, self.config) and (cue_s is None or now_s - cue_s > self.config.steady_window_s):

@@ -217,3 +217,19 @@ def test_boxes_cut_by_the_left_right_or_top_border_are_not_measured():
     run(10, entries_of=lambda k: [(7, (-20.0, 100.0, 60.0, 160.0)), (8, (440.0, 100.0, 481.0, 160.0)),
                                   (9, (200.0, 5.0, 260.0, 60.0))], clf=clf)
     assert not seen and all(clf.tracks[t].evidence.frames == 0 for t in (7, 8, 9))
+
+
+def test_a_confirmed_ev_is_not_body_scored_again():
+    """Issue 19: the body classifier runs on lamp-active tracks until they confirm, not on a confirmed EV (its
+    cost on four RSUs at once halved their processed fps while an EV was in view)."""
+    calls = []
+    clf = TrackEvClassifier(body=lambda crop: calls.append(crop.shape) or 0.95)
+    per_frame = []
+    for k in range(int(4 * FPS)):
+        t = k / FPS
+        out = clf(Frame(scene(t), t, k, "cam"), tracks([(1, BOX_A)]))
+        per_frame.append((out[1].ev_state, len(calls)))
+    first = next(k for k, (state, _n) in enumerate(per_frame) if state == EvState.CONFIRMED)
+    assert per_frame[first][1] >= 1  # scored while a candidate
+    assert all(state == EvState.CONFIRMED for state, _n in per_frame[first:])
+    assert per_frame[-1][1] == per_frame[first][1]  # ~3 s confirmed (12 scores at 4 Hz before): none since
