@@ -18,7 +18,9 @@ every key of the corridor; stamps are the publishers' wall clocks on this one ho
   every 1 s Health period inside the simulator's run, the RSU's warm-up excepted; ``rsu_rate_min_hz`` the raw count), the camera frames dropped for being stale, the frames' age at publication and
   the CPU ms per frame by stage (render, detect, track, classify, localize, hazard, publish).
 
-Targets (issue 8): median lights on -> manoeuvre <= 0.6 s, p99 <= 1.0 s over Zenoh. Then the fault
+Targets (issue 19, ``target_median_met`` / ``target_p99_met``): lights on -> response decided median <= 0.5 s,
+p99 <= 0.8 s over Zenoh (issue 8's were lights on -> manoeuvre, 0.6 / 1.0 s; the manoeuvre start is reported
+beside it, and the runs that waited for a gap in traffic are named). Then the fault
 table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
 vehicle services, scripted RSUs: ``scenario/faults.py``) and the process faults (RSU killed, DDM
 restarted, router restarted: ``scenario/process_faults.py``).
@@ -67,8 +69,10 @@ RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*kee
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 RETIME_EXTRA_S = 10.0
 """A process run whose EV never reached the AV (traffic held it back) runs again this much longer."""
-TARGET_MEDIAN_S = 0.6
-TARGET_P99_S = 1.0
+TARGET_MEDIAN_S = 0.5
+TARGET_P99_S = 0.8
+"""Issue 19: lights on -> response decided (a command, or the DDM's logged decision to wait for a gap) over the
+process runs; lights on -> manoeuvre start is reported beside it, the runs that waited for traffic named."""
 HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
         ("alert_to_command_at_vehicle_s", "EvAlert -> command at the vehicle"),
         ("lights_on_to_manoeuvre_s", "lights on -> manoeuvre start"),
@@ -257,13 +261,14 @@ def main(argv: list[str] | None = None) -> int:
         print(run_line(seed, m, time.monotonic() - t), flush=True)
     dists = print_distribution(f"processes over Zenoh ({mode}), wall-clock stamps", runs)
     print_load(runs)
-    tot = dists["lights_on_to_manoeuvre_s"]
+    tot = dists["lights_on_to_response_s"]
     missing = args.runs - tot["n"]
     n_yield = yielded(runs)
     med_ok = tot["median"] is not None and tot["median"] <= TARGET_MEDIAN_S
     p99_ok = tot["p99"] is not None and tot["p99"] <= TARGET_P99_S and missing == 0
-    print(f" targets over Zenoh: median <= {TARGET_MEDIAN_S} s {'met' if med_ok else 'NOT met'}, p99 <= {TARGET_P99_S} s "
-          f"{'met' if p99_ok else 'NOT met'}" + (f" ({missing} run(s) without a manoeuvre)" if missing else ""))
+    print(f" issue 19 targets over Zenoh, lights on -> response decided: median <= {TARGET_MEDIAN_S} s "
+          f"{'met' if med_ok else 'NOT met'}, p99 <= {TARGET_P99_S} s {'met' if p99_ok else 'NOT met'}"
+          + (f" ({missing} run(s) without a response)" if missing else ""))
     waits = [(r["seed"], r["latency_s"]["response_to_manoeuvre_s"]) for r in runs
              if (r["latency_s"].get("response_to_manoeuvre_s") or 0.0) > 0.5]
     if waits:
