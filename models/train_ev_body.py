@@ -29,14 +29,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from models.ev_body_net import build_model, predict_torch, train  # noqa: E402
+from models.ev_body_net import build_model, predict_torch, squash, train  # noqa: E402
 from rsu.classify.classifiers import CnnClassifier  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_group  # noqa: E402
@@ -60,8 +59,7 @@ def usable_crops(samples, log=print) -> list[tuple[CropSample, np.ndarray]]:
 
 def squashed(pairs: list[tuple[CropSample, np.ndarray]], size: int) -> tuple[np.ndarray, np.ndarray]:
     """The crops squashed to ``size`` x ``size`` (uint8) and their labels."""
-    return (np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for _s, c in pairs]),
-            np.asarray([s.label for s, _c in pairs], np.float32))
+    return squash([c for _s, c in pairs], size), np.asarray([s.label for s, _c in pairs], np.float32)
 
 
 def teacher_key(sample: CropSample, data_root: Path) -> str:

@@ -39,9 +39,9 @@ from vehicle.reference import ReferencePath, lane_centre_waypoints, offset_chang
 
 ROAD_END_MARGIN_M = 10.0
 PICTURE_MAX_AGE_S = 2.0
+"""The car's picture (objects the RSUs reported) counts for the fail-safe's curb check this long."""
 GUARD_PICTURE_AGE_S = 0.5
 """The forward guard uses only objects reported this recently (positions moved on at their velocity)."""
-"""The car's picture (objects the RSUs reported) counts for the fail-safe's curb check this long."""
 MRM_LAT_ACCEL_MPS2 = 2.0
 MRM_MAX_CURVATURE_1PM = 0.08
 CURB_CHECK_BEHIND_M = 10.0
