@@ -55,17 +55,20 @@ class SimCamera:
         self._sub: Subscription | None = None
         self.snapshots_received = 0
         self.prerender = prerender
-        """The static scene (sky, terrain, road) of every lighting was rendered at construction, so the first frame
-        costs what any frame does (an RSU would otherwise pass over the camera frames of its first 0.3-0.4 s)."""
+        """The static scene (sky, terrain, road) and sensor noise of every lighting were made at construction, so the
+        first frame costs what any frame does (an RSU would otherwise pass over the camera frames of its first
+        0.3-0.4 s)."""
         self.frames_skipped = 0
         """Camera frames never delivered because ``read`` came later than the next frame (the reader fell behind:
         it gets the newest frame, not the ones it missed)."""
         self.last_render_times_s = (0.0, 0.0)
         """(wall-clock, CPU of this thread) seconds of the last ``render``: the camera's share of an RSU's work
         when it renders in the RSU's process (``rsu.service.RsuService`` reports it as the ``render`` stage)."""
-        if prerender:  # the static scene of every lighting, before the first frame is due
+        if prerender:  # the static scene and noise texture of every lighting, before the first frame is due
             for lighting in Lighting:
                 self.renderer.background(lighting.value)
+                if noise:
+                    self.renderer.noise_textures(lighting.value)
         if transport is not None:
             self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
 

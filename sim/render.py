@@ -81,6 +81,10 @@ class Renderer:
         """The lightings whose static scene is rendered already (``background`` renders one on first use)."""
         return tuple(sorted(self._backgrounds))
 
+    def noise_lightings(self) -> tuple[str, ...]:
+        """The lightings whose sensor-noise texture is made already (``noise_textures`` makes one on first use)."""
+        return tuple(sorted(self._noise))
+
     def background(self, lighting: str) -> np.ndarray:
         if lighting not in self._backgrounds:
             self._backgrounds[lighting] = render_scenery(self.cfg, self.cam, self.road, self.seed, lighting)
@@ -388,14 +392,19 @@ class Renderer:
         x = np.arange(256, dtype=np.float32) / 255.0
         return np.clip(255.0 * np.power(np.clip(x * gain, 0, 1), gamma), 0, 255).astype(np.uint8)
 
-    def _add_noise(self, img: np.ndarray, lighting: str, frame_index: int) -> np.ndarray:
-        """Sensor noise: a pre-generated Gaussian texture (positive and negative parts), shifted per frame."""
+    def noise_textures(self, lighting: str) -> tuple[np.ndarray, np.ndarray]:
+        """The lighting's sensor-noise texture, a Gaussian field (positive and negative parts, uint8) a little larger
+        than the image, generated on first use (~0.1 s: ``SimCamera(prerender=True)`` does it before any frame)."""
         if lighting not in self._noise:
             rng = np.random.default_rng(self.seed + 7)
             sigma = LIGHTING[lighting]["noise"]
             n = rng.normal(0, sigma, (self.h + self._pad, self.w + self._pad, 3)).astype(np.float32)
             self._noise[lighting] = (np.clip(n, 0, 255).astype(np.uint8), np.clip(-n, 0, 255).astype(np.uint8))
-        pos, neg = self._noise[lighting]
+        return self._noise[lighting]
+
+    def _add_noise(self, img: np.ndarray, lighting: str, frame_index: int) -> np.ndarray:
+        """Sensor noise: the lighting's pre-generated texture (``noise_textures``), shifted per frame."""
+        pos, neg = self.noise_textures(lighting)
         r = np.random.default_rng((self.seed, frame_index))
         dx, dy = (int(v) for v in r.integers(0, self._pad, 2))
         cv2.add(img, pos[dy:dy + self.h, dx:dx + self.w], dst=img)

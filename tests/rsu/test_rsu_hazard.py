@@ -296,3 +296,16 @@ def test_untimed_warm_up_frames_learn_the_background_at_the_detector_rate(scene)
         looked.append(det._learn_t_s)
     assert det.fg.ready and not det.fg.evidence.any()
     assert len(set(looked)) == 18  # every fifth frame
+
+
+def test_median_of_frames_matches_numpy_median():
+    """Paeth's network gives np.median's values on nine frames (ties and all), other counts fall back to it."""
+    from rsu.hazard.background import median_of_frames
+
+    rng = np.random.default_rng(5)
+    for n in (9, 9, 9, 4, 5):
+        frames = [rng.integers(0, 4 if n == 9 else 255, (11, 13, 3)).astype(np.uint8) for _ in range(n)]
+        want = np.median(np.stack(frames), axis=0)
+        np.testing.assert_array_equal(median_of_frames(frames).astype(np.float64), want)
+    frames = [rng.normal(0, 50, (7, 5)).astype(np.float32) for _ in range(9)]
+    np.testing.assert_array_equal(median_of_frames(frames), np.median(np.stack(frames), axis=0).astype(np.float32))

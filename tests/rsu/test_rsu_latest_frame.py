@@ -49,6 +49,7 @@ def test_the_camera_holds_its_newest_two_frames_for_a_reader_one_frame_late():
     src = SimSource(CORRIDOR, "rsu1", bus)  # queue_size 2, as a live source
     # the static scene of every lighting is there before the first frame (its first frame is not 0.4 s late)
     assert src.camera.renderer.static_scenes() == ("day", "dusk", "night")
+    assert src.camera.renderer.noise_lightings() == ("day", "dusk", "night")  # and its sensor noise (0.1 s each)
     key = sim_world_key(CORRIDOR.corridor_id)
     bus.publish(key, _snap(0.0))
     assert src.read(0.5).frame_number == 0
