@@ -79,6 +79,7 @@ class ReferencePath:
             self.stop_s_m = proj.s_m
             self.stop_offset_m = proj.distance_m
         self._hint = 0
+        self._fits: dict[tuple[int, int, float], PathFit] = {}
 
     # ------------------------------------------------------------------ queries
     def project(self, x_m: float, y_m: float, hint: int | None = None, window: int = 40) -> PathProjection:
@@ -107,17 +108,29 @@ class ReferencePath:
                     best = (dist, self.s[j] + t * (self.s[j + 1] - self.s[j]), i)
         return PathProjection(best[2], float(best[1]), float(best[0]))
 
+    def _window_start(self, s_m: float, n: int, behind: int | None) -> int:
+        i = int(np.searchsorted(self.s, s_m))
+        start = i - (n // 2 if behind is None else behind)
+        return min(max(0, start), len(self.points) - n)
+
     def window(self, s_m: float, n: int = FIT_POINTS, behind: int | None = None) -> np.ndarray:
         """The n resampled points around distance s (``behind`` of them before it; default n//2, centred)."""
         n = min(n, len(self.points))
-        i = int(np.searchsorted(self.s, s_m))
-        start = i - (n // 2 if behind is None else behind)
-        start = min(max(0, start), len(self.points) - n)
+        start = self._window_start(s_m, n, behind)
         return self.points[start:start + n]
 
     def fit_at(self, s_m: float, n: int = FIT_POINTS,
                line_tolerance_m: float = LINE_TOLERANCE_M) -> PathFit:
-        return fit_path(self.window(s_m, n), line_tolerance_m)
+        """``fit_path`` of the window around s; a window fitted before is not fitted again (the car's 100 Hz steps
+        call this two or three times each, and the window moves one resampled point every few steps)."""
+        n = min(n, len(self.points))
+        key = (self._window_start(s_m, n, None), n, line_tolerance_m)
+        fit = self._fits.get(key)
+        if fit is None:
+            if len(self._fits) >= 64:
+                self._fits.clear()
+            fit = self._fits[key] = fit_path(self.points[key[0]:key[0] + n], line_tolerance_m)
+        return fit
 
     def speed_at(self, s_m: float, default_mps: float) -> float:
         if self.speeds is None:

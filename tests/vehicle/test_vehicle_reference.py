@@ -71,3 +71,16 @@ def test_project_ignores_a_hint_from_a_longer_path():
     proj = short.project(4.0, 0.3, hint=10_000)
     assert proj.s_m == pytest.approx(4.0, abs=1e-6)
     assert proj.distance_m == pytest.approx(0.3, abs=1e-6)
+
+
+def test_fit_at_reuses_a_window_fitted_before_and_gives_the_fit_of_its_window():
+    """The cached fit is the fit of the window around s, for every s along an arc-then-line path."""
+    from vehicle.geometry import fit_path
+
+    t = np.linspace(0, np.pi / 2, 40)
+    arc = np.c_[50 * np.sin(t), 50 - 50 * np.cos(t)]
+    line = np.c_[np.full(30, 50.0), 50 + np.arange(1, 31) * 2.0]
+    path = ReferencePath(np.vstack([arc, line]))
+    for s in np.linspace(0, path.length_m, 500):
+        assert path.fit_at(float(s)) == fit_path(path.window(float(s)))
+    assert 0 < len(path._fits) <= 64  # windows, not calls
