@@ -91,6 +91,14 @@ class Road:
             return float(x), float(y), float(h)
         return x, y, h
 
+    def prepare(self) -> Road:
+        """Build now what the first ``to_frenet`` / ``pose_at`` would build (the samples, the k-d tree and the
+        scipy.spatial import under it: 0.4 s of CPU). A service calls it at start-up, before the scenario: several
+        processes paying it together at the first world snapshot stalled every RSU of a two-core corridor for about
+        a second (issue 19)."""
+        _ = self._sample_tree, self._pieces, self._samples_list
+        return self
+
     @cached_property
     def _sample_tree(self):
         from scipy.spatial import cKDTree

@@ -77,6 +77,7 @@ class RsuService:
                  read_timeout_s: float = 5.0, max_stall_s: float | None = None,
                  health_period_s: float = 1.0, signer: Signer | None = None) -> None:
         self.corridor = corridor
+        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start (issue 19)
         self.rsu_id = rsu_id
         self.clock = clock or WallClock()
         if signer is not None:  # alerts are signed on publication

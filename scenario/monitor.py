@@ -48,6 +48,10 @@ class RunMonitor:
     """The AV's and the EV's ground truth for the one yield judge (``scenario.outcome.judge_yield``)."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
+    def __post_init__(self) -> None:
+        if self.road is not None:
+            self.road.prepare()  # not at the first world snapshot, beside every service's first frames
+
     def mark(self, name: str, t: float) -> None:
         self.events.setdefault(name, t)
 

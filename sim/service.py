@@ -45,6 +45,7 @@ class SimService:
         if not speed > 0:
             raise ValueError(f"speed must be > 0, got {speed}")
         self.scenario = scenario
+        scenario.corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start
         self.transport = transport
         self.clock = clock or WallClock()
         self.corridor_id = corridor_id or scenario.corridor.corridor_id

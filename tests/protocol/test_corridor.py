@@ -131,3 +131,13 @@ def test_frenet_and_pose_fast_paths_match_the_full_search_on_curved_roads():
             sk = min(max(sk + (x[k] - rx) * np.cos(rh) + (y[k] - ry) * np.sin(rh), 0.0), road.length_m)
         assert got_s[k] == pytest.approx(sk, abs=1e-6)
     assert road.to_frenet(float(x[3]), float(y[3])) == pytest.approx((got_s[3], got_d[3]))
+
+
+def test_prepare_builds_what_the_first_road_query_would():
+    """``Road.prepare`` (a service's start-up) leaves nothing for the first ``to_frenet`` to build."""
+    road = Road(0.0, 0.0, 0.0, (Segment("straight", 50.0), Segment("arc", 40.0, 60.0)))
+    assert "_sample_tree" not in road.__dict__
+    assert road.prepare() is road
+    assert {"_samples", "_sample_tree", "_pieces", "_samples_list"} <= set(road.__dict__)
+    s, d = road.to_frenet(30.0, 1.5)
+    assert float(s) == pytest.approx(30.0) and float(d) == pytest.approx(1.5)
