@@ -27,6 +27,7 @@ shadow removal, morphological clean-up, connected components -> boxes above a mi
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,22 +98,35 @@ def letterbox(image: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, flo
 
 
 def yolox_grids(input_hw: tuple[int, int], strides: Sequence[int] = YOLOX_STRIDES) -> tuple[np.ndarray, np.ndarray]:
-    """Anchor-point grid (A, 2) [x, y] in cells and the stride (A, 1) of each, in YOLOX order."""
+    """Anchor-point grid (A, 2) [x, y] in cells and the stride (A, 1) of each, in YOLOX order (read-only arrays,
+    made once per input size)."""
+    return _yolox_grids(tuple(int(v) for v in input_hw), tuple(int(v) for v in strides))
+
+
+@functools.lru_cache(maxsize=16)
+def _yolox_grids(input_hw: tuple[int, int], strides: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     grids, expanded = [], []
     for stride in strides:
         hs, ws = input_hw[0] // stride, input_hw[1] // stride
         xv, yv = np.meshgrid(np.arange(ws), np.arange(hs))
         grids.append(np.stack([xv, yv], axis=2).reshape(-1, 2))
         expanded.append(np.full((hs * ws, 1), stride))
-    return np.concatenate(grids).astype(np.float32), np.concatenate(expanded).astype(np.float32)
+    out = np.concatenate(grids).astype(np.float32), np.concatenate(expanded).astype(np.float32)
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
-def decode_yolox(raw: np.ndarray, input_hw: tuple[int, int], strides: Sequence[int] = YOLOX_STRIDES) -> np.ndarray:
-    """Grid-relative YOLOX rows (A, 5+C) -> rows with cx, cy, w, h in input pixels (YOLOX ``demo_postprocess``)."""
+def decode_yolox(raw: np.ndarray, input_hw: tuple[int, int], strides: Sequence[int] = YOLOX_STRIDES,
+                 anchors: np.ndarray | None = None) -> np.ndarray:
+    """Grid-relative YOLOX rows (A, 5+C) -> rows with cx, cy, w, h in input pixels (YOLOX ``demo_postprocess``).
+    ``anchors``: indices of the rows to decode and return, in order (default: all)."""
     grids, stride = yolox_grids(input_hw, strides)
     if raw.shape[0] != len(grids):
         raise ValueError(f"YOLOX output has {raw.shape[0]} anchor points, input {input_hw} with strides "
                          f"{tuple(strides)} gives {len(grids)}")
+    if anchors is not None:
+        raw, grids, stride = raw[anchors], grids[anchors], stride[anchors]
     out = raw.astype(np.float32, copy=True)
     out[:, :2] = (out[:, :2] + grids) * stride
     out[:, 2:4] = np.exp(out[:, 2:4]) * stride
@@ -264,8 +278,9 @@ class OnnxDetector:
             image = image[y0:self.roi[3], x0:self.roi[2]]
         blob, ratio = letterbox(image, self.input_hw)
         rows = self.raw_output(blob)
-        if not self.decoded:
-            rows = decode_yolox(rows, self.input_hw)
+        if not self.decoded:  # a box scores objectness x class probability (both sigmoids): at most its objectness,
+            # so only rows whose objectness reaches the threshold can pass postprocess (same boxes, a tenth of the work)
+            rows = decode_yolox(rows, self.input_hw, anchors=np.flatnonzero(rows[:, 4] >= self.score_threshold))
         found = postprocess(rows, ratio, (image.shape[1], image.shape[0]), self.class_map, self.score_threshold,
                             self.nms_threshold, self.classes_wanted)
         if (x0 or y0) and len(found):

@@ -76,17 +76,23 @@ class VehicleMask:
         self._parked: list[_Parked] = []
         self.hold: np.ndarray | None = None
         """bool mask of the held pixels this frame (None: none)."""
-        self._boxes: list[np.ndarray] = []
+        self._held_ids: list[int] = []
+        """The moving tracks of the last frame observed, in its order: their hold boxes are made only when a mask is
+        (the detector looks at 3 of 15 frames a second; the track memory is kept on every one)."""
 
     def observe(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None) -> None:
         """This frame's tracks (ids, xyxy boxes, localised speeds by id) into the track memory: every frame, also
         those the hazard detector does not look at (a track that lives between two looks still moved)."""
-        self._boxes = self._vehicle_boxes(t_s, track_ids, boxes, speeds)
+        self._held_ids = self._observe_tracks(t_s, track_ids, boxes, speeds)
 
     def mask(self, shape: tuple[int, int]) -> np.ndarray | None:
         """The held mask of ``shape`` from the last frame observed."""
-        self.hold = self._box_mask(shape, self._boxes)
+        self.hold = self._box_mask(shape, self._held_boxes())
         return self.hold
+
+    def _held_boxes(self) -> list[np.ndarray]:
+        """The hold boxes of the last frame's moving tracks, then the parked regions."""
+        return [self._tracks[tid].hold_box(self.cfg) for tid in self._held_ids] + [p.box for p in self._parked]
 
     def update(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None,
                shape: tuple[int, int]) -> np.ndarray | None:
@@ -103,14 +109,16 @@ class VehicleMask:
         inside = np.count_nonzero(self.hold[y:y + h, x:x + w] & sel)
         return inside >= self.cfg.max_vehicle_overlap * max(1, np.count_nonzero(sel))
 
-    def _vehicle_boxes(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None = None
-                       ) -> list[np.ndarray]:
+    def _observe_tracks(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None = None) -> list[int]:
+        """The track memory updated with this frame; returns the ids of its moving tracks, in order."""
         cfg = self.cfg
         ids = [int(t) for t in np.asarray(track_ids).reshape(-1)]
         boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
         # regions of stopped vehicles (before this frame): a new track starting inside one is a fragment
-        stopped_regions = [m.hold_box(cfg) for m in self._tracks.values() if m.stopped(cfg)]
-        stopped_regions += [p.box for p in self._parked]
+        stopped_regions = []
+        if any(tid not in self._tracks for tid in ids):
+            stopped_regions = [m.hold_box(cfg) for m in self._tracks.values() if m.stopped(cfg)]
+            stopped_regions += [p.box for p in self._parked]
         present = set()
         out = []
         for tid, b in zip(ids, boxes, strict=True):
@@ -137,13 +145,13 @@ class VehicleMask:
                 mem.moved = (moved > max(cfg.moved_px, cfg.moved_fraction * min(b[2] - b[0], b[3] - b[1]))
                              or fast_s >= cfg.moving_s - 1e-3)
             if mem.moved:
-                out.append(mem.hold_box(cfg))
+                out.append(tid)
         for tid in [t for t in self._tracks if t not in present]:
             mem = self._tracks.pop(tid)
             if mem.stopped(cfg) and self._ground_width(mem.box) >= cfg.min_parked_width_m:
                 self._parked.append(_Parked(mem.hold_box(cfg), t_s))
         self._parked = [p for p in self._parked if t_s - p.since_s <= cfg.parked_hold_s]
-        return out + [p.box for p in self._parked]
+        return out
 
     def _ground_width(self, box: np.ndarray) -> float:
         xy, valid = self.to_ground(np.array([[box[0], box[3]], [box[2], box[3]]], dtype=float))

@@ -89,3 +89,22 @@ def test_average_precision_all_point_voc():
     assert average_precision(dup, [(gt[0][0][:1], np.array([True]))])[1] == 0
     hard = [(np.array([[20, 20, 30, 30], [0, 0, 10, 10]], float), np.array([0.9, 0.8]))]
     assert average_precision(hard, [(gt[0][0], np.array([False, True]))])[0] == pytest.approx(1.0)
+
+
+@needs_model
+def test_detect_decodes_only_rows_that_can_pass_and_finds_the_same_boxes(held_out):
+    """``OnnxDetector.detect`` decodes only the rows whose objectness reaches the score threshold: the boxes,
+    scores and classes of decoding every row."""
+    from rsu.detect import decode_yolox, letterbox, postprocess
+
+    det = OnnxDetector(MODEL, class_map={0: 0, 1: 0}, intra_op_threads=1)
+    compared = 0
+    for image in held_out.images[:8]:
+        blob, ratio = letterbox(image, det.input_hw)
+        full = postprocess(decode_yolox(det.raw_output(blob), det.input_hw), ratio, (image.shape[1], image.shape[0]),
+                           det.class_map, det.score_threshold, det.nms_threshold, det.classes_wanted)
+        fast = det.detect(image)
+        for a, b in zip(fast, full, strict=True):
+            np.testing.assert_array_equal(a, b)
+        compared += len(full.boxes)
+    assert compared >= 10
