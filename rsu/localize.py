@@ -279,7 +279,7 @@ class Localizer:
             boxes = boxes.copy()
             boxes[ok] = det_boxes[idx[ok]]
         xy, cov, valid = self.localize_boxes(boxes)
-        out: list[LocalizedObject] = []
+        found: list[dict] = []
         q = self.accel_sigma_mps2 ** 2
         for k in range(len(tracks)):
             if not valid[k]:
@@ -315,18 +315,22 @@ class Localizer:
             x, y = float(trk.state[0]), float(trk.state[1])
             lat, lon = self.corridor.to_latlon(x, y)
             c = trk.cov
-            out.append(LocalizedObject(
-                track_id=tid, x_m=x, y_m=y, lat_deg=lat, lon_deg=lon, lane=self.corridor.road.lane_at(x, y),
+            found.append(dict(
+                track_id=tid, x_m=x, y_m=y, lat_deg=lat, lon_deg=lon,
                 vel_x_mps=vx, vel_y_mps=vy, speed_mps=speed, heading_rad=_wrap(trk.heading_rad),
                 pos_cov_m2=(float(c[0, 0]), float(c[0, 1]), float(c[1, 1])),
-                bbox_px=tuple(float(v) for v in tracks.boxes[k]),  # type: ignore[arg-type]
+                bbox_px=tuple(float(v) for v in tracks.boxes[k]),
                 class_id=int(tracks.class_ids[k]), score=float(tracks.scores[k]), hits=int(tracks.hits[k]),
                 age_s=float(timestamp_s - trk.first_stamp_s),
             ))
         stale = [tid for tid, t in self._tracks.items() if timestamp_s - t.stamp_s > self.forget_after_s]
         for tid in stale:
             del self._tracks[tid]
-        return out
+        if not found:
+            return []
+        road = self.corridor.road  # every object's lane from one road query (per point, a query cost 5x more)
+        _, d_m = road.to_frenet(np.array([f["x_m"] for f in found]), np.array([f["y_m"] for f in found]))
+        return [LocalizedObject(lane=road.lane_of_offset(float(d)), **f) for f, d in zip(found, d_m, strict=True)]
 
 
 def _wrap(angle: float) -> float:
