@@ -75,6 +75,8 @@ class Renderer:
         self._glow_cache: dict[tuple, np.ndarray] = {}
         self._models: dict[tuple, BodyModel] = {}
         self._shadow_luts: dict[int, np.ndarray] = {}
+        self._ground_m, self._ground_t = self.cam.KR[:, :2].T, self.cam.KR @ self.cam.C
+        """A road point (x, y, 0) -> homogeneous pixel: (x, y) @ _ground_m - _ground_t (made once, not per shadow)."""
 
     # ------------------------------------------------------------------ static scene
     def static_scenes(self) -> tuple[str, ...]:
@@ -143,8 +145,9 @@ class Renderer:
     def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,
         cut to the image); None when the box is under 2 px either way."""
-        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
-        x1, y1, x2, y2 = max(0, x1), max(0, y1), min(self.w, x2 + 1), min(self.h, y2 + 1)
+        us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # a few points: plain floats beat numpy's per-call cost
+        x1, y1 = max(0, math.floor(min(us))), max(0, math.floor(min(vs)))
+        x2, y2 = min(self.w, math.ceil(max(us)) + 1), min(self.h, math.ceil(max(vs)) + 1)
         if x2 - x1 < 2 or y2 - y1 < 2:
             return None
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
@@ -155,8 +158,8 @@ class Renderer:
         """Cast shadow on the road: the vehicle's corners (N, 3) projected along the sun onto z = 0, darkened
         (v * round(256 (1 - strength)) >> 8, as a LUT, where the anti-aliased polygon covers more than half)."""
         hull = shadow_hull(corners, sun)
-        h = hull @ self.cam.KR[:, :2].T - self.cam.KR @ self.cam.C  # (x, y, 0) projected
-        if np.any(h[:, 2] <= NEAR_M):
+        h = hull @ self._ground_m - self._ground_t  # (x, y, 0) projected
+        if h[:, 2].min() <= NEAR_M:
             return
         cut = self._polygon_mask(h[:, :2] / h[:, 2:])
         if cut is None:
