@@ -24,7 +24,7 @@ from sim.scenario import Scenario
 from sim.world import World
 
 WARMUP_S = 6.0
-"""Seconds of pre-roll: the hazard detector's initial median needs 9 frames 8/15 s apart (5.3 s at its 3 Hz)."""
+"""Seconds of pre-roll: the hazard detector's initial median needs 9 frames 0.5 s apart (4 s at its 2 Hz)."""
 PREROLL_SEED_OFFSET = 7919
 """The pre-roll's traffic is another draw than the scenario's (a different moment of the same road)."""
 

@@ -17,15 +17,17 @@ ToGround = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 class HazardConfig:
     scale: float = 0.5
     """Working scale of the background models (1280x720 -> 640x360)."""
-    rate_hz: float = 3.0
+    rate_hz: float = 2.0
     """The detector looks at a frame at most this often (issue 19: debris is static, a camera's 15 fps are not
-    needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it."""
+    needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it. 2 Hz
+    (3 before the eleventh session): ``bench/hazard_bench.py`` reads the same recall, false alarms and clearance at
+    both, detection 1.18 s instead of 1.35 s (median), for a third less of the detector's CPU."""
     warmup_fps: float = 15.0
     """Frame rate assumed for untimed warm-up frames (``HazardDetector.learn_background`` without a time)."""
     init_frames: int = 9
-    init_interval_s: float = 8 / 15
-    """Long-term background: median of ``init_frames`` frames at least ``init_interval_s`` apart (9 frames over
-    ~5 s; a car at 10 m/s moves 48 m meanwhile)."""
+    init_interval_s: float = 0.5
+    """Long-term background: median of ``init_frames`` frames at least ``init_interval_s`` apart (every look at
+    2 Hz: 9 frames over 4 s; a car at 10 m/s moves 40 m meanwhile)."""
     long_tau_s: float = 33.3
     """Long-term background's time constant (issue 10's rate 0.002 per frame at 15 fps)."""
     short_tau_s: float = 0.232

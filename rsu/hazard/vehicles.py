@@ -78,7 +78,7 @@ class VehicleMask:
         """bool mask of the held pixels this frame (None: none)."""
         self._held_ids: list[int] = []
         """The moving tracks of the last frame observed, in its order: their hold boxes are made only when a mask is
-        (the detector looks at 3 of 15 frames a second; the track memory is kept on every one)."""
+        (the detector looks at 2 of 15 frames a second; the track memory is kept on every one)."""
 
     def observe(self, t_s: float, track_ids, boxes, speeds: dict[int, float] | None) -> None:
         """This frame's tracks (ids, xyxy boxes, localised speeds by id) into the track memory: every frame, also
