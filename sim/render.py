@@ -75,6 +75,8 @@ class Renderer:
         self._glow_cache: dict[tuple, np.ndarray] = {}
         self._models: dict[tuple, BodyModel] = {}
         self._shadow_luts: dict[int, np.ndarray] = {}
+        self._canvas: np.ndarray | None = None
+        """What a frame is drawn on before its exposure (kept: a fresh 2.7 MB copy per frame cost page faults)."""
         self._ground_m, self._ground_t = self.cam.KR[:, :2].T, self.cam.KR @ self.cam.C
         """A road point (x, y, 0) -> homogeneous pixel: (x, y) @ _ground_m - _ground_t (made once, not per shadow)."""
 
@@ -238,7 +240,14 @@ class Renderer:
             frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
         sun = np.array(L["sun_dir"], dtype=float)
         sun /= np.linalg.norm(sun)
-        return lighting, L, frame_index, self.background(lighting).copy(), sun
+        background = self.background(lighting)
+        if not self.exposure_enabled:  # the canvas is the frame handed out: a new one
+            return lighting, L, frame_index, background.copy(), sun
+        # exposure hands out a new image (its lookup table's output): the canvas is drawn on again next frame
+        if self._canvas is None or self._canvas.shape != background.shape:
+            self._canvas = np.empty_like(background)
+        np.copyto(self._canvas, background)
+        return lighting, L, frame_index, self._canvas, sun
 
     def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
                    frame_index: int) -> np.ndarray:

@@ -205,3 +205,17 @@ def test_motion_blur_and_exposure_vary_the_image(corridor):
     r = Renderer(cam, corridor.road, noise=False, motion_blur=False)
     means = [float(r.render(snap([], t=t), 0).mean()) for t in (0.0, 2.0, 4.0)]
     assert max(means) - min(means) > 1.0  # auto-exposure drifts over time
+
+
+def test_a_frame_owes_nothing_to_the_frames_before_it(corridor):
+    """The renderer draws on one canvas frame after frame: a frame is the same as a fresh renderer's, and a frame
+    handed out is not changed by the next ones."""
+    cam = corridor.rsu("rsu1").camera
+    busy = snap([actor(f"v{k}", 30.0 + 12.0 * k, 1.85 + 3.7 * (k % 2)) for k in range(6)])
+    empty = snap([actor("a", 90.0, 5.55)])
+    r = Renderer(cam, corridor.road, seed=4)
+    first = r.render(busy, 3)
+    kept = first.copy()
+    after = r.render(empty, 4)
+    assert np.array_equal(after, Renderer(cam, corridor.road, seed=4).render(empty, 4))
+    assert np.array_equal(first, kept)
