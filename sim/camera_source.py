@@ -66,9 +66,7 @@ class SimCamera:
         when it renders in the RSU's process (``rsu.service.RsuService`` reports it as the ``render`` stage)."""
         if prerender:  # the static scene and noise texture of every lighting, before the first frame is due
             for lighting in Lighting:
-                self.renderer.background(lighting.value)
-                if noise:
-                    self.renderer.noise_textures(lighting.value)
+                self.renderer.prepare(lighting.value)
         if transport is not None:
             self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
 

@@ -38,6 +38,7 @@ from sim.render_effects import (
     unlit_bgr,
 )
 from sim.scenery import LIGHTING, render_scenery
+from sim.sensor import DirtyBands, add_noise, expose, exposure_scale, gamma_table, noise_field, noise_offset
 
 MIN_VISIBLE_FRACTION = 0.3
 POOL_LOCAL_M = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])  # headlight pool, ahead of the bumper
@@ -70,14 +71,18 @@ class Renderer:
         self.w, self.h = camera.width_px, camera.height_px
         self.noise_enabled, self.blur_enabled, self.exposure_enabled = noise, motion_blur, exposure
         self._backgrounds: dict[str, np.ndarray] = {}
+        self._gamma_backgrounds: dict[str, np.ndarray] = {}
         self._noise: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self._pad = 64
         self._glow_cache: dict[tuple, np.ndarray] = {}
         self._models: dict[tuple, BodyModel] = {}
         self._shadow_luts: dict[int, np.ndarray] = {}
         self._canvas: np.ndarray | None = None
-        """What a frame is drawn on before its exposure, kept from frame to frame instead of a fresh 2.7 MB copy of the
-        static scene each frame (its gain was within this machine's run-to-run spread in the sim bench)."""
+        """What a frame is drawn on before its exposure (with exposure on), kept from frame to frame: the static scene
+        of ``_canvas_lighting`` with the last frame's drawing (``_dirty``), which the next frame puts back."""
+        self._canvas_lighting: str | None = None
+        self._dirty = DirtyBands(self.h, self.w)
+        """Where the current frame drew on the canvas (``sim.sensor.DirtyBands``): only there does the exposure put
+        pixels through the gamma table; everywhere else it scales the static scene's gamma image."""
         self._ground_m, self._ground_t = self.cam.KR[:, :2].T, self.cam.KR @ self.cam.C
         """A road point (x, y, 0) -> homogeneous pixel: (x, y) @ _ground_m - _ground_t (made once, not per shadow)."""
 
@@ -94,6 +99,22 @@ class Renderer:
         if lighting not in self._backgrounds:
             self._backgrounds[lighting] = render_scenery(self.cfg, self.cam, self.road, self.seed, lighting)
         return self._backgrounds[lighting]
+
+    def gamma_background(self, lighting: str) -> np.ndarray:
+        """The static scene through the lighting's gamma table (``sim.sensor.gamma_table``, uint16), made on first
+        use: what the exposure scales wherever a frame drew nothing."""
+        if lighting not in self._gamma_backgrounds:
+            self._gamma_backgrounds[lighting] = cv2.LUT(self.background(lighting), gamma_table(lighting))
+        return self._gamma_backgrounds[lighting]
+
+    def prepare(self, lighting: str) -> None:
+        """Make the lighting's static scene, its gamma image and its sensor-noise field now (~0.3 s), not at the
+        first frame that needs them (``SimCamera(prerender=True)``)."""
+        self.background(lighting)
+        if self.exposure_enabled:
+            self.gamma_background(lighting)
+        if self.noise_enabled:
+            self.noise_textures(lighting)
 
     def _actor_geometry(self, actor: Actor):
         """Projected parts of one actor: list of (part, corners_world, uv, depth), decals, depth of centre."""
@@ -168,6 +189,7 @@ class Renderer:
         if cut is None:
             return
         (x1, y1, x2, y2), mask = cut
+        self._dirty.mark(x1, y1, x2, y2)
         cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)
         k = int(256 * (1 - strength))
         lut = self._shadow_luts.get(k)
@@ -197,8 +219,8 @@ class Renderer:
 
     def _pose_all(self, actors: list[Actor]) -> list[tuple]:
         """Per actor (model, (m, tvec), rot, uv (N, 2), uv x 16 rounded (N, 2) int32, nearest part-corner depth,
-        part corners' (x, y) pixel minimum and maximum): its body model posed and projected, every actor's points in
-        one batched product (m = K R rot, tvec = K R (position - C))."""
+        part corners' (x, y) pixel minimum and maximum, all its points' pixel box [x1, y1, x2, y2]): its body model
+        posed and projected, every actor's points in one batched product (m = K R rot, tvec = K R (position - C))."""
         if not actors:
             return []
         models = [self._model(a) for a in actors]
@@ -216,8 +238,11 @@ class Renderer:
         # per actor, over its part corners (the first 8 P points of its block): nearest depth, pixel bounds
         cuts = [i for n, e, md in zip(counts, ends, models, strict=True) for i in (e - n, e - n + 8 * len(md.parts))]
         near = np.minimum.reduceat(depth, cuts)[::2].tolist()
-        lo, hi = np.minimum.reduceat(uv, cuts)[::2].tolist(), np.maximum.reduceat(uv, cuts)[::2].tolist()
-        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], uv16[e - n:e], near[k], lo[k], hi[k])
+        lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
+        # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
+        lo_all, hi_all = np.minimum(lo[::2], lo[1::2]).tolist(), np.maximum(hi[::2], hi[1::2]).tolist()
+        lo, hi = lo[::2].tolist(), hi[::2].tolist()
+        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], uv16[e - n:e], near[k], lo[k], hi[k], lo_all[k] + hi_all[k])
                 for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
 
     @staticmethod
@@ -244,10 +269,13 @@ class Renderer:
         background = self.background(lighting)
         if not self.exposure_enabled:  # the canvas is the frame handed out: a new one
             return lighting, L, frame_index, background.copy(), sun
-        # exposure hands out a new image (its lookup table's output): the canvas is drawn on again next frame
-        if self._canvas is None or self._canvas.shape != background.shape:
-            self._canvas = np.empty_like(background)
-        np.copyto(self._canvas, background)
+        # exposure hands out a new image: the canvas is drawn on again next frame, where the last one drew put back
+        if self._canvas is None or self._canvas_lighting != lighting:
+            self._canvas, self._canvas_lighting = background.copy(), lighting
+        else:
+            for y1, y2, x1, x2 in self._dirty.spans():
+                self._canvas[y1:y2, x1:x2] = background[y1:y2, x1:x2]
+        self._dirty.clear()
         return lighting, L, frame_index, self._canvas, sun
 
     def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
@@ -257,10 +285,20 @@ class Renderer:
         if glows:
             self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
         if self.exposure_enabled:
-            img = cv2.LUT(img, self._exposure_lut(t_s, lighting))
+            img = self._expose(img, lighting, t_s)
         if self.noise_enabled:
-            img = self._add_noise(img, lighting, frame_index)
+            img = add_noise(img, self.noise_textures(lighting), noise_offset(self.seed, frame_index))
         return img
+
+    def _expose(self, canvas: np.ndarray, lighting: str, t_s: float) -> np.ndarray:
+        """The exposed frame (a new image; ``sim.sensor``): the static scene's gamma image scaled, and where the frame
+        drew (``_dirty``) the canvas through the gamma table, scaled."""
+        scale = exposure_scale(t_s, self.seed, lighting)
+        out = expose(self.gamma_background(lighting), scale)
+        table = gamma_table(lighting)
+        for y1, y2, x1, x2 in self._dirty.spans():
+            expose(cv2.LUT(canvas[y1:y2, x1:x2], table), scale, dst=out[y1:y2, x1:x2])
+        return out
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index).
@@ -283,14 +321,14 @@ class Renderer:
         if pools:
             pool_uv, pool_ok = self._pool_quads(ordered)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
-        for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi))) in enumerate(
+        for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi), box)) in enumerate(
                 zip(ordered, self._pose_all(ordered), strict=True)):
             if near <= NEAR_M:
                 continue
             if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
                 continue  # (shadows may reach into the image from a little outside)
             n_corner = 8 * len(model.parts)
-            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16))
+            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box))
             if cast:
                 corners_w = model.points[:n_corner] @ rot.T + (a.pos_x_m, a.pos_y_m, 0.0)
                 self._draw_shadow(img, corners_w, sun, 0.45 * L["sun"] / 0.55)
@@ -299,8 +337,9 @@ class Renderer:
         drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
         vis_all, colours_all, first_part = shade_faces(
             [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
-        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16) in enumerate(drawn):
+        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box) in enumerate(drawn):
             parts, decals = model.parts, model.decals
+            self._dirty.mark(box[0] - 2, box[1] - 2, box[2] + 3, box[3] + 3)  # (anti-aliased edges reach 1 px out)
             n_corner = 8 * len(parts)
             blur_px = self._blur_from_pose(a, pose, L["exposure_s"]) if self.blur_enabled else None
             cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
@@ -352,6 +391,7 @@ class Renderer:
         if box is None:
             return
         x1, y1, x2, y2 = box
+        self._dirty.mark(x1, y1, x2, y2)
         k, anchor = line_kernel(vec)
         roi = img[y1:y2, x1:x2]
         roi[:] = cv2.filter2D(roi, -1, k, anchor=anchor, borderType=cv2.BORDER_REPLICATE)
@@ -370,6 +410,7 @@ class Renderer:
         ox2, oy2 = min(self.w, x1 + patch.shape[1]), min(self.h, y1 + patch.shape[0])
         if ox2 <= ox1 or oy2 <= oy1:
             return
+        self._dirty.mark(ox1, oy1, ox2, oy2)
         roi = img[oy1:oy2, ox1:ox2]
         cv2.add(roi, patch[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
 
@@ -397,31 +438,12 @@ class Renderer:
                 sprite = self._glow_sprite(r, col, hot, core)
             self._add_at(img, sprite, cx - 2 * r, cy - 2 * r)
 
-    def _exposure_lut(self, t_s: float, lighting: str) -> np.ndarray:
-        """Auto-exposure drift: a slow gain oscillation and a gamma, as a 256-entry LUT."""
-        phase = (self.seed % 97) * 0.37
-        gain = 1.0 + 0.07 * math.sin(2 * math.pi * t_s / 9.0 + phase) + 0.03 * math.sin(2 * math.pi * t_s / 2.3 + phase)
-        gamma = {"day": 0.95, "dusk": 0.9, "night": 0.85}[lighting]
-        x = np.arange(256, dtype=np.float32) / 255.0
-        return np.clip(255.0 * np.power(np.clip(x * gain, 0, 1), gamma), 0, 255).astype(np.uint8)
-
     def noise_textures(self, lighting: str) -> tuple[np.ndarray, np.ndarray]:
         """The lighting's sensor-noise texture, a Gaussian field (positive and negative parts, uint8) a little larger
-        than the image, generated on first use (~0.1 s: ``SimCamera(prerender=True)`` does it before any frame)."""
+        than the image (``sim.sensor.noise_field``), generated on first use (~0.1 s: ``prepare`` does it)."""
         if lighting not in self._noise:
-            rng = np.random.default_rng(self.seed + 7)
-            sigma = LIGHTING[lighting]["noise"]
-            n = rng.normal(0, sigma, (self.h + self._pad, self.w + self._pad, 3)).astype(np.float32)
-            self._noise[lighting] = (np.clip(n, 0, 255).astype(np.uint8), np.clip(-n, 0, 255).astype(np.uint8))
+            self._noise[lighting] = noise_field(self.seed, lighting, LIGHTING[lighting]["noise"], self.h, self.w)
         return self._noise[lighting]
-
-    def _add_noise(self, img: np.ndarray, lighting: str, frame_index: int) -> np.ndarray:
-        """Sensor noise: the lighting's pre-generated texture (``noise_textures``), shifted per frame."""
-        pos, neg = self.noise_textures(lighting)
-        r = np.random.default_rng((self.seed, frame_index))
-        dx, dy = (int(v) for v in r.integers(0, self._pad, 2))
-        cv2.add(img, pos[dy:dy + self.h, dx:dx + self.w], dst=img)
-        return cv2.subtract(img, neg[dy:dy + self.h, dx:dx + self.w], dst=img)
 
     # ------------------------------------------------------------------ labels
     def labels(self, snapshot: WorldSnapshot, min_visible_fraction: float = MIN_VISIBLE_FRACTION,

@@ -16,6 +16,8 @@ from sim.camera import NEAR_M
 from sim.lamps import signal_on
 from sim.render import Renderer
 from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
+from sim.scenery import LIGHTING
+from sim.sensor import add_noise, exposure_lut, noise_offset
 
 
 class ReferenceRenderer(Renderer):
@@ -52,6 +54,27 @@ class ReferenceRenderer(Renderer):
         dark = (roi.astype(np.uint16) * int(256 * (1 - strength)) >> 8).astype(np.uint8)
         m = mask > 127
         roi[m] = dark[m]
+
+    def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
+        """A frame's lighting name, its ``LIGHTING`` entry, the frame index, a fresh copy of the static scene and the
+        unit vector towards the sun."""
+        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
+        if frame_index is None:
+            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
+        sun = np.array(LIGHTING[lighting]["sun_dir"], dtype=float)
+        return lighting, LIGHTING[lighting], frame_index, self.background(lighting).copy(), sun / np.linalg.norm(sun)
+
+    def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
+                   frame_index: int) -> np.ndarray:
+        """The lamp halos, then the exposure as one direct table (``sim.sensor.exposure_lut``) and sensor noise."""
+        glows.extend(tuple(v) for v in bar_halos.values())
+        if glows:
+            self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
+        if self.exposure_enabled:
+            img = cv2.LUT(img, exposure_lut(t_s, self.seed, lighting))
+        if self.noise_enabled:
+            img = add_noise(img, self.noise_textures(lighting), noise_offset(self.seed, frame_index))
+        return img
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index)."""

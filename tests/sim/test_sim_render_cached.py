@@ -1,5 +1,5 @@
 """The renderer's cached fast path (issue 19: body models built once per look, posed and shaded with array
-operations, shadows by LUT) draws the same pixels as issue 17's straightforward renderer
+operations, shadows by LUT, the exposure a gamma image scaled) draws the same pixels as issue 17's straightforward renderer
 (``sim.render_reference.ReferenceRenderer``) within noise, and the static scene is rendered once per lighting."""
 
 import numpy as np
@@ -29,9 +29,11 @@ def test_fast_path_draws_the_reference_pixels(corridor, scenario, t_s):
         for k, snap in enumerate(snaps):
             a, b = fast.render(snap, k), ref.render(snap, k)
             d = np.abs(a.astype(int) - b.astype(int))
-            # motion blur's cropped kernel rounds a few pixels 1-2 levels apart; nothing else may differ
+            # motion blur's cropped kernel rounds a few pixels 1-2 levels apart, and the exposure's fixed point
+            # (``sim.sensor``) puts a value a whole level apart where the exact one is within 1/256 of an integer
+            # (sensor noise: sigma 2.5-6 levels); nothing else may differ
             assert d.max() <= 3, (scenario, rsu.rsu_id, k, int(d.max()))
-            assert (d > 0).mean() < 1e-3, (scenario, rsu.rsu_id, k, float((d > 0).mean()))
+            assert (d > 1).mean() < 1e-3 and (d > 0).mean() < 0.05, (scenario, rsu.rsu_id, k, np.bincount(d.ravel()))
             compared += len(fast._models) > 0
     assert compared > 0  # some camera saw actors
 
@@ -49,7 +51,7 @@ def test_fast_path_matches_in_every_lighting_with_blur_shadows_and_lamps(corrido
     for k in (0, 3, 7):  # the light bar's red and blue halves
         s = scene(k / 15.0, lighting)
         d = np.abs(fast.render(s, k).astype(int) - ref.render(s, k).astype(int))
-        assert d.max() <= 3 and (d > 0).mean() < 1e-3, (lighting, k, int(d.max()), float((d > 0).mean()))
+        assert d.max() <= 3 and (d > 1).mean() < 1e-3 and (d > 0).mean() < 0.05, (lighting, k, np.bincount(d.ravel()))
 
 
 def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):

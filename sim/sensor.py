@@ -1,0 +1,115 @@
+"""The camera sensor's effects on a rendered frame (issue 17's model): auto-exposure drift and sensor noise.
+
+Exposure: a slow gain oscillation ``g(t)`` and a per-lighting gamma: ``255 (min(1, x g / 255)) ** gamma`` per
+channel value x. Since ``(x g / 255) ** gamma = g ** gamma (x / 255) ** gamma``, it is also a fixed gamma table
+followed by one scale per frame, clipped at 255. ``sim.render.Renderer`` uses that form (issue 19): the static
+scene's gamma-corrected image is kept, only the pixels a frame drew on (``DirtyBands``) go through the table, and
+the per-frame step is one saturating scale of the whole frame (``expose``), about a tenth of a 256-entry LUT
+pass over 2.7 MB on this machine. ``exposure_lut`` is the direct form, kept for ``sim.render_reference``.
+
+Noise: a Gaussian field a little larger than the image, generated once per lighting, added (saturating) at an
+offset drawn per frame."""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import cv2
+import numpy as np
+
+EXPOSURE_GAMMA = {"day": 0.95, "dusk": 0.9, "night": 0.85}
+NOISE_PAD_PX = 64
+"""How much larger than the image the noise field is, either way: the range of its per-frame offset."""
+GAMMA_SCALE = 256
+"""The gamma table's fixed-point scale: its uint16 entries are 256 x the 0-255 value, so that one scale per frame
+loses under 1/256 of a level to the table's rounding."""
+
+
+def exposure_gain(t_s: float, seed: int) -> float:
+    """Auto-exposure drift: a 9 s and a 2.3 s oscillation (+-7 % and +-3 %) with a phase from the camera's seed."""
+    phase = (seed % 97) * 0.37
+    return 1.0 + 0.07 * math.sin(2 * math.pi * t_s / 9.0 + phase) + 0.03 * math.sin(2 * math.pi * t_s / 2.3 + phase)
+
+
+def exposure_lut(t_s: float, seed: int, lighting: str) -> np.ndarray:
+    """The exposure at ``t_s`` as one 256-entry uint8 table (the direct form; float32 as issue 17 computed it)."""
+    x = np.arange(256, dtype=np.float32) / 255.0
+    gain = exposure_gain(t_s, seed)
+    return np.clip(255.0 * np.power(np.clip(x * gain, 0, 1), EXPOSURE_GAMMA[lighting]), 0, 255).astype(np.uint8)
+
+
+@cache
+def gamma_table(lighting: str) -> np.ndarray:
+    """The lighting's gamma as a 256-entry uint16 table in ``GAMMA_SCALE`` fixed point: round(256 * 255 (x/255)^g)."""
+    x = np.arange(256, dtype=np.float64) / 255.0
+    table = np.round(GAMMA_SCALE * 255.0 * np.power(x, EXPOSURE_GAMMA[lighting])).astype(np.uint16)
+    table.flags.writeable = False
+    return table
+
+
+def exposure_scale(t_s: float, seed: int, lighting: str) -> float:
+    """The per-frame factor that takes a ``gamma_table`` value to the exposed 0-255 value: g(t) ** gamma / 256."""
+    return exposure_gain(t_s, seed) ** EXPOSURE_GAMMA[lighting] / GAMMA_SCALE
+
+
+def expose(gamma_image: np.ndarray, scale: float, dst: np.ndarray | None = None) -> np.ndarray:
+    """uint8 exposed image from a ``gamma_table`` image (uint16): saturate(scale x v), rounded down as the direct
+    table's float-to-uint8 cast does (``convertScaleAbs`` rounds to nearest: hence the -0.5)."""
+    return cv2.convertScaleAbs(gamma_image, dst=dst, alpha=scale, beta=-0.5)
+
+
+def noise_field(seed: int, lighting: str, sigma: float, height_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lighting's sensor-noise field, N(0, sigma) per pixel and channel, ``NOISE_PAD_PX`` larger than the image
+    either way, as its positive and negative parts (uint8, truncated): added and subtracted with saturation."""
+    rng = np.random.default_rng(seed + 7)
+    n = rng.normal(0, sigma, (height_px + NOISE_PAD_PX, width_px + NOISE_PAD_PX, 3)).astype(np.float32)
+    return np.clip(n, 0, 255).astype(np.uint8), np.clip(-n, 0, 255).astype(np.uint8)
+
+
+def noise_offset(seed: int, frame_index: int) -> tuple[int, int]:
+    """Where frame ``frame_index`` cuts the image out of the noise field: (dx, dy) in [0, NOISE_PAD_PX)."""
+    dx, dy = (int(v) for v in np.random.default_rng((seed, frame_index)).integers(0, NOISE_PAD_PX, 2))
+    return dx, dy
+
+
+def add_noise(img: np.ndarray, field: tuple[np.ndarray, np.ndarray], offset: tuple[int, int]) -> np.ndarray:
+    """``img`` (uint8, changed in place and returned) plus the noise field cut at ``offset`` (saturating)."""
+    (pos, neg), (dx, dy) = field, offset
+    h, w = img.shape[:2]
+    cv2.add(img, pos[dy:dy + h, dx:dx + w], dst=img)
+    return cv2.subtract(img, neg[dy:dy + h, dx:dx + w], dst=img)
+
+
+class DirtyBands:
+    """The part of a frame drawn on, as one column span per band of ``band_px`` rows: rectangles are marked as
+    they are drawn; ``spans`` gives, per band with a mark, its rows and the columns from its leftmost to its
+    rightmost mark (a superset of the marks: everything drawn is in it)."""
+
+    def __init__(self, height_px: int, width_px: int, band_px: int = 16) -> None:
+        self.h, self.w, self.band_px = height_px, width_px, band_px
+        n = -(-height_px // band_px)
+        self._x1 = [width_px] * n
+        self._x2 = [0] * n
+
+    def mark(self, x1: float, y1: float, x2: float, y2: float) -> None:
+        """Mark the rectangle [x1, x2) x [y1, y2) (pixels, cut to the image)."""
+        x1, y1 = max(0, int(x1)), max(0, int(y1))
+        x2, y2 = min(self.w, math.ceil(x2)), min(self.h, math.ceil(y2))
+        if x2 <= x1 or y2 <= y1:
+            return
+        for b in range(y1 // self.band_px, (y2 - 1) // self.band_px + 1):
+            if x1 < self._x1[b]:
+                self._x1[b] = x1
+            if x2 > self._x2[b]:
+                self._x2[b] = x2
+
+    def spans(self) -> list[tuple[int, int, int, int]]:
+        """(y1, y2, x1, x2) per band with a mark, top to bottom."""
+        bp = self.band_px
+        return [(b * bp, min(self.h, (b + 1) * bp), x1, x2)
+                for b, (x1, x2) in enumerate(zip(self._x1, self._x2, strict=True)) if x2 > x1]
+
+    def clear(self) -> None:
+        self._x1 = [self.w] * len(self._x1)
+        self._x2 = [0] * len(self._x2)
