@@ -34,7 +34,6 @@ from sim.render_effects import (
     lit_bgr,
     queue_lamp_glow,
     shade_faces,
-    shadow_hull,
     unlit_bgr,
 )
 from sim.scenery import LIGHTING, render_scenery
@@ -75,7 +74,6 @@ class Renderer:
         self._noise: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._glow_cache: dict[tuple, np.ndarray] = {}
         self._models: dict[tuple, BodyModel] = {}
-        self._shadow_luts: dict[int, np.ndarray] = {}
         self._canvas: np.ndarray | None = None
         """What a frame is drawn on before its exposure (with exposure on), kept from frame to frame: the static scene
         of ``_canvas_lighting`` with the last frame's drawing (``_dirty``), which the next frame puts back."""
@@ -178,25 +176,42 @@ class Renderer:
         cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
         return (x1, y1, x2, y2), mask
 
-    def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
-        """Cast shadow on the road: the vehicle's corners (N, 3) projected along the sun onto z = 0, darkened
-        (v * round(256 (1 - strength)) >> 8, as a LUT, where the anti-aliased polygon covers more than half)."""
-        hull = shadow_hull(corners, sun)
-        h = hull @ self._ground_m - self._ground_t  # (x, y, 0) projected
-        if h[:, 2].min() <= NEAR_M:
-            return
-        cut = self._polygon_mask(h[:, :2] / h[:, 2:])
+    def _shadow_outlines(self, posed: list[tuple], sun: np.ndarray) -> list[np.ndarray | None]:
+        """Per actor (body model, rotation 3x3, x m, y m), its cast shadow's outline in pixels (K, 2), None when any
+        of it is behind the camera: the part corners projected along the sun onto z = 0 (``shadow_hull``'s
+        projection, in float32 as ``cv2.convexHull`` takes them), every actor's in one product, and into the image;
+        each actor's outline is its ground hull's points."""
+        if not posed:
+            return []
+        counts = [8 * len(p[0].parts) for p in posed]
+        local = np.concatenate([p[0].points[:n] for p, n in zip(posed, counts, strict=True)])  # (N, 3)
+        idx = np.repeat(np.arange(len(posed)), counts)
+        rot2 = np.stack([p[1][:2, :2] for p in posed])[idx]  # (N, 2, 2)
+        ground = (np.einsum("nij,nj->ni", rot2, local[:, :2]) + np.array([(p[2], p[3]) for p in posed])[idx]
+                  - local[:, 2:3] * (sun[:2] / max(sun[2], 0.25))).astype(np.float32)
+        h = ground.astype(float) @ self._ground_m - self._ground_t
+        near = np.minimum.reduceat(h[:, 2], np.cumsum([0, *counts[:-1]])).tolist()
+        uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
+        out: list[np.ndarray | None] = []
+        start = 0
+        for n, z in zip(counts, near, strict=True):
+            hull = cv2.convexHull(ground[start:start + n], returnPoints=False).ravel() + start
+            out.append(None if z <= NEAR_M else uv[hull])
+            start += n
+        return out
+
+    def _draw_shadow(self, img: np.ndarray, outline: np.ndarray, strength: float) -> None:
+        """Cast shadow on the road, its pixel ``outline`` (``_shadow_outlines``) darkened: v * round(256 (1 -
+        strength)) >> 8 (a saturating scale rounded down) where the anti-aliased polygon covers more than half."""
+        cut = self._polygon_mask(outline)
         if cut is None:
             return
         (x1, y1, x2, y2), mask = cut
         self._dirty.mark(x1, y1, x2, y2)
         cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)
-        k = int(256 * (1 - strength))
-        lut = self._shadow_luts.get(k)
-        if lut is None:
-            lut = self._shadow_luts[k] = ((np.arange(256, dtype=np.uint16) * k) >> 8).astype(np.uint8)
         roi = img[y1:y2, x1:x2]
-        cv2.copyTo(cv2.LUT(roi, lut), mask, roi)  # in place: roi is a view of img
+        # (v k / 256 - 0.4999 rounds to v k >> 8 for every v, k in 0..256)
+        cv2.copyTo(cv2.convertScaleAbs(roi, alpha=int(256 * (1 - strength)) / 256, beta=-0.4999), mask, roi)
 
     # ------------------------------------------------------------------ per frame
     def _model(self, a: Actor) -> BodyModel:
@@ -246,16 +261,22 @@ class Renderer:
                 for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
 
     @staticmethod
-    def _blur_from_pose(a: Actor, pose: tuple[np.ndarray, np.ndarray], exposure_s: float) -> np.ndarray | None:
-        """Image motion (px) of the actor's centre during the exposure, from its pose (m, tvec); None below 1.5 px."""
-        if a.speed_mps < 0.5:
-            return None
-        m, tvec = pose
-        h = np.array([[0.0, 0.0, a.height_m / 2], [a.speed_mps * exposure_s, 0.0, a.height_m / 2]]) @ m.T + tvec
-        if h[0, 2] <= NEAR_M or h[1, 2] <= NEAR_M:
-            return None
-        vec = h[1, :2] / h[1, 2] - h[0, :2] / h[0, 2]
-        return vec if math.hypot(vec[0], vec[1]) >= 1.5 else None
+    def _blur_vectors(actors: list[Actor], poses: list[tuple[np.ndarray, np.ndarray]], exposure_s: float
+                      ) -> list[np.ndarray | None]:
+        """Per actor, the image motion (px) of its centre during the exposure, from its pose (m, tvec), all in one
+        product; None below 0.5 m/s, below 1.5 px, or behind the camera."""
+        if not actors:
+            return []
+        m = np.stack([p[0] for p in poses])  # (A, 3, 3)
+        tvec = np.stack([p[1] for p in poses])
+        hz = np.array([a.height_m / 2 for a in actors])
+        run = np.array([a.speed_mps * exposure_s for a in actors])
+        h0 = m[:, :, 2] * hz[:, None] + tvec  # the centre (0, 0, h/2), and (run, 0, h/2)
+        h1 = h0 + m[:, :, 0] * run[:, None]
+        ok = (h0[:, 2] > NEAR_M) & (h1[:, 2] > NEAR_M)
+        vec = (h1[:, :2] / np.where(ok, h1[:, 2], 1.0)[:, None] - h0[:, :2] / np.where(ok, h0[:, 2], 1.0)[:, None])
+        ok &= (np.array([a.speed_mps for a in actors]) >= 0.5) & (np.hypot(vec[:, 0], vec[:, 1]) >= 1.5)
+        return [v if k else None for v, k in zip(vec, ok.tolist(), strict=True)]
 
     def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
         """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), a copy of
@@ -327,21 +348,23 @@ class Renderer:
                 continue
             if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
                 continue  # (shadows may reach into the image from a little outside)
-            n_corner = 8 * len(model.parts)
-            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box))
-            if cast:
-                corners_w = model.points[:n_corner] @ rot.T + (a.pos_x_m, a.pos_y_m, 0.0)
-                self._draw_shadow(img, corners_w, sun, 0.45 * L["sun"] / 0.55)
-            if pools and pool_ok[i_a] and a.kind.value != "debris":
-                self._draw_headlight_pool(img, pool_uv[i_a], pool_colour)
+            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, i_a))
+        outlines = self._shadow_outlines([(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], sun) if cast else ()
+        for k_a, d in enumerate(drawn):
+            if cast and outlines[k_a] is not None:
+                self._draw_shadow(img, outlines[k_a], 0.45 * L["sun"] / 0.55)
+            if pools and pool_ok[d[11]] and d[0].kind.value != "debris":
+                self._draw_headlight_pool(img, pool_uv[d[11]], pool_colour)
         drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
+        blurs = (self._blur_vectors([d[0] for d in drawn], [d[2] for d in drawn], L["exposure_s"])
+                 if self.blur_enabled else [None] * len(drawn))
         vis_all, colours_all, first_part = shade_faces(
             [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
-        for k_a, (a, model, pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box) in enumerate(drawn):
+        for k_a, (a, model, _pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, _i) in enumerate(drawn):
             parts, decals = model.parts, model.decals
             self._dirty.mark(box[0] - 2, box[1] - 2, box[2] + 3, box[3] + 3)  # (anti-aliased edges reach 1 px out)
             n_corner = 8 * len(parts)
-            blur_px = self._blur_from_pose(a, pose, L["exposure_s"]) if self.blur_enabled else None
+            blur_px = blurs[k_a]
             cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
             p0 = first_part[k_a]
             vis, colours = vis_all[p0:first_part[k_a + 1]], colours_all[p0:]
