@@ -366,11 +366,11 @@ class Renderer:
             n_corner = 8 * len(parts)
             blur_px = blurs[k_a]
             cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
-            p0 = first_part[k_a]
-            vis, colours = vis_all[p0:first_part[k_a + 1]], colours_all[p0:]
-            face16 = np.ascontiguousarray(uv16[:n_corner].reshape(len(parts), 8, 2)[:, FACE_IDX])  # (P, faces, 4, 2)
-            for p_i, f_i in zip(*np.nonzero(vis), strict=True):
-                cv2.fillConvexPoly(img, face16[p_i, f_i], colours[p_i][f_i], cv2.LINE_AA, 4)
+            p0, p1 = first_part[k_a], first_part[k_a + 1]
+            vis = vis_all[p0:p1]
+            faces16 = uv16[:n_corner].reshape(len(parts), 8, 2)[:, FACE_IDX][vis]  # (visible faces, 4, 2), in order
+            for face16, colour in zip(faces16, colours_all[p0:p1][vis].tolist(), strict=True):
+                cv2.fillConvexPoly(img, face16, colour, cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]

@@ -57,7 +57,7 @@ def halo_numbers(glows: list[tuple[np.ndarray, tuple, float]], scale: float) -> 
 def shade_faces(posed: list[tuple], camera_centre: np.ndarray, lighting: dict, sun: np.ndarray
                 ) -> tuple[np.ndarray, list, list[int]]:
     """The part faces of every posed actor ((body model, rotation 3x3, x m, y m) each), together: which face the
-    camera ((S, 5) bool over the S parts of all), their shaded colours ((S, 5) BGR lists: base colour x (ambient +
+    camera ((S, 5) bool over the S parts of all), their shaded colours ((S, 5, 3) BGR floats: base colour x (ambient +
     sun max(0, n . sun)), glass 0.6 + 0.5 shade (x 1.3 on top), x the scene gain, clipped) and each actor's first
     part index (S at the end)."""
     models = [p[0] for p in posed]
@@ -71,7 +71,7 @@ def shade_faces(posed: list[tuple], camera_centre: np.ndarray, lighting: dict, s
     shade = np.where(np.concatenate([md.glass for md in models]),
                      0.6 + 0.5 * shade * np.where(np.concatenate([md.top for md in models]), 1.3, 1.0), shade)
     colours = np.clip(np.concatenate([md.base_bgr for md in models]) * shade[..., None] * lighting["scene_gain"], 0, 255)
-    return vis, colours.tolist(), [0, *np.cumsum(counts).tolist()]
+    return vis, colours, [0, *np.cumsum(counts).tolist()]
 
 
 def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_bar: bool, brake_on: bool,
@@ -134,7 +134,7 @@ def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray, silhou
     if not lamps:
         return []
     sizes = [len(pts) // 4 for pts, _r in lamps]
-    centres = np.concatenate([pts.reshape(-1, 4, 2).mean(axis=1) for pts, _r in lamps])  # (F, 2)
+    centres = np.concatenate([pts for pts, _r in lamps]).reshape(-1, 4, 2).mean(axis=1)  # (F, 2)
     ranks = np.repeat([r for _p, r in lamps], sizes)
     bounds = np.asarray(bounds, float).reshape(-1, 4)
     inside = ((centres[:, :1] >= bounds[:, 0]) & (centres[:, :1] <= bounds[:, 2]) & (centres[:, 1:] >= bounds[:, 1])
