@@ -402,8 +402,8 @@ class Renderer:
         hidden = hidden_lamps([(g[0], r) for g, r in zip(glows, glow_rank, strict=True)]
                               + [(bar_halos[key][0], rank[key[0]]) for key in keys],
                               np.array([(d[5], d[7], d[6], d[8]) for d in drawn], float),
-                              [d[4][:8 * len(d[1].parts)].reshape(-1, 8, 2)[[p.silhouette for p in d[1].parts]]
-                               for d in drawn])
+                              lambda k: drawn[k][4][:8 * len(drawn[k][1].parts)].reshape(-1, 8, 2)[
+                                  [p.silhouette for p in drawn[k][1].parts]])
         return ([g for g, h in zip(glows, hidden, strict=False) if not h],
                 {key: bar_halos[key] for key, h in zip(keys, hidden[len(glows):], strict=True) if not h})
 

@@ -3,6 +3,8 @@ per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be te
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -122,11 +124,12 @@ def unlit_bgr(colour, lamp: str | None, lighting: dict) -> list:
                    * (lighting["ambient"] + 0.5 * lighting["sun"]) * gain * 1.3, 0, 255).tolist()
 
 
-def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray, silhouettes: list[np.ndarray]) -> list[bool]:
+def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray,
+                 silhouettes: Callable[[int], np.ndarray]) -> list[bool]:
     """Which lit lamps are hidden behind nearer vehicles, so that they throw no halo. Per lamp in ``lamps``: its k
     face quads in pixels (4k, 2) and its vehicle's place in the painter's order (far to near); per vehicle in that
     order, its pixel bounds (x_lo, y_lo, x_hi, y_hi) in ``bounds`` (A, 4) and its silhouette parts' projected
-    corners (P, 8, 2) in ``silhouettes``. A lamp is hidden when the centre of every one of its faces lies inside a
+    corners (P, 8, 2) from ``silhouettes(place)`` (asked only for the vehicles a test needs). A lamp is hidden when the centre of every one of its faces lies inside a
     part of a vehicle drawn after it (one bounds test for all lamps and vehicles, a hull test only where a
     nearer vehicle's bounds hold a face). A halo is the lens's image of a lamp it sees: without this test a hidden
     EV's light bar glowed through the bus in front of it (simulator, ev_bench tuning seed 80442, rsu4: a false
@@ -145,7 +148,7 @@ def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray, silhou
         if covered[f]:
             continue
         if a not in hulls:
-            hulls[a] = [cv2.convexHull(c.astype(np.float32)) for c in silhouettes[a]]
+            hulls[a] = [cv2.convexHull(c.astype(np.float32)) for c in silhouettes(int(a))]
         point = (float(centres[f, 0]), float(centres[f, 1]))
         covered[f] = any(cv2.pointPolygonTest(h, point, False) > 0 for h in hulls[a])
     ends = np.cumsum(sizes)

@@ -90,8 +90,8 @@ def test_a_lamp_behind_a_nearer_vehicle_is_hidden_and_one_beside_it_is_not():
     above = behind - (0, 14)  # above the nearer box's top: in view
     lamps = [(behind, 0), (above, 0), (behind, 1), (np.vstack([behind, above]), 0)]
     # the last: a light bar over two faces, in view while any face is; nothing is drawn after the nearest vehicle
-    assert hidden_lamps(lamps, bounds, parts) == [True, False, False, False]
-    assert hidden_lamps([], bounds, parts) == []
+    assert hidden_lamps(lamps, bounds, parts.__getitem__) == [True, False, False, False]
+    assert hidden_lamps([], bounds, parts.__getitem__) == []
 
 
 @pytest.mark.parametrize("renderer", ["cached", "reference"])
