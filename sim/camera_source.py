@@ -21,6 +21,17 @@ from protocol.transport import Subscription, Transport
 from sim.render import Renderer
 
 
+def camera_phase_s(index: int, fps: float, snapshot_hz: float = 20.0) -> float:
+    """How much earlier than t = k / fps the corridor's ``index``-th camera exposes frame k (issue 19).
+
+    Real cameras run free, not in step. In step, a 15 fps camera fed 20 Hz snapshots starts a frame on 3 of every 4
+    snapshots, every camera on the same 3: all four RSUs' work arrived at once, and none on the fourth. Cameras
+    0, 1, 2, 3 take (k + 1/2) / 4 of a frame period, which puts the snapshot each passes over on a different slot:
+    three RSUs start a frame on every snapshot."""
+    slots = max(1, round(snapshot_hz / (snapshot_hz - fps))) if snapshot_hz > fps else 1
+    return ((index % slots) + 0.5) / (slots * fps)
+
+
 @dataclass(frozen=True)
 class Frame:
     """One camera frame: BGR image (h, w, 3) uint8, capture time (s, sim clock) and frame number."""
@@ -39,11 +50,16 @@ class SimCamera:
 
     def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport | None = None, *, seed: int = 0,
                  noise: bool = True, motion_blur: bool = True, exposure: bool = True, queue_frames: int = 2,
-                 prerender: bool = False) -> None:
+                 prerender: bool = False, phase_s: float | None = None) -> None:
         if not 1 <= queue_frames <= 64:
             raise ValueError(f"queue_frames must be in [1, 64], got {queue_frames}")
         self.corridor = corridor
         self.rsu = corridor.rsu(rsu_id)
+        self.phase_s = camera_phase_s([r.rsu_id for r in corridor.rsus].index(rsu_id), self.rsu.camera.fps) \
+            if phase_s is None else float(phase_s)
+        """How much earlier than the scenario clock's whole frame periods this camera exposes (``camera_phase_s``)."""
+        if not 0.0 <= self.phase_s < 1.0 / self.rsu.camera.fps:
+            raise ValueError(f"phase_s must be in [0, 1/fps), got {self.phase_s}")
         self.renderer = Renderer(self.rsu.camera, corridor.road, seed=seed, noise=noise, motion_blur=motion_blur,
                                  exposure=exposure)
         self.fps = self.rsu.camera.fps
@@ -103,8 +119,8 @@ class SimCamera:
             return len(self._pending)
 
     def frame_index(self, sim_time_s: float) -> int:
-        """The camera's frame counter at a sim time (it exposes a frame every 1/fps s from t = 0)."""
-        return int(sim_time_s * self.fps + 1e-6)
+        """The camera's frame counter at a sim time (it exposes a frame every 1/fps s from t = -phase_s)."""
+        return int((sim_time_s + self.phase_s) * self.fps + 1e-6)
 
     def render(self, snapshot: WorldSnapshot) -> Frame:
         """Render one frame of the snapshot (lockstep path); the frame number is the camera's counter."""

@@ -314,3 +314,21 @@ def test_iea_up_starts_the_vehicle_and_the_world_once_its_rsus_are_up(tmp_path):
     one = [ServiceSpec("rsu2", ["-m", "rsu", "--rsu", "rsu2"]), ServiceSpec("sim", ["-m", "sim"])]
     assert start_when_rsus_up(Group(), one, bus, "tw", settle_s=0.0, timeout_s=0.2, say=said.append) == ["rsu2"]
     assert "rsu2 not up" in said[-1]
+
+
+def test_the_corridors_cameras_run_out_of_step(corridor):
+    """Each camera exposes 15 fps, but not on the same 20 Hz snapshots as the others (issue 19: in step, every RSU's
+    frame work arrived at once on three snapshots in four, and none on the fourth)."""
+    cams = [SimCamera(corridor, r.rsu_id, seed=0) for r in corridor.rsus]
+    assert len(cams) == 4
+    starts = {k: [] for k in range(40)}  # snapshot slot -> the cameras that start a frame there
+    for c in cams:
+        idx = [c.frame_index(k * 0.05) for k in range(41)]
+        assert len(set(idx)) == 31  # 15 fps over 2 s
+        for k in range(40):
+            if idx[k + 1] != idx[k]:
+                starts[k + 1 if k + 1 < 40 else 0].append(c.rsu.rsu_id)
+    assert max(len(v) for v in starts.values()) == 3  # never all four on one snapshot
+    assert {len(v) for k, v in starts.items() if k > 0} == {3}  # three on every one
+    with pytest.raises(ValueError, match="phase_s"):
+        SimCamera(corridor, "rsu1", phase_s=0.1)
