@@ -26,7 +26,7 @@ from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, vehicle_detector
 from rsu.detect_roi import ROI_MARGIN_M, detection_roi, zone_box_px
 from rsu.frames import FrameSource, ImageFolderSource, VideoSource
-from rsu.hazard import HazardDetector
+from rsu.hazard import HazardConfig, HazardDetector
 from rsu.localize import INTERPOLATIONS, METHODS, Localizer
 from rsu.pipeline import RsuPipeline
 from rsu.service import RsuService
@@ -143,7 +143,9 @@ def build_hazards(config: PipelineConfig, corridor: Corridor, rsu_id: str,
     if not config.hazards:
         return None
     camera = corridor.rsu(rsu_id).camera
-    hazards = HazardDetector(corridor.road, localizer.mapper.to_ground, camera=camera)
+    index = [r.rsu_id for r in corridor.rsus].index(rsu_id)  # the corridor's RSUs look in turn (HazardConfig.phase_s)
+    config_h = HazardConfig(phase_s=(index % 4) * HazardConfig().period_s / 4)
+    hazards = HazardDetector(corridor.road, localizer.mapper.to_ground, config_h, camera=camera)
     if config.hazard_background:
         empty = cv2.imread(config.hazard_background, cv2.IMREAD_COLOR)
         if empty is None or empty.shape[:2] != (camera.height_px, camera.width_px):

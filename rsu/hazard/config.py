@@ -22,6 +22,10 @@ class HazardConfig:
     needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it. 2 Hz
     (3 before the eleventh session): ``bench/hazard_bench.py`` reads the same recall, false alarms and clearance at
     both, detection 1.18 s instead of 1.35 s (median), for a third less of the detector's CPU."""
+    phase_s: float = 0.0
+    """The first look waits this long after the first frame, and the looks keep that phase: a corridor's RSUs that
+    share one machine look in turn, not on the same frames (``rsu.build.build_hazards`` gives RSU k of the corridor
+    k / 4 of a period; issue 19: four looks of ~10 ms of CPU at once every half second dropped frames)."""
     warmup_fps: float = 15.0
     """Frame rate assumed for untimed warm-up frames (``HazardDetector.learn_background`` without a time)."""
     init_frames: int = 9
@@ -116,6 +120,8 @@ class HazardConfig:
             raise ValueError("need init_frames >= 1, init_interval_s >= 0 s and decay > 0")
         if self.rate_hz < 0 or self.warmup_fps <= 0 or self.max_update_gap_s <= 0:
             raise ValueError("need rate_hz >= 0 (0: every frame), warmup_fps > 0 and max_update_gap_s > 0")
+        if not 0.0 <= self.phase_s <= 10.0:
+            raise ValueError(f"need 0 <= phase_s <= 10 s, got {self.phase_s}")
 
     @property
     def period_s(self) -> float:

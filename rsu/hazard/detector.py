@@ -83,6 +83,8 @@ class HazardDetector:
         self.last_components: list[_Component] = []
         self._last_t_s: float | None = None
         """Time of the last frame looked at (``update``)."""
+        self._first_t_s: float | None = None
+        """Time of the first frame (``update``; again after a new clock): the looks start ``phase_s`` after it."""
         self._learn_t_s: float | None = None
         """Time of the last warm-up frame learnt (``learn_background``)."""
         self._learn_frames = 0
@@ -190,6 +192,10 @@ class HazardDetector:
         last one looked at are passed over (their tracks only go into the vehicle memory; no events)."""
         cfg = self.cfg
         self.vehicles.observe(t_s, track_ids, boxes, speeds)  # every frame: cheap, and short tracks count
+        if self._first_t_s is None or t_s < self._first_t_s:
+            self._first_t_s = t_s
+        if self._last_t_s is None and t_s - self._first_t_s < cfg.phase_s - 1e-3:
+            return []
         dt = self._due(self._last_t_s, t_s)
         if dt is None:
             return []

@@ -127,6 +127,29 @@ def test_looks_at_3_frames_a_second_with_the_same_timing_as_every_frame(scene):
     assert abs(times[3.0][HazardState.CLEAR] - times[0.0][HazardState.CLEAR]) <= 2 / 3 + 1e-6, times
 
 
+def test_a_corridors_rsus_look_in_turn(scene):
+    """Issue 19: RSU k of the corridor first looks k / 4 of a period after its first frame, then once a period, so
+    four RSUs on one machine do not all look (~10 ms of CPU each) at the same frames."""
+    corridor, rsu, base, loc = scene
+    from rsu.build import PipelineConfig, build_hazards
+
+    looks = {}
+    for r in corridor.rsus:
+        det = build_hazards(PipelineConfig(hazards=True), corridor, r.rsu_id, Localizer(corridor, r))
+        seen = []
+        for k in range(30):  # 2 s at 15 fps, from t = 100 s
+            before = det.stats.frames
+            det.update(base, 100.0 + k / 15)
+            if det.stats.frames > before:
+                seen.append(k)
+        looks[r.rsu_id] = seen
+    assert [v[0] for v in looks.values()] == [0, 2, 4, 6]  # 0, 1/8, 1/4, 3/8 s: the first frame at or after
+    for seen in looks.values():
+        assert np.diff(seen).tolist() == [8] * (len(seen) - 1)  # then every 0.5 s (the next frame: 8 frames)
+    with pytest.raises(ValueError, match="phase_s"):
+        HazardConfig(phase_s=-1.0)
+
+
 def test_moving_and_tracked_vehicles_are_not_hazards(scene):
     corridor, rsu, base, loc = scene
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
