@@ -36,11 +36,11 @@ from sim.render_effects import (
     shade_faces,
     unlit_bgr,
 )
+from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines
 from sim.scenery import LIGHTING, render_scenery
 from sim.sensor import DirtyBands, add_noise, expose, exposure_scale, gamma_table, noise_field, noise_offset
 
 MIN_VISIBLE_FRACTION = 0.3
-POOL_LOCAL_M = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])  # headlight pool, ahead of the bumper
 CLASS_VEHICLE = 0
 CLASS_EV = 1
 CLASS_NAMES = ("vehicle", "ev")
@@ -138,18 +138,6 @@ class Renderer:
         out.sort(key=lambda t: -t[0])
         return out
 
-    def _pool_quads(self, actors: list[Actor]) -> tuple[np.ndarray, np.ndarray]:
-        """Headlight pools of ``actors`` projected in one product: pixel quads (N, 4, 2) and whether each is in
-        front of the camera (N,). The pool: a trapezoid on the road from 0.5 to 18 m ahead of the front bumper."""
-        cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
-                       for a in actors]).reshape(-1, 5)
-        c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
-        fx, fy = px + c * length / 2, py + s_ * length / 2
-        lx, ly = POOL_LOCAL_M[:, 0], POOL_LOCAL_M[:, 1]
-        pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
-        uv, depth = self.cam.project(pts.reshape(-1, 3))
-        return uv.reshape(-1, 4, 2), (depth.reshape(-1, 4) > NEAR_M).all(axis=1)
-
     def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
         ``uv`` (4, 2) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added to the image."""
@@ -176,33 +164,10 @@ class Renderer:
         cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
         return (x1, y1, x2, y2), mask
 
-    def _shadow_outlines(self, posed: list[tuple], sun: np.ndarray) -> list[np.ndarray | None]:
-        """Per actor (body model, rotation 3x3, x m, y m), its cast shadow's outline in pixels (K, 2), None when any
-        of it is behind the camera: the part corners projected along the sun onto z = 0 (``shadow_hull``'s
-        projection, in float32 as ``cv2.convexHull`` takes them), every actor's in one product, and into the image;
-        each actor's outline is its ground hull's points."""
-        if not posed:
-            return []
-        counts = [8 * len(p[0].parts) for p in posed]
-        local = np.concatenate([p[0].points[:n] for p, n in zip(posed, counts, strict=True)])  # (N, 3)
-        idx = np.repeat(np.arange(len(posed)), counts)
-        rot2 = np.stack([p[1][:2, :2] for p in posed])[idx]  # (N, 2, 2)
-        ground = (np.einsum("nij,nj->ni", rot2, local[:, :2]) + np.array([(p[2], p[3]) for p in posed])[idx]
-                  - local[:, 2:3] * (sun[:2] / max(sun[2], 0.25))).astype(np.float32)
-        h = ground.astype(float) @ self._ground_m - self._ground_t
-        near = np.minimum.reduceat(h[:, 2], np.cumsum([0, *counts[:-1]])).tolist()
-        uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
-        out: list[np.ndarray | None] = []
-        start = 0
-        for n, z in zip(counts, near, strict=True):
-            hull = cv2.convexHull(ground[start:start + n], returnPoints=False).ravel() + start
-            out.append(None if z <= NEAR_M else uv[hull])
-            start += n
-        return out
-
     def _draw_shadow(self, img: np.ndarray, outline: np.ndarray, strength: float) -> None:
-        """Cast shadow on the road, its pixel ``outline`` (``_shadow_outlines``) darkened: v * round(256 (1 -
-        strength)) >> 8 (a saturating scale rounded down) where the anti-aliased polygon covers more than half."""
+        """Cast shadow on the road, its pixel ``outline`` (``sim.render_pose.shadow_outlines``) darkened:
+        v * round(256 (1 - strength)) >> 8 (a saturating scale rounded down) where the anti-aliased polygon covers
+        more than half."""
         cut = self._polygon_mask(outline)
         if cut is None:
             return
@@ -231,52 +196,6 @@ class Renderer:
         if cols is None:
             cols = model.off_bgr[lighting] = [unlit_bgr(dc.colour, dc.lamp, LIGHTING[lighting]) for dc in model.decals]
         return cols
-
-    def _pose_all(self, actors: list[Actor]) -> list[tuple]:
-        """Per actor (model, (m, tvec), rot, uv (N, 2), uv x 16 rounded (N, 2) int32, nearest part-corner depth,
-        part corners' (x, y) pixel minimum and maximum, all its points' pixel box [x1, y1, x2, y2]): its body model
-        posed and projected, every actor's points in one batched product (m = K R rot, tvec = K R (position - C))."""
-        if not actors:
-            return []
-        models = [self._model(a) for a in actors]
-        rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in
-                         ((math.cos(a.heading_rad), math.sin(a.heading_rad)) for a in actors)])
-        m = self.cam.KR @ rots  # (A, 3, 3)
-        tvec = (np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]) - self.cam.C) @ self.cam.KR.T  # (A, 3)
-        counts = [len(md.points) for md in models]
-        idx = np.repeat(np.arange(len(actors)), counts)
-        h = np.einsum("nij,nj->ni", m[idx], np.concatenate([md.points for md in models])) + tvec[idx]
-        depth = h[:, 2]
-        uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
-        uv16 = np.round(uv * 16).astype(np.int32)
-        ends = np.cumsum(counts).tolist()
-        # per actor, over its part corners (the first 8 P points of its block): nearest depth, pixel bounds
-        cuts = [i for n, e, md in zip(counts, ends, models, strict=True) for i in (e - n, e - n + 8 * len(md.parts))]
-        near = np.minimum.reduceat(depth, cuts)[::2].tolist()
-        lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
-        # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
-        lo_all, hi_all = np.minimum(lo[::2], lo[1::2]).tolist(), np.maximum(hi[::2], hi[1::2]).tolist()
-        lo, hi = lo[::2].tolist(), hi[::2].tolist()
-        return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], uv16[e - n:e], near[k], lo[k], hi[k], lo_all[k] + hi_all[k])
-                for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
-
-    @staticmethod
-    def _blur_vectors(actors: list[Actor], poses: list[tuple[np.ndarray, np.ndarray]], exposure_s: float
-                      ) -> list[np.ndarray | None]:
-        """Per actor, the image motion (px) of its centre during the exposure, from its pose (m, tvec), all in one
-        product; None below 0.5 m/s, below 1.5 px, or behind the camera."""
-        if not actors:
-            return []
-        m = np.stack([p[0] for p in poses])  # (A, 3, 3)
-        tvec = np.stack([p[1] for p in poses])
-        hz = np.array([a.height_m / 2 for a in actors])
-        run = np.array([a.speed_mps * exposure_s for a in actors])
-        h0 = m[:, :, 2] * hz[:, None] + tvec  # the centre (0, 0, h/2), and (run, 0, h/2)
-        h1 = h0 + m[:, :, 0] * run[:, None]
-        ok = (h0[:, 2] > NEAR_M) & (h1[:, 2] > NEAR_M)
-        vec = (h1[:, :2] / np.where(ok, h1[:, 2], 1.0)[:, None] - h0[:, :2] / np.where(ok, h0[:, 2], 1.0)[:, None])
-        ok &= (np.array([a.speed_mps for a in actors]) >= 0.5) & (np.hypot(vec[:, 0], vec[:, 1]) >= 1.5)
-        return [v if k else None for v, k in zip(vec, ok.tolist(), strict=True)]
 
     def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
         """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), a copy of
@@ -340,23 +259,24 @@ class Renderer:
         ordered = [a for _dist, a in self._ordered(snapshot)]
         pools = L["running_lights"]
         if pools:
-            pool_uv, pool_ok = self._pool_quads(ordered)
+            pool_uv, pool_ok = pool_quads(ordered, self.cam)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
         for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi), box)) in enumerate(
-                zip(ordered, self._pose_all(ordered), strict=True)):
+                zip(ordered, pose_actors(ordered, [self._model(a) for a in ordered], self.cam), strict=True)):
             if near <= NEAR_M:
                 continue
             if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
                 continue  # (shadows may reach into the image from a little outside)
             drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, i_a))
-        outlines = self._shadow_outlines([(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], sun) if cast else ()
+        outlines = shadow_outlines([(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], sun, self._ground_m,
+                                   self._ground_t) if cast else ()
         for k_a, d in enumerate(drawn):
             if cast and outlines[k_a] is not None:
                 self._draw_shadow(img, outlines[k_a], 0.45 * L["sun"] / 0.55)
             if pools and pool_ok[d[11]] and d[0].kind.value != "debris":
                 self._draw_headlight_pool(img, pool_uv[d[11]], pool_colour)
         drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
-        blurs = (self._blur_vectors([d[0] for d in drawn], [d[2] for d in drawn], L["exposure_s"])
+        blurs = (blur_vectors([d[0] for d in drawn], [d[2] for d in drawn], L["exposure_s"])
                  if self.blur_enabled else [None] * len(drawn))
         vis_all, colours_all, first_part = shade_faces(
             [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
