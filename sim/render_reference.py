@@ -17,7 +17,7 @@ from sim.lamps import signal_on
 from sim.render import Renderer
 from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
 from sim.scenery import LIGHTING
-from sim.sensor import add_noise, exposure_lut, noise_offset
+from sim.sensor import exposure_lut
 
 
 class ReferenceRenderer(Renderer):
@@ -64,17 +64,9 @@ class ReferenceRenderer(Renderer):
         sun = np.array(LIGHTING[lighting]["sun_dir"], dtype=float)
         return lighting, LIGHTING[lighting], frame_index, self.background(lighting).copy(), sun / np.linalg.norm(sun)
 
-    def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
-                   frame_index: int) -> np.ndarray:
-        """The lamp halos, then the exposure as one direct table (``sim.sensor.exposure_lut``) and sensor noise."""
-        glows.extend(tuple(v) for v in bar_halos.values())
-        if glows:
-            self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
-        if self.exposure_enabled:
-            img = cv2.LUT(img, exposure_lut(t_s, self.seed, lighting))
-        if self.noise_enabled:
-            img = add_noise(img, self.noise_textures(lighting), noise_offset(self.seed, frame_index))
-        return img
+    def _expose(self, canvas: np.ndarray, lighting: str, t_s: float) -> np.ndarray:
+        """The exposure as one direct table over the whole frame (``sim.sensor.exposure_lut``)."""
+        return cv2.LUT(canvas, exposure_lut(t_s, self.seed, lighting))
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index)."""
