@@ -1,0 +1,52 @@
+"""The camera sensor model (``sim.sensor``): the exposure as a gamma table and one scale per frame gives the direct
+table's values within one level, the drawn-on bands cover every mark, and the noise offset is a pure function."""
+
+import numpy as np
+import pytest
+
+from sim.sensor import (
+    NOISE_PAD_PX,
+    DirtyBands,
+    expose,
+    exposure_lut,
+    exposure_scale,
+    gamma_table,
+    noise_offset,
+)
+
+
+@pytest.mark.parametrize("lighting", ["day", "dusk", "night"])
+def test_gamma_table_then_scale_is_the_direct_exposure_within_one_level(lighting):
+    values = np.arange(256, dtype=np.uint8).reshape(1, 256, 1).repeat(3, axis=2)
+    apart = 0
+    for t_s in np.linspace(0.0, 20.0, 41):
+        direct = exposure_lut(float(t_s), 3, lighting)[values].astype(int)
+        scaled = expose(gamma_table(lighting)[values], exposure_scale(float(t_s), 3, lighting)).astype(int)
+        d = np.abs(scaled - direct)
+        assert d.max() <= 1, (t_s, int(d.max()))
+        apart += int(np.count_nonzero(d))
+    assert apart / (41 * values.size) < 0.01  # only where the exact value lies within 1/256 of an integer
+
+
+def test_dirty_bands_cover_every_mark_cut_to_the_image():
+    bands = DirtyBands(100, 200, band_px=16)
+    assert bands.spans() == []
+    bands.mark(10.5, 5, 50.2, 20)  # rows 5-19: bands 0 and 1
+    bands.mark(-30, 90, 400, 130)  # cut to the image: rows 90-99, every column
+    bands.mark(60, 60, 60, 70)  # empty: nothing
+    spans = bands.spans()
+    assert spans == [(0, 16, 10, 51), (16, 32, 10, 51), (80, 96, 0, 200), (96, 100, 0, 200)]
+    covered = np.zeros((100, 200), bool)
+    for y1, y2, x1, x2 in spans:
+        covered[y1:y2, x1:x2] = True
+    assert covered[5:20, 10:51].all() and covered[90:100].all()
+    bands.clear()
+    assert bands.spans() == []
+
+
+def test_noise_offset_is_a_pure_function_in_range():
+    offsets = [noise_offset(7, k) for k in range(2000)]
+    assert offsets == [noise_offset(7, k) for k in range(2000)]
+    assert all(0 <= dx < NOISE_PAD_PX and 0 <= dy < NOISE_PAD_PX for dx, dy in offsets)
+    assert len(set(offsets)) > 1000  # spread over the field, frame to frame
+    assert noise_offset(8, 5) != noise_offset(7, 5) or noise_offset(8, 6) != noise_offset(7, 6)
