@@ -25,7 +25,8 @@ class HazardConfig:
     phase_s: float = 0.0
     """The first look waits this long after the first frame, and the looks keep that phase: a corridor's RSUs that
     share one machine look in turn, not on the same frames (``rsu.build.build_hazards`` gives RSU k of the corridor
-    k / 4 of a period; issue 19: four looks of ~10 ms of CPU at once every half second dropped frames)."""
+    k / 4 of a period; issue 19: in step, four looks of ~10 ms of CPU each landed on the same frame every half second;
+    what that did to dropped frames was not measured apart from the machine's run-to-run spread)."""
     warmup_fps: float = 15.0
     """Frame rate assumed for untimed warm-up frames (``HazardDetector.learn_background`` without a time)."""
     init_frames: int = 9
