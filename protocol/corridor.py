@@ -130,9 +130,13 @@ class Corridor:
     source: str = ""
 
     def rsu(self, rsu_id: str) -> RsuConfig:
-        for r in self.rsus:
+        return self.rsus[self.rsu_index(rsu_id)]
+
+    def rsu_index(self, rsu_id: str) -> int:
+        """The RSU's place in the corridor's list (KeyError naming the corridor's RSUs when it has no such RSU)."""
+        for k, r in enumerate(self.rsus):
             if r.rsu_id == rsu_id:
-                return r
+                return k
         raise KeyError(f"corridor {self.corridor_id!r} has no RSU {rsu_id!r}; it has {[r.rsu_id for r in self.rsus]}")
 
     def vehicle(self, vehicle_id: str) -> VehicleConfig:

@@ -143,8 +143,8 @@ def build_hazards(config: PipelineConfig, corridor: Corridor, rsu_id: str,
     if not config.hazards:
         return None
     camera = corridor.rsu(rsu_id).camera
-    index = [r.rsu_id for r in corridor.rsus].index(rsu_id)  # the corridor's RSUs look in turn (HazardConfig.phase_s)
-    config_h = HazardConfig(phase_s=(index % 4) * HazardConfig().period_s / 4)
+    # the corridor's RSUs look in turn (HazardConfig.phase_s)
+    config_h = HazardConfig(phase_s=(corridor.rsu_index(rsu_id) % 4) * HazardConfig().period_s / 4)
     hazards = HazardDetector(corridor.road, localizer.mapper.to_ground, config_h, camera=camera)
     if config.hazard_background:
         empty = cv2.imread(config.hazard_background, cv2.IMREAD_COLOR)

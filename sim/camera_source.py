@@ -55,8 +55,8 @@ class SimCamera:
             raise ValueError(f"queue_frames must be in [1, 64], got {queue_frames}")
         self.corridor = corridor
         self.rsu = corridor.rsu(rsu_id)
-        self.phase_s = camera_phase_s([r.rsu_id for r in corridor.rsus].index(rsu_id), self.rsu.camera.fps) \
-            if phase_s is None else float(phase_s)
+        self.phase_s = camera_phase_s(corridor.rsu_index(rsu_id), self.rsu.camera.fps) if phase_s is None \
+            else float(phase_s)
         """How much earlier than the scenario clock's whole frame periods this camera exposes (``camera_phase_s``)."""
         if not 0.0 <= self.phase_s < 1.0 / self.rsu.camera.fps:
             raise ValueError(f"phase_s must be in [0, 1/fps), got {self.phase_s}")

@@ -14,6 +14,9 @@ def test_default_corridor_is_the_rellis_test():
     c = load_corridor()
     assert c.corridor_id == "rellis"
     assert [r.rsu_id for r in c.rsus] == ["rsu1", "rsu2", "rsu3", "rsu4"]
+    assert c.rsu_index("rsu3") == 2 and c.rsu("rsu3") is c.rsus[2]
+    with pytest.raises(KeyError, match="has no RSU 'rsu9'; it has"):
+        c.rsu_index("rsu9")
     xs = [r.camera.x_m for r in c.rsus]
     assert np.allclose(np.diff(xs), 50.0)
     assert all(r.camera.height_m == pytest.approx(10.7) for r in c.rsus)
