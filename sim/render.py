@@ -198,25 +198,30 @@ class Renderer:
         return cols
 
     def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
-        """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), a copy of
-        the static scene to draw on and the unit vector towards the sun."""
+        """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), the static
+        scene to draw on (``_canvas_for``) and the unit vector towards the sun."""
         lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
         L = LIGHTING[lighting]
         if frame_index is None:
             frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
         sun = np.array(L["sun_dir"], dtype=float)
         sun /= np.linalg.norm(sun)
+        return lighting, L, frame_index, self._canvas_for(lighting), sun
+
+    def _canvas_for(self, lighting: str) -> np.ndarray:
+        """The static scene of ``lighting`` to draw a frame on. Without exposure the canvas is the frame handed out:
+        a new copy. With it, exposure hands out a new image, so one canvas is drawn on frame after frame, the last
+        frame's drawing (``_dirty``) put back."""
         background = self.background(lighting)
-        if not self.exposure_enabled:  # the canvas is the frame handed out: a new one
-            return lighting, L, frame_index, background.copy(), sun
-        # exposure hands out a new image: the canvas is drawn on again next frame, where the last one drew put back
+        if not self.exposure_enabled:
+            return background.copy()
         if self._canvas is None or self._canvas_lighting != lighting:
             self._canvas, self._canvas_lighting = background.copy(), lighting
         else:
             for y1, y2, x1, x2 in self._dirty.spans():
                 self._canvas[y1:y2, x1:x2] = background[y1:y2, x1:x2]
         self._dirty.clear()
-        return lighting, L, frame_index, self._canvas, sun
+        return self._canvas
 
     def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
                    frame_index: int) -> np.ndarray:

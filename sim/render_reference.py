@@ -16,7 +16,6 @@ from sim.camera import NEAR_M
 from sim.lamps import signal_on
 from sim.render import Renderer
 from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
-from sim.scenery import LIGHTING
 from sim.sensor import exposure_lut
 
 
@@ -55,14 +54,9 @@ class ReferenceRenderer(Renderer):
         m = mask > 127
         roi[m] = dark[m]
 
-    def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
-        """A frame's lighting name, its ``LIGHTING`` entry, the frame index, a fresh copy of the static scene and the
-        unit vector towards the sun."""
-        lighting = snapshot.lighting.value if hasattr(snapshot.lighting, "value") else str(snapshot.lighting)
-        if frame_index is None:
-            frame_index = int(round(snapshot.sim_time_s * self.cfg.fps))
-        sun = np.array(LIGHTING[lighting]["sun_dir"], dtype=float)
-        return lighting, LIGHTING[lighting], frame_index, self.background(lighting).copy(), sun / np.linalg.norm(sun)
+    def _canvas_for(self, lighting: str) -> np.ndarray:
+        """A fresh copy of the static scene every frame (this renderer draws outside the drawn-on bands' marks)."""
+        return self.background(lighting).copy()
 
     def _expose(self, canvas: np.ndarray, lighting: str, t_s: float) -> np.ndarray:
         """The exposure as one direct table over the whole frame (``sim.sensor.exposure_lut``)."""
