@@ -1,6 +1,7 @@
 """The renderer's cached fast path (issue 19: body models built once per look, posed and shaded with array
-operations, shadows by LUT, the exposure a gamma image scaled) draws the same pixels as issue 17's straightforward renderer
-(``sim.render_reference.ReferenceRenderer``) within noise, and the static scene is rendered once per lighting."""
+operations, shadows darkened by a scale, the exposure a gamma image scaled) draws the same pixels as issue 17's
+straightforward renderer (``sim.render_reference.ReferenceRenderer``) within noise, and the static scene is rendered
+once per lighting."""
 
 import numpy as np
 import pytest
