@@ -45,12 +45,13 @@ LEVEL_MAX_SIDE_PX = (48.0, 112.0, math.inf)
 
 
 # ----------------------------------------------------------------------------- model
-ACTIVATIONS = {"relu": nn.ReLU, "silu": nn.SiLU}
-"""ReLU (default since the thirteenth session): ONNX Runtime fuses it into the convolution, where SiLU is a
-separate pass over every feature map (30 % of the inference time at 288x448, issue 19)."""
+ACTIVATIONS = {"relu": nn.ReLU, "silu": nn.SiLU, "leaky": lambda inplace=True: nn.LeakyReLU(0.1, inplace=inplace)}
+"""LeakyReLU 0.1 (shipped since the thirteenth session): SiLU was a separate pass over every feature map in ONNX
+Runtime (30 % of the inference time at 288x448, issue 19); ReLU, fused into the convolution, is cheaper still but
+tracked worse (model card ``models/iea_det_tiny.md``)."""
 
 
-def conv_bn(c_in: int, c_out: int, k: int = 3, s: int = 1, groups: int = 1, act: str = "relu") -> nn.Sequential:
+def conv_bn(c_in: int, c_out: int, k: int = 3, s: int = 1, groups: int = 1, act: str = "leaky") -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, k, s, k // 2, groups=groups, bias=False),
                          nn.BatchNorm2d(c_out), ACTIVATIONS[act](inplace=True))
 
@@ -58,7 +59,7 @@ def conv_bn(c_in: int, c_out: int, k: int = 3, s: int = 1, groups: int = 1, act:
 class DwBlock(nn.Module):
     """Depthwise 3x3 + pointwise 1x1 (MobileNet), residual when the shape allows."""
 
-    def __init__(self, c_in: int, c_out: int, s: int = 1, act: str = "relu") -> None:
+    def __init__(self, c_in: int, c_out: int, s: int = 1, act: str = "leaky") -> None:
         super().__init__()
         self.dw = conv_bn(c_in, c_in, 3, s, groups=c_in, act=act)
         self.pw = conv_bn(c_in, c_out, 1, act=act)
@@ -77,7 +78,7 @@ class RawInputConv(nn.Module):
     0 (normalised ``-PAD_VALUE / 64``), the same in training and at run time. ``folded`` is the plain convolution
     the ONNX file holds."""
 
-    def __init__(self, c_out: int, act: str = "relu") -> None:
+    def __init__(self, c_out: int, act: str = "leaky") -> None:
         super().__init__()
         self.conv = nn.Conv2d(3, c_out, 3, 2, 1, bias=False)
         self.bn = nn.BatchNorm2d(c_out)
@@ -101,7 +102,7 @@ class RawInputConv(nn.Module):
 
 
 class TinyYolox(nn.Module):
-    def __init__(self, width: tuple[int, ...] = (16, 32, 64, 96, 128), neck: int = 64, act: str = "relu") -> None:
+    def __init__(self, width: tuple[int, ...] = (16, 32, 64, 96, 128), neck: int = 64, act: str = "leaky") -> None:
         super().__init__()
         c1, c2, c3, c4, c5 = width
         self.stem = nn.Sequential(RawInputConv(c1, act), DwBlock(c1, c2, 2, act), DwBlock(c2, c2, act=act))  # /4
@@ -389,7 +390,7 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
 def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
           seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None,
           input_hw: tuple[int, int] = INPUT_HW, flip: bool = False, assigner: str = "simota",
-          neck: int = 64, rsu_input_hw: tuple[int, int] | None = None, act: str = "relu") -> nn.Module:
+          neck: int = 64, rsu_input_hw: tuple[int, int] | None = None, act: str = "leaky") -> nn.Module:
     """Train on ``det_dirs`` at ``input_hw``; export to ``out_path`` re-declared at ``rsu_input_hw`` (the size the
     RSUs run, ``models.resize_detector.RSU_INPUT_HW``; None: the training size)."""
     torch.manual_seed(seed)
@@ -479,9 +480,9 @@ def main(argv=None) -> int:
     p.add_argument("--assigner", choices=("simota", "centre"), default="simota",
                    help="label assignment: YOLOX SimOTA (default) or fixed centre sampling")
     p.add_argument("--neck", type=int, default=64, help="FPN/head channels")
-    p.add_argument("--act", choices=sorted(ACTIVATIONS), default="relu",
-                   help="activation (relu: fused into the convolutions by ONNX Runtime; silu: the models before the "
-                        "thirteenth session)")
+    p.add_argument("--act", choices=sorted(ACTIVATIONS), default="leaky",
+                   help="activation (leaky: LeakyReLU 0.1, shipped; relu: cheapest, fused into the convolutions by "
+                        "ONNX Runtime; silu: the models before the thirteenth session)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared 2-core box)")
     p.add_argument("--limit", type=int, default=None, help="use at most this many training images")
