@@ -20,7 +20,7 @@ EXPORTS = {
 """The default scenario in its own (day) lighting, 18 episodes x 4 cameras (episode seeds 300009 + 7919 e + 11,
 never a held-out seed), and all five scenarios with the lighting cycled per pass (18 episodes x 4 cameras).
 Every 5th episode of each is ``val`` (not used)."""
-TRAIN_ARGS = ["--iterations", "3500", "--batch", "12", "--seed", "0", "--act", "leaky", "--threads", "1"]
+TRAIN_ARGS = ["--iterations", "2500", "--batch", "12", "--seed", "0"]
 
 
 def main(argv=None) -> int:

@@ -18,7 +18,6 @@ over positives, normalised by the number of positives. Needs torch (the ``train`
 from __future__ import annotations
 
 import argparse
-import copy
 import math
 import sys
 import time
@@ -45,24 +44,18 @@ LEVEL_MAX_SIDE_PX = (48.0, 112.0, math.inf)
 
 
 # ----------------------------------------------------------------------------- model
-ACTIVATIONS = {"relu": nn.ReLU, "silu": nn.SiLU, "leaky": lambda inplace=True: nn.LeakyReLU(0.1, inplace=inplace)}
-"""LeakyReLU 0.1 (shipped since the thirteenth session): SiLU was a separate pass over every feature map in ONNX
-Runtime (30 % of the inference time at 288x448, issue 19); ReLU, fused into the convolution, is cheaper still but
-tracked worse (model card ``models/iea_det_tiny.md``)."""
-
-
-def conv_bn(c_in: int, c_out: int, k: int = 3, s: int = 1, groups: int = 1, act: str = "leaky") -> nn.Sequential:
+def conv_bn(c_in: int, c_out: int, k: int = 3, s: int = 1, groups: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, k, s, k // 2, groups=groups, bias=False),
-                         nn.BatchNorm2d(c_out), ACTIVATIONS[act](inplace=True))
+                         nn.BatchNorm2d(c_out), nn.SiLU(inplace=True))
 
 
 class DwBlock(nn.Module):
     """Depthwise 3x3 + pointwise 1x1 (MobileNet), residual when the shape allows."""
 
-    def __init__(self, c_in: int, c_out: int, s: int = 1, act: str = "leaky") -> None:
+    def __init__(self, c_in: int, c_out: int, s: int = 1) -> None:
         super().__init__()
-        self.dw = conv_bn(c_in, c_in, 3, s, groups=c_in, act=act)
-        self.pw = conv_bn(c_in, c_out, 1, act=act)
+        self.dw = conv_bn(c_in, c_in, 3, s, groups=c_in)
+        self.pw = conv_bn(c_in, c_out, 1)
         self.residual = s == 1 and c_in == c_out
 
     def forward(self, x):
@@ -70,58 +63,28 @@ class DwBlock(nn.Module):
         return x + y if self.residual else y
 
 
-class RawInputConv(nn.Module):
-    """The first 3x3 stride-2 convolution of ``(x - PAD_VALUE) / 64``, applied to the raw 0-255 pixels ``x``.
-
-    The normalisation is folded into the weights (``w / 64``, bias ``-PAD_VALUE / 64 * sum(w)``), so the exported
-    graph has no subtract and divide over the whole input (0.5 ms a frame at 288x448). The border is padded with raw
-    0 (normalised ``-PAD_VALUE / 64``), the same in training and at run time. ``folded`` is the plain convolution
-    the ONNX file holds."""
-
-    def __init__(self, c_out: int, act: str = "leaky") -> None:
-        super().__init__()
-        self.conv = nn.Conv2d(3, c_out, 3, 2, 1, bias=False)
-        self.bn = nn.BatchNorm2d(c_out)
-        self.act = ACTIVATIONS[act](inplace=True)
-
-    def folded_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
-        w = self.conv.weight / 64.0
-        return w, -float(PAD_VALUE) * w.sum(dim=(1, 2, 3))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        w, bias = self.folded_weights()
-        return self.act(self.bn(F.conv2d(x, w, bias, stride=2, padding=1)))
-
-    def folded(self) -> nn.Sequential:
-        """The same function as one ``Conv2d`` (with bias) + batch norm + activation: what is exported."""
-        conv = nn.Conv2d(3, self.conv.out_channels, 3, 2, 1, bias=True)
-        with torch.no_grad():
-            conv.weight.copy_(self.folded_weights()[0])
-            conv.bias.copy_(self.folded_weights()[1])
-        return nn.Sequential(conv, self.bn, self.act)
-
-
 class TinyYolox(nn.Module):
-    def __init__(self, width: tuple[int, ...] = (16, 32, 64, 96, 128), neck: int = 64, act: str = "leaky") -> None:
+    def __init__(self, width: tuple[int, ...] = (16, 32, 64, 96, 128), neck: int = 64) -> None:
         super().__init__()
         c1, c2, c3, c4, c5 = width
-        self.stem = nn.Sequential(RawInputConv(c1, act), DwBlock(c1, c2, 2, act), DwBlock(c2, c2, act=act))  # /4
-        self.s8 = nn.Sequential(DwBlock(c2, c3, 2, act), DwBlock(c3, c3, act=act), DwBlock(c3, c3, act=act))
-        self.s16 = nn.Sequential(DwBlock(c3, c4, 2, act), DwBlock(c4, c4, act=act), DwBlock(c4, c4, act=act))
-        self.s32 = nn.Sequential(DwBlock(c4, c5, 2, act), DwBlock(c5, c5, act=act))
-        self.lat = nn.ModuleList([conv_bn(c, neck, 1, act=act) for c in (c3, c4, c5)])
-        self.smooth = nn.ModuleList([DwBlock(neck, neck, act=act) for _ in STRIDES])
-        self.head = nn.ModuleList([nn.Sequential(DwBlock(neck, neck, act=act), DwBlock(neck, neck, act=act))
-                                   for _ in STRIDES])
+        self.stem = nn.Sequential(conv_bn(3, c1, 3, 2), DwBlock(c1, c2, 2), DwBlock(c2, c2))  # /4
+        self.s8 = nn.Sequential(DwBlock(c2, c3, 2), DwBlock(c3, c3), DwBlock(c3, c3))
+        self.s16 = nn.Sequential(DwBlock(c3, c4, 2), DwBlock(c4, c4), DwBlock(c4, c4))
+        self.s32 = nn.Sequential(DwBlock(c4, c5, 2), DwBlock(c5, c5))
+        self.lat = nn.ModuleList([conv_bn(c, neck, 1) for c in (c3, c4, c5)])
+        self.smooth = nn.ModuleList([DwBlock(neck, neck) for _ in STRIDES])
+        self.head = nn.ModuleList([nn.Sequential(DwBlock(neck, neck), DwBlock(neck, neck)) for _ in STRIDES])
         self.pred = nn.ModuleList([nn.Conv2d(neck, 5 + N_CLASSES, 1) for _ in STRIDES])
         prior = -math.log((1 - 0.01) / 0.01)
         for p in self.pred:
             nn.init.zeros_(p.weight)
             nn.init.constant_(p.bias, 0.0)
             p.bias.data[4:] = prior
+        self.register_buffer("mean", torch.tensor([PAD_VALUE] * 3, dtype=torch.float32).view(1, 3, 1, 1))
 
     def raw(self, x: torch.Tensor) -> list[torch.Tensor]:
-        """Per level (B, 7, h, w) logits (box raw, objectness logit, class logits) of raw 0-255 pixels."""
+        """Per level (B, 7, h, w) logits (box raw, objectness logit, class logits)."""
+        x = (x - self.mean) / 64.0
         f8 = self.s8(self.stem(x))
         f16 = self.s16(f8)
         f32 = self.s32(f16)
@@ -390,7 +353,7 @@ def detection_loss(raw: list[torch.Tensor], targets: list[np.ndarray], hw: tuple
 def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, crop_hw: tuple[int, int], lr: float,
           seed: int, threads: int, limit: int | None = None, time_budget_s: float | None = None,
           input_hw: tuple[int, int] = INPUT_HW, flip: bool = False, assigner: str = "simota",
-          neck: int = 64, rsu_input_hw: tuple[int, int] | None = None, act: str = "leaky") -> nn.Module:
+          neck: int = 64, rsu_input_hw: tuple[int, int] | None = None) -> nn.Module:
     """Train on ``det_dirs`` at ``input_hw``; export to ``out_path`` re-declared at ``rsu_input_hw`` (the size the
     RSUs run, ``models.resize_detector.RSU_INPUT_HW``; None: the training size)."""
     torch.manual_seed(seed)
@@ -403,8 +366,8 @@ def train(det_dirs: list[Path], out_path: Path, *, iterations: int, batch: int, 
     del parts
     n_boxes = sum(len(lb) for lb in labels)
     print(f"train: {len(images)} images, {n_boxes} boxes, input {input_hw}, crops {crop_hw}, assigner {assigner}, "
-          f"flip {flip}, activation {act}", flush=True)
-    model = TinyYolox(neck=neck, act=act)
+          f"flip {flip}", flush=True)
+    model = TinyYolox(neck=neck)
     n_params = sum(p.numel() for p in model.parameters())
     print(f"model: {n_params / 1e6:.3f} M parameters", flush=True)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=5e-4)
@@ -453,11 +416,8 @@ def export_onnx(model: nn.Module, out_path: Path, input_hw: tuple[int, int] = IN
     model.eval()
     out_path.parent.mkdir(parents=True, exist_ok=True)
     dummy = torch.full((1, 3, *input_hw), float(PAD_VALUE))
-    exported = copy.deepcopy(model)
-    if isinstance(exported.stem[0], RawInputConv):
-        exported.stem[0] = exported.stem[0].folded()
     with torch.no_grad():
-        torch.onnx.export(exported, (dummy,), str(out_path), input_names=["images"], output_names=["output"],
+        torch.onnx.export(model, (dummy,), str(out_path), input_names=["images"], output_names=["output"],
                           opset_version=17, dynamo=False)
     return out_path
 
@@ -480,9 +440,6 @@ def main(argv=None) -> int:
     p.add_argument("--assigner", choices=("simota", "centre"), default="simota",
                    help="label assignment: YOLOX SimOTA (default) or fixed centre sampling")
     p.add_argument("--neck", type=int, default=64, help="FPN/head channels")
-    p.add_argument("--act", choices=sorted(ACTIVATIONS), default="leaky",
-                   help="activation (leaky: LeakyReLU 0.1, shipped; relu: cheapest, fused into the convolutions by "
-                        "ONNX Runtime; silu: the models before the thirteenth session)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared 2-core box)")
     p.add_argument("--limit", type=int, default=None, help="use at most this many training images")
@@ -495,7 +452,7 @@ def main(argv=None) -> int:
     train([Path(d) / "det" for d in a.data], Path(a.out), iterations=a.iterations, batch=a.batch,
           crop_hw=tuple(a.crop), lr=a.lr, seed=a.seed, threads=a.threads, limit=a.limit,
           time_budget_s=a.time_budget_s, input_hw=tuple(a.input), flip=a.flip, assigner=a.assigner, neck=a.neck,
-          rsu_input_hw=tuple(a.rsu_input), act=a.act)
+          rsu_input_hw=tuple(a.rsu_input))
     print(f"exported {a.out} ({Path(a.out).stat().st_size / 1e6:.2f} MB)")
     return 0
 
