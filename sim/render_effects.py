@@ -130,10 +130,10 @@ def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray,
     face quads in pixels (4k, 2) and its vehicle's place in the painter's order (far to near); per vehicle in that
     order, its pixel bounds (x_lo, y_lo, x_hi, y_hi) in ``bounds`` (A, 4) and its silhouette parts' projected
     corners (P, 8, 2) from ``silhouettes(place)`` (asked only for the vehicles a test needs). A lamp is hidden when
-    the centre of every one of its faces lies inside a part of a vehicle drawn after it (one bounds test for all lamps and vehicles, a hull test only where a
-    nearer vehicle's bounds hold a face). A halo is the lens's image of a lamp it sees: without this test a hidden
-    EV's light bar glowed through the bus in front of it (simulator, ev_bench tuning seed 80442, rsu4: a false
-    alert on the bus)."""
+    the centre of every one of its faces lies inside a part of a vehicle drawn after it (one bounds test for all
+    lamps and vehicles, a hull test only where a nearer vehicle's bounds hold a face). A halo is the lens's image of
+    a lamp it sees: without this test a hidden EV's light bar glowed through the bus in front of it (simulator,
+    ev_bench tuning seed 80442, rsu4: a false alert on the bus)."""
     if not lamps:
         return []
     sizes = [len(pts) // 4 for pts, _r in lamps]
