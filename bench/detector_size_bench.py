@@ -94,9 +94,10 @@ def main(argv: list[str] | None = None) -> int:
             r = measure(model, clips, held_out, corridor, 60)
             r.update(scale=scale, input_h=hw[0], input_w=hw[1])
             sizes[f"{hw[0]}x{hw[1]}"] = r
+            loc = "none matched" if r["loc_err_60m_median_m"] is None else f"{r['loc_err_60m_median_m']:.2f} m"
             print(f"  input {hw[0]:3d}x{hw[1]:3d} (scale {scale:.2f}): MOTA {r['mota']:.3f}  IDF1 {r['idf1']:.3f}  "
-                  f"mAP@0.5 {r['map50']:.3f} (recall {r['recall']:.3f})  localisation error at 55-65 m "
-                  f"{r['loc_err_60m_median_m']} m  {r['cpu_ms']:.2f} ms CPU per frame",
+                  f"mAP@0.5 {r['map50']:.3f} (recall {r['recall']:.3f})  localisation error at 55-65 m {loc}  "
+                  f"{r['cpu_ms']:.2f} ms CPU per frame",
                   flush=True)
     ok = [(v["input_h"] * v["input_w"], k) for k, v in sizes.items() if v["mota"] >= args.mota_min]
     chosen = min(ok)[1] if ok else None
