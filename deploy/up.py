@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import socket
 import sys
 import time
@@ -34,6 +35,16 @@ CLIENT_CONFIG_TEXT = """// written by `iea up`: a service waits for its router i
 // (yet, or again); once connected, Zenoh clients reconnect by themselves after a router restart.
 { connect: { timeout_ms: -1 } }
 """
+
+
+def fan_out(readers: list, key: str, message: Any) -> None:
+    """Hand one decoded message to every reader in turn; a reader that raises is logged and the others still
+    get the message (as separate subscriptions would)."""
+    for read in readers:
+        try:
+            read(key, message)
+        except Exception:
+            logging.getLogger("iea.up").exception("reader %r of %s failed", read, key)
 
 
 def free_port() -> int:
@@ -116,10 +127,10 @@ class Up:
         if monitor:
             settings = ZenohSettings() if self.peer else ZenohSettings(mode="client", connect=[self.endpoint])
             self.transport = ZenohTransport(settings)
-            self.transport.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
-            self.transport.subscribe(keys.corridor_expr(self.corridor_id), self._on_health)
-            for cb in extra_subscribers or []:
-                self.transport.subscribe(keys.corridor_expr(self.corridor_id), cb)
+            # one subscription, one decode per message, handed to every reader (issue 19: a subscription per reader
+            # decoded every snapshot and object list of the corridor once per reader, on the corridor's two cores)
+            readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
+            self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:
                 from deploy.record import McapRecorder
 
