@@ -1,6 +1,6 @@
 """The project detector's accuracy and cost against its input size (issue 19, point 3).
 
-    python bench/detector_size_bench.py [--quick] [--json] [--scales 0.5 0.45 0.4 0.35 0.3 0.25]
+    python bench/detector_size_bench.py [--quick] [--json] [--scales 0.5 0.45 0.4 0.35 0.3 0.25] [--model PATH]
 
 ``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but saved with a fixed
 input: trained at [1, 3, 384, 640] (the 1280x720 frame letterboxed at scale 0.5); shipped at any input size, each RSU
@@ -73,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mota-min", type=float, default=0.9, help="MOTA the chosen input must keep")
     ap.add_argument("--quick", action="store_true", help="rsu1 only, 6 s, mAP on 40 frames (smoke run)")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
+    ap.add_argument("--model", type=Path, default=PROJECT_MODEL, metavar="PATH",
+                    help="the detector to measure (default: the shipped models/iea_det_tiny.onnx): a candidate is "
+                         "judged on the same renders and figures")
     ap.add_argument("--write", type=Path, default=None, metavar="PATH",
                     help="also save the model resized to the chosen input here (to ship it)")
     args = ap.parse_args(argv)
@@ -90,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="iea_det_size_") as tmp:
         for scale in sorted(set(args.scales), reverse=True):
             hw = input_hw(scale)
-            model = resized_model(PROJECT_MODEL, hw, Path(tmp))
+            model = resized_model(args.model, hw, Path(tmp))
             r = measure(model, clips, held_out, corridor, 60)
             r.update(scale=scale, input_h=hw[0], input_w=hw[1])
             sizes[f"{hw[0]}x{hw[1]}"] = r
@@ -102,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     ok = [(v["input_h"] * v["input_w"], k) for k, v in sizes.items() if v["mota"] >= args.mota_min]
     chosen = min(ok)[1] if ok else None
     shipped = f"{RSU_INPUT_HW[0]}x{RSU_INPUT_HW[1]}"
-    figures: dict = {"sizes": sizes, "mota_min": args.mota_min, "chosen_input": chosen, "shipped_input": shipped,
+    figures: dict = {"model": str(args.model), "sizes": sizes, "mota_min": args.mota_min, "chosen_input": chosen,
+                     "shipped_input": shipped,
                      "mot_source": f"{MOT_SCENARIO} seed {MOT_SEED}, cameras {cams}, {duration_s:g} s"}
     if chosen:
         figures["chosen_mota"] = sizes[chosen]["mota"]
@@ -113,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"smallest input with MOTA >= {args.mota_min:g}: {chosen or 'none'} (shipped: {shipped})")
     if chosen and args.write:
         with tempfile.TemporaryDirectory() as tmp:
-            made = resized_model(PROJECT_MODEL, (sizes[chosen]["input_h"], sizes[chosen]["input_w"]), Path(tmp))
+            made = resized_model(args.model, (sizes[chosen]["input_h"], sizes[chosen]["input_w"]), Path(tmp))
             args.write.write_bytes(made.read_bytes())
         print(f"wrote {args.write}")
     if args.json:
