@@ -333,3 +333,15 @@ def test_median_of_frames_matches_numpy_median():
         np.testing.assert_array_equal(median_of_frames(frames).astype(np.float64), want)
     frames = [rng.normal(0, 50, (7, 5)).astype(np.float32) for _ in range(9)]
     np.testing.assert_array_equal(median_of_frames(frames), np.median(np.stack(frames), axis=0).astype(np.float32))
+
+
+def test_channel_max_is_the_largest_channel():
+    """The hazard look's per-pixel largest channel (strided numpy maxima) equals numpy's reduction, in both dtypes
+    the background model uses, as a new contiguous image."""
+    from rsu.hazard.background import _channel_max
+
+    rng = np.random.default_rng(9)
+    for img in (rng.normal(0, 40, (17, 23, 3)).astype(np.float32), rng.integers(0, 256, (17, 23, 3)).astype(np.uint8)):
+        got = _channel_max(img)
+        np.testing.assert_array_equal(got, img.max(axis=2))
+        assert got.dtype == img.dtype and got.flags["C_CONTIGUOUS"] and not np.shares_memory(got, img)
