@@ -6,8 +6,8 @@ boxes with decals (``sim.bodies``; each actor's body model built once per look a
 few array operations per frame, issue 19) drawn back to front (painter's order by depth), cast shadows (a LUT under
 a mask), a cheap ROI glow for lamps that
 are on, motion blur on vehicle ROIs when the image motion during the exposure exceeds ~1.5 px, then exposure and sensor
-noise (``sim.sensor``: the static scene's gamma image scaled, the pixels the frame drew on through the gamma table,
-a pre-generated noise field shifted per frame). Everything is deterministic for a given (snapshot, frame index).
+noise (``sim.sensor``: the static scene's gamma image scaled, the pixels the frame drew on through this frame's
+exposure table, a pre-generated noise field shifted per frame). Everything is deterministic for a given (snapshot, frame index).
 
 Labels (``labels``) come from the same geometry: the visible part of each vehicle's silhouette in a
 per-vehicle id buffer, as a box, with the visible fraction; a vehicle below ``MIN_VISIBLE_FRACTION``
@@ -38,7 +38,16 @@ from sim.render_effects import (
 )
 from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines
 from sim.scenery import LIGHTING, render_scenery
-from sim.sensor import DirtyBands, add_noise, expose, exposure_scale, gamma_table, noise_field, noise_offset
+from sim.sensor import (
+    DirtyBands,
+    add_noise,
+    expose,
+    exposure_scale,
+    exposure_table,
+    gamma_table,
+    noise_field,
+    noise_offset,
+)
 
 MIN_VISIBLE_FRACTION = 0.3
 CLASS_VEHICLE = 0
@@ -237,12 +246,12 @@ class Renderer:
 
     def _expose(self, canvas: np.ndarray, lighting: str, t_s: float) -> np.ndarray:
         """The exposed frame (a new image; ``sim.sensor``): the static scene's gamma image scaled, and where the frame
-        drew (``_dirty``) the canvas through the gamma table, scaled."""
+        drew (``_dirty``) the canvas through this frame's ``sim.sensor.exposure_table`` (the same values)."""
         scale = exposure_scale(t_s, self.seed, lighting)
         out = expose(self.gamma_background(lighting), scale)
-        table = gamma_table(lighting)
+        table = exposure_table(lighting, scale)
         for y1, y2, x1, x2 in self._dirty.spans():
-            expose(cv2.LUT(canvas[y1:y2, x1:x2], table), scale, dst=out[y1:y2, x1:x2])
+            cv2.LUT(canvas[y1:y2, x1:x2], table, dst=out[y1:y2, x1:x2])
         return out
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:

@@ -10,6 +10,7 @@ from sim.sensor import (
     expose,
     exposure_lut,
     exposure_scale,
+    exposure_table,
     gamma_table,
     noise_offset,
 )
@@ -50,3 +51,17 @@ def test_noise_offset_is_a_pure_function_in_range():
     assert all(0 <= dx < NOISE_PAD_PX and 0 <= dy < NOISE_PAD_PX for dx, dy in offsets)
     assert len(set(offsets)) > 1000  # spread over the field, frame to frame
     assert noise_offset(8, 5) != noise_offset(7, 5) or noise_offset(8, 6) != noise_offset(7, 6)
+
+
+def test_exposure_table_gives_the_two_pass_values():
+    """One uint8 table pass over a frame's drawn pixels gives what the gamma table (to uint16) and the frame's scale
+    gave, for every 0-255 value, lighting and a spread of scales (the renderer's dirty bands)."""
+    import cv2
+
+    values = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    values = np.dstack([values, values[::-1], values.T])
+    for lighting in ("day", "dusk", "night"):
+        for t_s in np.linspace(0.0, 9.0, 13):
+            scale = exposure_scale(float(t_s), 3, lighting)
+            two_pass = expose(cv2.LUT(values, gamma_table(lighting)), scale)
+            np.testing.assert_array_equal(cv2.LUT(values, exposure_table(lighting, scale)), two_pass)
