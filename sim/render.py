@@ -7,7 +7,8 @@ few array operations per frame, issue 19) drawn back to front (painter's order b
 a mask), a cheap ROI glow for lamps that
 are on, motion blur on vehicle ROIs when the image motion during the exposure exceeds ~1.5 px, then exposure and sensor
 noise (``sim.sensor``: the static scene's gamma image scaled, the pixels the frame drew on through this frame's
-exposure table, a pre-generated noise field shifted per frame). Everything is deterministic for a given (snapshot, frame index).
+exposure table, a pre-generated noise field shifted per frame). Everything is deterministic for a given (snapshot,
+frame index).
 
 Labels (``labels``) come from the same geometry: the visible part of each vehicle's silhouette in a
 per-vehicle id buffer, as a box, with the visible fraction; a vehicle below ``MIN_VISIBLE_FRACTION``

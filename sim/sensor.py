@@ -5,8 +5,8 @@ channel value x. Since ``(x g / 255) ** gamma = g ** gamma (x / 255) ** gamma``,
 followed by one scale per frame, clipped at 255. ``sim.render.Renderer`` uses that form (issue 19): the static
 scene's gamma-corrected image is kept and the per-frame step is one saturating scale of the whole frame
 (``expose``): 4.1 M instructions for a 1280x720 frame against 16.7 M for a 256-entry LUT pass (callgrind); only
-the pixels a frame drew on (``DirtyBands``) go through a table, this frame's ``exposure_table``. ``exposure_lut`` is the direct form, kept for
-``sim.render_reference``.
+the pixels a frame drew on (``DirtyBands``) go through a table, this frame's ``exposure_table``. ``exposure_lut``
+is the direct form, kept for ``sim.render_reference``.
 
 Noise: a Gaussian field a little larger than the image, generated once per lighting, added (saturating) at an
 offset drawn per frame."""
