@@ -59,8 +59,9 @@ def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
             continue
         # the raw count of the first period is partial (the RSU started within it, before the simulator)
         rates = [h.rates_hz.get("frames", 0.0) for h in (running[1:] or running)]
-        fps = [f for i in idx if (f := _camera_frames_processed_hz(hs[i - 1] if i > 0 else None, hs[i])) is not None]
-        fps = fps or [0.0]
+        per_period = [(f, hs[i].latency_ms.get("detect_cpu")) for i in idx
+                      if (f := _camera_frames_processed_hz(hs[i - 1] if i > 0 else None, hs[i])) is not None]
+        fps = [f for f, _d in per_period] or [0.0]
         ages = [h.latency_ms["frame_age"] for h in running if "frame_age" in h.latency_ms]
         # CPU per frame in steady state: the first period also holds the one-off costs of the first frames (body
         # models, lamp sprites and lookup tables built on first use)
@@ -75,7 +76,8 @@ def rsu_load(path: str | Path) -> dict[str, dict[str, Any]]:
             - (hs[idx[0] - 1].drops.get("source", 0) if idx[0] > 0 else 0),
             "frame_age_ms_median": round(statistics.median(ages), 1) if ages else None,
             "frame_age_ms_max": round(max(h.latency_ms.get("frame_age_max", 0.0) for h in running), 1) if ages else None,
-            "cpu_ms_per_frame": cpu, "cpu_ms_per_frame_total": round(sum(cpu.values()), 2), "periods": len(running)}
+            "cpu_ms_per_frame": cpu, "cpu_ms_per_frame_total": round(sum(cpu.values()), 2), "periods": len(running),
+            "fps_detect_cpu_ms": [(round(f, 2), d) for f, d in per_period if d is not None]}
     return out
 
 
@@ -144,3 +146,81 @@ def load_figures(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return {"rsu_fps_min": min(ld["fps_min"] for _r, ld in loads),
             "rsu_rate_min_hz": min(ld["rate_min_hz"] for _r, ld in loads), "rsu_load": cpu,
             "rsu_frame_age_ms_max": max(ages) if ages else None}
+
+
+SPEED_BANDS = (1.15, 1.3, 1.5)
+"""Bands of a period's detector CPU per frame over the detector's uncontended time (``detector_reference_ms``). The
+detector's work per frame is fixed (one inference on the RSU's window, a few boxes decoded), so the ratio is how much
+slower the machine ran that work in the period. The corridor's own contention alone: 7.22 -> 7.88 ms with ``iea up``
+running beside the reference loop (1.09 x, 2-core Xeon, 2026-11-28), hence the first band's 1.15."""
+
+
+def fps_by_machine_speed(runs: list[dict[str, Any]], reference_ms: dict[str, float]) -> list[dict[str, Any]]:
+    """Every RSU's periods of every run, by ``SPEED_BANDS`` of their detector CPU per frame over that RSU's
+    ``reference_ms``: per band the periods, those under 14 of the camera's 15 fps, and their minimum fps ([] without
+    a reference)."""
+    pairs = [(f, d / reference_ms[rsu_id]) for r in runs for rsu_id, ld in (r.get("rsu_load") or {}).items()
+             if reference_ms.get(rsu_id, 0.0) > 0 for f, d in ld.get("fps_detect_cpu_ms", [])]
+    if not pairs:
+        return []
+    edges = (0.0, *SPEED_BANDS, float("inf"))
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        fps = [f for f, x in pairs if lo < x <= hi]
+        out.append({"slowdown_from": lo, "slowdown_to": None if hi == float("inf") else hi, "periods": len(fps),
+                    "periods_under_14": sum(f < 14.0 for f in fps), "fps_min": min(fps) if fps else None})
+    return out
+
+
+def print_machine_speed(bands: list[dict[str, Any]], before: dict[str, float], after: dict[str, float]) -> None:
+    """The processed fps by how fast the machine ran the detector's fixed work (``fps_by_machine_speed``)."""
+    if not bands:
+        print(" machine speed: no detector reference measured")
+        return
+    ms = " ".join(f"{k} {before[k]:.2f}/{after.get(k, float('nan')):.2f}" for k in sorted(before))
+    print(f"\n machine speed: each RSU's detector alone on the machine, CPU ms per frame before/after the runs: {ms};"
+          "\n per 1 s period of every RSU, its detector CPU per frame over the mean of the two:")
+    print(f" {'slowdown':<12} {'periods':>8} {'< 14 fps':>9} {'fps min':>8}")
+    for b in bands:
+        band = (f"<= {b['slowdown_to']:.2f} x" if b["slowdown_from"] == 0.0 else
+                f"> {b['slowdown_from']:.2f} x" if b["slowdown_to"] is None else
+                f"{b['slowdown_from']:.2f}-{b['slowdown_to']:.2f} x")
+        fmin = "-" if b["fps_min"] is None else f"{b['fps_min']:.1f}"
+        print(f" {band:<12} {b['periods']:8d} {b['periods_under_14']:9d} {fmin:>8}")
+
+
+def detector_reference_ms(frames: int = 20, repeats: int = 3) -> dict[str, float]:
+    """Per RSU of the corridor, CPU ms per frame of its detector (its own search window, one thread, as ``iea-rsu``
+    runs it) on renders of its camera in ``rellis_ev_yield``, best of ``repeats`` passes: the machine's speed at the
+    detector's fixed work, nothing else running (~3 s)."""
+    import time
+
+    import cv2
+
+    from protocol.corridor import load_corridor
+    from rsu.build import PipelineConfig, build_detector
+    from sim.render import Renderer
+    from sim.scenario import load_scenario
+    from sim.world import World
+
+    cv2.setNumThreads(1)  # as the RSU runs it (rsu.build): the letterbox's resize on this thread
+    corridor = load_corridor()
+    world = World(load_scenario("rellis_ev_yield"), seed=1)
+    snapshots = []
+    for k in range(frames):
+        world.run_until(2.0 + 0.3 * k)
+        snapshots.append(world.snapshot())
+    out = {}
+    for rsu in corridor.rsus:
+        renderer = Renderer(rsu.camera, corridor.road, seed=1)
+        images = [renderer.render(s, k) for k, s in enumerate(snapshots)]
+        detector = build_detector(PipelineConfig(detector="project", threads=1), corridor, rsu.rsu_id)
+        detector.detect(images[0])
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.thread_time()
+            for image in images:
+                detector.detect(image)
+            best = min(best, (time.thread_time() - t0) * 1000.0 / len(images))
+        out[rsu.rsu_id] = round(best, 3)
+    return out

@@ -59,3 +59,18 @@ def test_load_per_rsu_from_health_while_the_simulator_ran(tmp_path):
     assert first_lit_frame_s(path, "rsu2", 102.0) == pytest.approx(102.07)
     assert first_lit_frame_s(path, "rsu1", 102.0) is None and first_lit_frame_s(path, None, 102.0) is None
     assert rsu_load(tmp_path / "absent.mcap") == {}
+
+
+def test_processed_fps_by_how_fast_the_machine_ran_the_detector():
+    """Periods are banded by their detector CPU per frame over the RSU's own reference (its detector alone)."""
+    from bench.e2e_rsu_load import fps_by_machine_speed
+
+    runs = [{"rsu_load": {"rsu1": {"fps_detect_cpu_ms": [(15.0, 7.0), (14.5, 7.9), (12.0, 9.5), (9.0, 14.0)]},
+                          "rsu2": {"fps_detect_cpu_ms": [(13.0, 11.0)]}}}]
+    bands = fps_by_machine_speed(runs, {"rsu1": 7.0, "rsu2": 10.0})
+    assert [b["periods"] for b in bands] == [3, 0, 1, 1]  # ratios 1.0, 1.13, 1.1 (rsu2) | - | 1.36 | 2.0
+    assert bands[0] == {"slowdown_from": 0.0, "slowdown_to": 1.15, "periods": 3, "periods_under_14": 1,
+                        "fps_min": 13.0}
+    assert bands[1]["fps_min"] is None and bands[2]["fps_min"] == 12.0
+    assert bands[3]["slowdown_to"] is None and bands[3]["periods_under_14"] == 1
+    assert fps_by_machine_speed(runs, {}) == []  # no reference, no bands
