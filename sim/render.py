@@ -29,6 +29,7 @@ from sim.bodies import FACE_IDX, BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
+    halo_falloff,
     halo_numbers,
     hidden_lamps,
     line_kernel,
@@ -377,9 +378,7 @@ class Renderer:
         key = (r, colour, with_core, core_r)
         sprite = self._glow_cache.get(key)
         if sprite is None:
-            yy, xx = np.mgrid[-2 * r:2 * r + 1, -2 * r:2 * r + 1].astype(np.float32)
-            fall = np.exp(-(xx ** 2 + yy ** 2) / (2 * (0.75 * r) ** 2))[..., None]
-            sprite = np.clip(fall * np.array(colour, np.float32), 0, 255).astype(np.uint8)
+            sprite = np.clip(halo_falloff(r) * np.array(colour, np.float32), 0, 255).astype(np.uint8)
             if with_core:
                 cv2.circle(sprite, (2 * r, 2 * r), core_r, (235, 235, 255), -1, cv2.LINE_AA)
             if len(self._glow_cache) > 512:

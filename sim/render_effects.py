@@ -4,6 +4,7 @@ per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be te
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import cache
 
 import cv2
 import numpy as np
@@ -26,6 +27,17 @@ def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     np.add.at(k, (xy[:, 1] - r0, xy[:, 0] - c0), 1.0)
     k /= k.sum()
     return k, (n - c0, n - r0)
+
+
+@cache
+def halo_falloff(r: int) -> np.ndarray:
+    """A halo's Gaussian falloff on its (4r+1)-square sprite, sigma 0.75 r, float32 (4r+1, 4r+1, 1), read-only: made
+    once per radius (a sprite's colour changes with its lamp's strength, its falloff does not: a new colour then
+    costs one multiply, not the exponential)."""
+    yy, xx = np.mgrid[-2 * r:2 * r + 1, -2 * r:2 * r + 1].astype(np.float32)
+    fall = np.exp(-(xx ** 2 + yy ** 2) / (2 * (0.75 * r) ** 2))[..., None]
+    fall.flags.writeable = False
+    return fall
 
 
 def halo_numbers(glows: list[tuple[np.ndarray, tuple, float]], scale: float) -> list[tuple]:

@@ -65,3 +65,17 @@ def test_exposure_table_gives_the_two_pass_values():
             scale = exposure_scale(float(t_s), 3, lighting)
             two_pass = expose(cv2.LUT(values, gamma_table(lighting)), scale)
             np.testing.assert_array_equal(cv2.LUT(values, exposure_table(lighting, scale)), two_pass)
+
+
+def test_halo_falloff_is_made_once_per_radius_and_read_only():
+    """sim.render_effects.halo_falloff: the Gaussian a sprite is coloured from, cached by radius."""
+    import numpy as np
+    import pytest
+
+    from sim.render_effects import halo_falloff
+
+    f = halo_falloff(6)
+    assert f is halo_falloff(6) and f.shape == (25, 25, 1) and f.dtype == np.float32
+    assert f[12, 12, 0] == 1.0 and f[12, 24, 0] == pytest.approx(np.exp(-144 / (2 * 4.5 ** 2)), rel=1e-6)
+    with pytest.raises(ValueError):
+        f[0, 0, 0] = 2.0
