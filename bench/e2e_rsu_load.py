@@ -179,7 +179,7 @@ def print_machine_speed(bands: list[dict[str, Any]], before: dict[str, float], a
         return
     ms = " ".join(f"{k} {before[k]:.2f}/{after.get(k, float('nan')):.2f}" for k in sorted(before))
     print(f"\n machine speed: each RSU's detector alone on the machine, CPU ms per frame before/after the runs: {ms};"
-          "\n per 1 s period of every RSU, its detector CPU per frame over the mean of the two:")
+          "\n per 1 s period of every RSU, its detector CPU per frame over the faster of the two:")
     print(f" {'slowdown':<12} {'periods':>8} {'< 14 fps':>9} {'fps min':>8}")
     for b in bands:
         band = (f"<= {b['slowdown_to']:.2f} x" if b["slowdown_from"] == 0.0 else
