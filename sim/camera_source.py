@@ -81,8 +81,7 @@ class SimCamera:
         """(wall-clock, CPU of this thread) seconds of the last ``render``: the camera's share of an RSU's work
         when it renders in the RSU's process (``rsu.service.RsuService`` reports it as the ``render`` stage)."""
         if prerender:  # the static scene and noise texture of every lighting, before the first frame is due
-            for lighting in Lighting:
-                self.renderer.prepare(lighting.value)
+            self.renderer.prepare(*(lighting.value for lighting in Lighting))
         if transport is not None:
             self._sub = transport.subscribe(sim_world_key(corridor.corridor_id), self._on_snapshot)
 

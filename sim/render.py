@@ -39,7 +39,7 @@ from sim.render_effects import (
     unlit_bgr,
 )
 from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines
-from sim.scenery import LIGHTING, render_scenery
+from sim.scenery import LIGHTING, render_scenery, scenery_geometry
 from sim.sensor import (
     DirtyBands,
     add_noise,
@@ -116,14 +116,23 @@ class Renderer:
             self._gamma_backgrounds[lighting] = cv2.LUT(self.background(lighting), gamma_table(lighting))
         return self._gamma_backgrounds[lighting]
 
-    def prepare(self, lighting: str) -> None:
-        """Make the lighting's static scene, its gamma image and its sensor-noise field now (~0.3 s), not at the
-        first frame that needs them (``SimCamera(prerender=True)``)."""
-        self.background(lighting)
-        if self.exposure_enabled:
-            self.gamma_background(lighting)
-        if self.noise_enabled:
-            self.noise_textures(lighting)
+    def prepare(self, *lightings: str) -> None:
+        """Make the lightings' static scenes, gamma images and sensor-noise fields now, not at the first frame that
+        needs them (``SimCamera(prerender=True)``). The static scenes share one ``sim.scenery.scenery_geometry``,
+        most of a lighting's cost: three lightings' static scenes take 1.13-1.22 s of CPU instead of 2.07-2.26 s (rsu2,
+        2-core Xeon, 2026-11-28)."""
+        missing = [lighting for lighting in dict.fromkeys(lightings) if lighting not in self._backgrounds]
+        if len(missing) > 1:
+            geometry = scenery_geometry(self.cfg, self.cam, self.road, self.seed)
+            for lighting in missing:
+                self._backgrounds[lighting] = render_scenery(self.cfg, self.cam, self.road, self.seed, lighting,
+                                                             geometry=geometry)
+        for lighting in lightings:
+            self.background(lighting)
+            if self.exposure_enabled:
+                self.gamma_background(lighting)
+            if self.noise_enabled:
+                self.noise_textures(lighting)
 
     def _actor_geometry(self, actor: Actor):
         """Projected parts of one actor: list of (part, corners_world, uv, depth), decals, depth of centre."""

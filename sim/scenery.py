@@ -4,6 +4,8 @@ world-anchored texture, shoulder, lane markings, haze, street-light pools at nig
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -25,9 +27,38 @@ LIGHTING = {
 }
 
 
-def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: int, lighting: str) -> np.ndarray:
-    """The static scene seen by ``camera`` (``cam``: its pinhole model) in ``lighting`` (a key of ``LIGHTING``)."""
-    L = LIGHTING[lighting]
+@dataclass(frozen=True)
+class SceneryGeometry:
+    """What a camera's static scene is in every lighting (``scenery_geometry``): the view rays' ground hits, the
+    world-anchored textures, the road's surface polygons and class mask, the tree line and the vignetting. Only the
+    colours, the sky, the haze and the night's lamp pools depend on the lighting (``render_scenery``)."""
+
+    dz: np.ndarray
+    """Per pixel, the z of its unit view ray (float32, h x w)."""
+    dist: np.ndarray
+    """Distance along the ray to the ground (1e6 where the ray misses it)."""
+    ground: np.ndarray
+    """Rays that hit the ground within 5 km (bool)."""
+    gx: np.ndarray
+    gy: np.ndarray
+    """Where each ray hits the ground (m, float32)."""
+    quads: tuple[tuple[np.ndarray, int], ...]
+    """The road's surface polygons (1/16 px, int32) and their class, in drawing order."""
+    cls: np.ndarray
+    """Per pixel its class: 0 grass, 1 shoulder, 2 asphalt, 3 white, 4 yellow, 5 wheel path, 6 patch (uint8)."""
+    texture: np.ndarray
+    """The ground's texture added to the surface colours (float32, h x w x 3)."""
+    trees: np.ndarray
+    """The tree line along the horizon (bool)."""
+    tree_tex: np.ndarray
+    """The tree line's texture (float32, h x w)."""
+    vignette: np.ndarray
+    """The vignetting factor (float32, h x w)."""
+
+
+def scenery_geometry(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: int) -> SceneryGeometry:
+    """The lighting-independent part of ``camera``'s static scene (``SceneryGeometry``): made once for all the
+    lightings of a camera (``sim.render.Renderer.prepare``), it is most of a lighting's cost."""
     h, w = camera.height_px, camera.width_px
     rng = np.random.default_rng(seed + 1000)
     vv, uu = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -39,11 +70,6 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
     gy = (cam.C[1] + t * rays[:, 1].reshape(h, w)).astype(np.float32)
     dist = np.where(np.isfinite(t), t, 1e6).astype(np.float32)
     ground = dist < 5e3
-
-    # sky gradient
-    sky_top, sky_bot = np.array(L["sky_top"], np.float32), np.array(L["sky_bottom"], np.float32)
-    elev = np.clip(dz * 4.0, 0.0, 1.0)[..., None]
-    img = sky_bot + (sky_top - sky_bot) * elev
 
     # world-anchored textures (perspective-correct): coarse + fine noise tiles sampled at (x, y)
     tex_size = 512
@@ -62,15 +88,8 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
     t_coarse = cv2.remap(coarse, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
     # road surfaces and markings as projected polygons into a class mask
-    asphalt = np.array(L["asphalt"], np.float32)
-    colours = np.stack([np.array(L["grass"], np.float32), np.array(L["shoulder"], np.float32), asphalt,
-                        np.array([225, 228, 230], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
-                        np.array([40, 185, 215], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
-                        asphalt * 0.9, asphalt * 0.8 + 4])
-    surf = np.empty((h, w, 3), np.float32)
-    surf[:] = colours[0]
     cls = np.zeros((h, w), np.uint8)  # 0 grass, 1 shoulder, 2 asphalt, 3 white, 4 yellow, 5 wheel path, 6 patch
-    road = road
+    quads: list[tuple[np.ndarray, int]] = []
     W = road.width_m
     step = 1.0
     s_vals = np.arange(0.0, road.length_m + step, step)
@@ -91,7 +110,7 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
                 continue
             q = np.clip(np.round(quad * 16), -2**24, 2**24).astype(np.int32)
             cv2.fillConvexPoly(cls, q, value, lineType=cv2.LINE_8, shift=4)
-            cv2.fillConvexPoly(surf, q, colours[value].tolist(), lineType=cv2.LINE_AA, shift=4)
+            quads.append((q, value))
 
     strip(-road.shoulder_width_m, 0.0, 1)
     strip(0.0, W, 2)
@@ -113,8 +132,7 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
 
     grass = cls == 0
     tex = np.where(grass, 16.0 * t_fine + 11.0 * t_coarse, 6.0 * t_fine + 5.0 * t_coarse)
-    surf = surf + tex[..., None] * np.where(grass[..., None], np.array([0.7, 1.0, 0.8], np.float32), 1.0)
-    img = np.where(ground[..., None], surf, img)
+    texture = tex[..., None] * np.where(grass[..., None], np.array([0.7, 1.0, 0.8], np.float32), 1.0)
 
     # tree line along the horizon
     hv = cam.horizon_v_px()
@@ -125,13 +143,47 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
     tree_h = 6 + 14 * prof + 5 * prof2
     top = hv - tree_h
     trees = (vv >= top[None, :]) & (vv < hv + 3)
-    tree_col = np.array(L["grass"], np.float32) * 0.6
     tree_tex = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 1.2) * 10.0
-    img = np.where(trees[..., None], tree_col + tree_tex[..., None], img)
+
+    r2 = ((uu - w / 2) / (w / 2)) ** 2 + ((vv - h / 2) / (h / 2)) ** 2
+    return SceneryGeometry(dz=dz, dist=dist, ground=ground, gx=gx, gy=gy, quads=tuple(quads), cls=cls,
+                           texture=texture, trees=trees, tree_tex=tree_tex, vignette=1.0 - 0.18 * r2 / 2)
+
+
+def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: int, lighting: str,
+                   geometry: SceneryGeometry | None = None) -> np.ndarray:
+    """The static scene seen by ``camera`` (``cam``: its pinhole model) in ``lighting`` (a key of ``LIGHTING``);
+    ``geometry``: its ``scenery_geometry``, made here when not given (a camera's lightings share one)."""
+    L = LIGHTING[lighting]
+    g = geometry if geometry is not None else scenery_geometry(camera, cam, road, seed)
+    h, w = camera.height_px, camera.width_px
+
+    # sky gradient
+    sky_top, sky_bot = np.array(L["sky_top"], np.float32), np.array(L["sky_bottom"], np.float32)
+    elev = np.clip(g.dz * 4.0, 0.0, 1.0)[..., None]
+    img = sky_bot + (sky_top - sky_bot) * elev
+
+    # road surfaces and markings in this lighting's colours
+    asphalt = np.array(L["asphalt"], np.float32)
+    colours = np.stack([np.array(L["grass"], np.float32), np.array(L["shoulder"], np.float32), asphalt,
+                        np.array([225, 228, 230], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
+                        np.array([40, 185, 215], np.float32) * (0.5 + 0.5 * L["scene_gain"]),
+                        asphalt * 0.9, asphalt * 0.8 + 4])
+    surf = np.empty((h, w, 3), np.float32)
+    surf[:] = colours[0]
+    fills = [c.tolist() for c in colours]
+    for q, value in g.quads:
+        cv2.fillConvexPoly(surf, q, fills[value], lineType=cv2.LINE_AA, shift=4)
+    surf = surf + g.texture
+    img = np.where(g.ground[..., None], surf, img)
+
+    # tree line along the horizon
+    tree_col = np.array(L["grass"], np.float32) * 0.6
+    img = np.where(g.trees[..., None], tree_col + g.tree_tex[..., None], img)
 
     # haze towards the horizon
-    haze = (1.0 - np.exp(-dist / L["haze_m"]))[..., None]
-    img = np.where(ground[..., None], img * (1 - haze) + sky_bot * haze, img)
+    haze = (1.0 - np.exp(-g.dist / L["haze_m"]))[..., None]
+    img = np.where(g.ground[..., None], img * (1 - haze) + sky_bot * haze, img)
 
     # night: pools of light from street lamps on the right shoulder every 40 m
     if lighting == "night":
@@ -139,13 +191,10 @@ def render_scenery(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: i
         lx, ly, _ = road.pose_at(lamps_s, np.full_like(lamps_s, -road.shoulder_width_m))
         pool = np.zeros((h, w), np.float32)
         for x0, y0 in zip(lx, ly, strict=True):
-            r2 = (gx - x0) ** 2 + (gy - y0) ** 2
+            r2 = (g.gx - x0) ** 2 + (g.gy - y0) ** 2
             pool += np.exp(-r2 / (2 * 5.0 ** 2))
         img = img * (1.0 + 1.1 * np.clip(pool, 0, 1.5))[..., None]
 
     # vignetting
-    r2 = ((uu - w / 2) / (w / 2)) ** 2 + ((vv - h / 2) / (h / 2)) ** 2
-    img = img * (1.0 - 0.18 * r2 / 2)[..., None]
+    img = img * g.vignette[..., None]
     return np.clip(img, 0, 255).astype(np.uint8)
-
-# ------------------------------------------------------------------ geometry

@@ -70,3 +70,21 @@ def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):
     r.render(snap.model_copy(update={"lighting": "night"}), 9)
     r.render(snap, 10)
     assert calls == ["day", "night"]
+
+
+def test_lightings_prepared_together_share_one_geometry_and_draw_the_same_scenes(corridor, monkeypatch):
+    """Renderer.prepare(*lightings): one sim.scenery.scenery_geometry for every lighting it makes, and each static
+    scene identical to the one rendered alone."""
+    import sim.render as render_mod
+
+    made = []
+    real = render_mod.scenery_geometry
+    monkeypatch.setattr(render_mod, "scenery_geometry", lambda *a: made.append(a) or real(*a))
+    cam = corridor.rsu("rsu3").camera
+    together = Renderer(cam, corridor.road, seed=4)
+    together.prepare("day", "night", "day")
+    assert len(made) == 1 and together.static_scenes() == ("day", "night")
+    alone = Renderer(cam, corridor.road, seed=4)
+    assert np.array_equal(together.background("night"), alone.background("night"))
+    together.prepare("night", "dusk")  # one lighting missing: rendered alone, no shared geometry needed
+    assert len(made) == 1 and together.static_scenes() == ("day", "dusk", "night")
