@@ -17,7 +17,7 @@ from rsu.evaluate import MotEvaluator
 from rsu.localize import GroundProjector, Localizer
 from rsu.track import iou_matrix
 from sim.camera_source import Frame, SimCamera
-from sim.render import MIN_VISIBLE_FRACTION
+from sim.render_labels import MIN_VISIBLE_FRACTION
 from sim.scenario import load_scenario
 from sim.world import World
 

@@ -16,7 +16,8 @@ from sim.lamps import (
     style_signal,
     with_signal_lamps,
 )
-from sim.render import CLASS_VEHICLE, Renderer
+from sim.render import Renderer
+from sim.render_labels import CLASS_VEHICLE
 from sim.scenario import ScenarioError, load_scenario, parse_scenario
 from sim.vehicles import LIVERY_TWO_TONE, make_style, style_detail, style_livery
 from sim.world import World
