@@ -74,3 +74,14 @@ def test_processed_fps_by_how_fast_the_machine_ran_the_detector():
     assert bands[1]["fps_min"] is None and bands[2]["fps_min"] == 12.0
     assert bands[3]["slowdown_to"] is None and bands[3]["periods_under_14"] == 1
     assert fps_by_machine_speed(runs, {}) == []  # no reference, no bands
+
+
+@pytest.mark.slow
+def test_detector_reference_times_every_rsus_own_window():
+    """bench/e2e_rsu_load.detector_reference_ms: CPU ms per frame of each RSU's detector on its own renders."""
+    from bench.e2e_rsu_load import detector_reference_ms
+    from protocol.corridor import load_corridor
+
+    ref = detector_reference_ms(frames=2, repeats=1)
+    assert set(ref) == {r.rsu_id for r in load_corridor().rsus}
+    assert all(0.5 < ms < 500.0 for ms in ref.values()), ref
