@@ -88,3 +88,6 @@ def test_lightings_prepared_together_share_one_geometry_and_draw_the_same_scenes
     assert np.array_equal(together.background("night"), alone.background("night"))
     together.prepare("night", "dusk")  # one lighting missing: rendered alone, no shared geometry needed
     assert len(made) == 1 and together.static_scenes() == ("day", "dusk", "night")
+    # the noise fields scale one N(0, 1) field: the values each lighting's own draw gives
+    assert all(np.array_equal(a, b) for a, b in zip(together.noise_textures("night"), alone.noise_textures("night"),
+                                                    strict=True))
