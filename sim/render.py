@@ -112,10 +112,10 @@ class Renderer:
             for lighting in missing:
                 self._backgrounds[lighting] = render_scenery(self.cfg, self.cam, self.road, self.seed, lighting,
                                                              geometry=geometry)
-        missing = [lighting for lighting in dict.fromkeys(lightings) if lighting not in self._noise]
-        if self.noise_enabled and len(missing) > 1:  # one N(0, 1) field scaled per lighting (sim.sensor)
+        missing_noise = [lighting for lighting in dict.fromkeys(lightings) if lighting not in self._noise]
+        if self.noise_enabled and len(missing_noise) > 1:  # one N(0, 1) field scaled per lighting (sim.sensor)
             standard = standard_noise(self.seed, self.h, self.w)
-            for lighting in missing:
+            for lighting in missing_noise:
                 self._noise[lighting] = noise_field(self.seed, lighting, LIGHTING[lighting]["noise"], self.h, self.w,
                                                     standard=standard)
         for lighting in lightings:

@@ -30,8 +30,9 @@ LIGHTING = {
 @dataclass(frozen=True)
 class SceneryGeometry:
     """What a camera's static scene is in every lighting (``scenery_geometry``): the view rays' ground hits, the
-    world-anchored textures, the road's surface polygons and class mask, the tree line and the vignetting. Only the
-    colours, the sky, the haze and the night's lamp pools depend on the lighting (``render_scenery``)."""
+    world-anchored textures (the class mask decides which texture), the road's surface polygons, the tree line and the
+    vignetting. Only the colours, the sky, the haze and the night's lamp pools depend on the lighting
+    (``render_scenery``)."""
 
     dz: np.ndarray
     """Per pixel, the z of its unit view ray (float32, h x w)."""
@@ -43,9 +44,8 @@ class SceneryGeometry:
     gy: np.ndarray
     """Where each ray hits the ground (m, float32)."""
     quads: tuple[tuple[np.ndarray, int], ...]
-    """The road's surface polygons (1/16 px, int32) and their class, in drawing order."""
-    cls: np.ndarray
-    """Per pixel its class: 0 grass, 1 shoulder, 2 asphalt, 3 white, 4 yellow, 5 wheel path, 6 patch (uint8)."""
+    """The road's surface polygons (1/16 px, int32) and their class (0 grass, 1 shoulder, 2 asphalt, 3 white,
+    4 yellow, 5 wheel path, 6 patch), in drawing order."""
     texture: np.ndarray
     """The ground's texture added to the surface colours (float32, h x w x 3)."""
     trees: np.ndarray
@@ -146,7 +146,7 @@ def scenery_geometry(camera: CameraConfig, cam: PinholeCamera, road: Road, seed:
     tree_tex = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 1.2) * 10.0
 
     r2 = ((uu - w / 2) / (w / 2)) ** 2 + ((vv - h / 2) / (h / 2)) ** 2
-    return SceneryGeometry(dz=dz, dist=dist, ground=ground, gx=gx, gy=gy, quads=tuple(quads), cls=cls,
+    return SceneryGeometry(dz=dz, dist=dist, ground=ground, gx=gx, gy=gy, quads=tuple(quads),
                            texture=texture, trees=trees, tree_tex=tree_tex, vignette=1.0 - 0.18 * r2 / 2)
 
 
