@@ -6,10 +6,12 @@
    cache (:mod:`models.ev_crop_cache`), each time without one fold of source photos (folds by photo group, so no
    photo is on both sides), scoring the fold it left out: an out-of-fold p(EV) for every train crop, written to
    ``OUT/teacher.json`` in the format ``python -m models.train_ev_body --teacher`` reads.
-2. **Students**: EfficientNet-Lite0 (what the RSU can afford per crop), one per ``--student SIZE:WEIGHT``, trained
-   on ``WEIGHT`` x the teacher's out-of-fold p + (1 - WEIGHT) x the label, saved as ``OUT/student_SIZE_wWEIGHT.pt``
-   for ``python -m models.train_ev_body --from-checkpoint ... --size SIZE``, which exports, picks the thresholds
-   on ``val`` and scores ``test`` once, where ``../shared`` is.
+2. **Students**: EfficientNet-Lite0 (what the RSU can afford per crop), one per ``--student SIZE:WEIGHT[:VIEWS[:SEED]]``,
+   trained on ``WEIGHT`` x the teacher's out-of-fold p + (1 - WEIGHT) x the label, on the cache's ``given`` crops
+   (VIEWS ``given``) or on those and the photos' ``detected`` views too (VIEWS ``all``, the default; a detected view
+   takes its photo's teacher score), saved as ``OUT/student_SIZE_wWEIGHT[_VIEWS_sSEED].pt`` for
+   ``python -m models.train_ev_body --from-checkpoint ... --size SIZE``, which exports, picks the thresholds on
+   ``val`` and scores ``test`` once, where ``../shared`` is.
 
 ``val`` and ``test`` are not in the cache this job reads: nothing here can choose by them. Needs PyTorch, OpenCV,
 numpy, scikit-learn and ``efficientnet-lite-pytorch`` (no repository runtime code); ``--weights-dir`` holds the
@@ -66,15 +68,28 @@ def mean_teacher(keys, own: list[np.ndarray], files: list[str], log=print) -> np
     return np.mean(parts, axis=0).astype(np.float32)
 
 
-def parse_student(spec: str) -> tuple[int, float]:
+def parse_student(spec: str, default_seed: int = 0) -> tuple[int, float, str, int]:
+    """``SIZE:WEIGHT[:VIEWS[:SEED]]`` -> (size, weight, views, seed); VIEWS ``all`` (default) or ``given``."""
+    parts = spec.split(":")
     try:
-        size_s, weight_s = spec.split(":")
-        size, weight = int(size_s), float(weight_s)
+        if not 2 <= len(parts) <= 4:
+            raise ValueError
+        size, weight = int(parts[0]), float(parts[1])
+        views = parts[2] if len(parts) > 2 else "all"
+        seed = int(parts[3]) if len(parts) > 3 else default_seed
     except ValueError:
-        raise SystemExit(f"--student wants SIZE:WEIGHT (e.g. 224:0.5), got {spec!r}") from None
-    if not 64 <= size <= 512 or size % 32 or not 0.0 <= weight <= 1.0:
-        raise SystemExit(f"--student {spec!r}: SIZE must be a multiple of 32 in 64-512, WEIGHT in [0, 1]")
-    return size, weight
+        raise SystemExit(f"--student wants SIZE:WEIGHT[:VIEWS[:SEED]] (e.g. 224:0.5 or 224:0.5:given:1), "
+                         f"got {spec!r}") from None
+    if not 64 <= size <= 512 or size % 32 or not 0.0 <= weight <= 1.0 or views not in ("all", "given"):
+        raise SystemExit(f"--student {spec!r}: SIZE must be a multiple of 32 in 64-512, WEIGHT in [0, 1], "
+                         "VIEWS all or given")
+    return size, weight, views, seed
+
+
+def student_name(size: int, weight: float, views: str, seed: int) -> str:
+    """The checkpoint's file name (the first students' names, ``student_224_w0.5.pt``, when VIEWS and SEED are
+    left out)."""
+    return f"student_{size}_w{weight:g}" + (f"_{views}_s{seed}" if (views, seed) != ("all", 0) else "") + ".pt"
 
 
 def weights_for(variant: str, weights_dir: str | None) -> str | None:
@@ -102,15 +117,16 @@ def main(argv=None) -> int:
                          "teacher.json); repeatable; the students learn from their mean (with --folds 0, no teacher "
                          "is trained here)")
     ap.add_argument("--student", action="append", default=None,
-                    help="SIZE:WEIGHT, a Lite0 student at SIZE px trained on WEIGHT x teacher + (1 - WEIGHT) x label; "
-                         "repeatable (default 224:0.5 and 192:0.5)")
+                    help="SIZE:WEIGHT[:VIEWS[:SEED]], a Lite0 student at SIZE px trained on WEIGHT x teacher + "
+                         "(1 - WEIGHT) x label, on all the cache's crops (VIEWS all) or on the given ones only "
+                         "(given); repeatable (default 224:0.5 and 192:0.5)")
     ap.add_argument("--student-epochs", type=int, default=20)
     ap.add_argument("--ema", type=float, default=0.995, help="EMA decay of the students' weights (0: off)")
     ap.add_argument("--max-crops", type=int, default=0, help="a seeded subset of the crops (a quick check); 0: all")
     ap.add_argument("--budget-s", type=float, default=480.0, help="the whole job's time; later stages get what is left")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    students = [parse_student(s) for s in (args.student or ["224:0.5", "192:0.5"])]
+    students = [parse_student(s, args.seed) for s in (args.student or ["224:0.5", "192:0.5"])]
     if args.folds == 1 or args.folds < 0 or (args.folds == 0 and not args.teacher_json):
         raise SystemExit(f"--folds must be 0 (with --teacher-json) or at least 2, got {args.folds}")
 
@@ -137,9 +153,10 @@ def main(argv=None) -> int:
     x = np.stack([cache["crops"][i] for i in train_idx])
     y = cache["label"][train_idx]
     keys = cache["key"][train_idx]
+    given = cache["view"][train_idx] == "given"
     folds = group_folds(cache["group"][train_idx], max(args.folds, 1), args.seed)
     log(f"device {device} ({torch.cuda.get_device_name() if device == 'cuda' else 'cpu'}); {len(x)} train crops "
-        f"({int(y.sum())} EV), folds {np.bincount(folds, minlength=args.folds).tolist() if args.folds else 'none'}")
+        f"({int(y.sum())} EV; {int((~given).sum())} detected views), folds {np.bincount(folds, minlength=args.folds).tolist() if args.folds else 'none'}")
 
     stages = max(args.folds, 0) + len(students)
 
@@ -147,7 +164,7 @@ def main(argv=None) -> int:
         return max(10.0, (args.budget_s - (time.time() - t_start)) / max(stages - done, 1))
 
     oof = np.full(len(x), np.nan, np.float32)
-    tw = weights_for(args.teacher_variant, args.weights_dir)
+    tw = weights_for(args.teacher_variant, args.weights_dir) if args.folds else None
     for f in range(args.folds):
         model = build_model(args.teacher_size, variant=args.teacher_variant, weights_path=tw)
         fit = folds != f
@@ -158,7 +175,8 @@ def main(argv=None) -> int:
             f"left-out crops ({time.time() - t_start:.0f} s)")
     summary = {"teacher": {}, "students": []}
     if args.folds:
-        teacher = {str(k): round(float(p), 5) for k, p in zip(keys, oof, strict=True)}
+        # one score per photo: its given crop's (a detected view shares the key)
+        teacher = {str(k): round(float(p), 5) for k, p, g in zip(keys, oof, given, strict=True) if g}
         (out / "teacher.json").write_text(json.dumps(teacher))
         summary["teacher"] = {"variant": args.teacher_variant, "size": args.teacher_size, "epochs": args.teacher_epochs,
                               "folds": args.folds, "out_of_fold": binary_scores(y, oof)}
@@ -170,15 +188,18 @@ def main(argv=None) -> int:
         log(f"mean teacher out of fold: {summary['teacher']['mean_out_of_fold']}")
 
     sw = weights_for("lite0", args.weights_dir)
-    for j, (size, weight) in enumerate(students):
+    for j, (size, weight, views, seed) in enumerate(students):
         model = build_model(size, weights_path=sw)
+        use = given if views == "given" else np.ones(len(x), bool)
         targets = (weight * oof + (1.0 - weight) * y).astype(np.float32)
-        train(model, x, y, args.student_epochs, args.seed, stage_budget(args.folds + j), log=log,
-              ema_decay=args.ema, targets=targets, device=device, workers=args.workers, size=size)
-        path = out / f"student_{size}_w{weight:g}.pt"
+        train(model, x[use], y[use], args.student_epochs, seed, stage_budget(args.folds + j), log=log,
+              ema_decay=args.ema, targets=targets[use], device=device, workers=args.workers, size=size)
+        path = out / student_name(size, weight, views, seed)
         torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, path)
-        summary["students"].append({"size": size, "distill_weight": weight, "checkpoint": path.name})
-        log(f"student {size} px, weight {weight:g}: {path} ({time.time() - t_start:.0f} s)")
+        summary["students"].append({"size": size, "distill_weight": weight, "views": views, "seed": seed,
+                                    "crops": int(use.sum()), "checkpoint": path.name})
+        log(f"student {size} px, weight {weight:g}, {views} views ({int(use.sum())} crops), seed {seed}: {path} "
+            f"({time.time() - t_start:.0f} s)")
     (out / "distill_summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary))
     return 0

@@ -41,6 +41,7 @@ from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_group  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
+DEFAULT_YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
 SIZE = 224  # the shipped student's input side
 ABOVE_FRACTION = 0.25
 
@@ -54,6 +55,25 @@ def usable_crops(samples, log=print) -> list[tuple[CropSample, np.ndarray]]:
             out.append((s, c))
         if (i + 1) % 500 == 0:
             log(f"  read {i + 1}/{len(samples)}")
+    return out
+
+
+def detected_views(samples, yolox: str | Path, log=print) -> list[tuple[CropSample, np.ndarray]]:
+    """Each whole-photo sample with its largest YOLOX vehicle cropped as the RSU crops a track
+    (:func:`models.ev_crop_cache.detected_view`); samples without one are left out."""
+    from models.ev_crop_cache import detected_view
+    from rsu.build import PipelineConfig, build_detector
+    from rsu.classify.real_data import read_image
+
+    if not Path(yolox).is_file():
+        raise SystemExit(f"no YOLOX model at {yolox}: pass --yolox, or leave out --detected-views")
+    detector = build_detector(PipelineConfig(detector=str(yolox)))
+    out = []
+    for s in samples:
+        image = None if s.box_px is not None else read_image(s.path)
+        c = None if image is None else detected_view(image, detector, ABOVE_FRACTION)
+        if c is not None:
+            out.append((s, c))
     return out
 
 
@@ -200,6 +220,10 @@ def main(argv=None) -> int:
     ap.add_argument("--distill-weight", type=float, default=0.5, help="the teacher's share of the target (0-1)")
     ap.add_argument("--int8", action="store_true",
                     help="export static int8 (calibrated on 200 train crops) instead of float16-stored weights")
+    ap.add_argument("--detected-views", action="store_true",
+                    help="also score each whole photo of val and test as the RSU would crop it (its largest YOLOX "
+                         "vehicle, models.ev_crop_cache.detected_view) and choose the thresholds on both val views")
+    ap.add_argument("--yolox", default=str(DEFAULT_YOLOX), help="the YOLOX-Nano ONNX file for --detected-views")
     ap.add_argument("--mirror-average", action="store_true",
                     help="export a graph that averages the crop's and its mirror image's score (twice the cost per crop)")
     args = ap.parse_args(argv)
@@ -215,6 +239,10 @@ def main(argv=None) -> int:
     print({k: (len(v), sum(s.label for s in v)) for k, v in split.items()}, "(crops, of them EV)", flush=True)
     kept = {k: usable_crops(v) for k, v in split.items()}
     data = {k: squashed(v, args.size) for k, v in kept.items()}
+    if args.detected_views:
+        for k in ("val", "test"):
+            data[f"{k}_detected"] = squashed(detected_views(split[k], args.yolox), args.size)
+            print(f"{k}: {len(data[f'{k}_detected'][1])} detected views", flush=True)
     model = build_model(args.size, mirror_average=args.mirror_average, head=args.head)
     if args.from_checkpoint:
         model.load_state_dict(torch.load(args.from_checkpoint))
@@ -252,12 +280,18 @@ def main(argv=None) -> int:
     def run(x):
         return np.concatenate([onnx_model.predict(list(x[i:i + 64])) for i in range(0, len(x), 64)])
 
-    p_val = run(data["val"][0])
-    thr = best_threshold(data["val"][1], p_val)
-    confident = confident_threshold(data["val"][1], p_val)
+    p = {k: run(data[k][0]) for k in data if k.startswith("val")}
+    y_choice = np.concatenate([data[k][1] for k in p])  # the thresholds are chosen on every val view together
+    p_choice = np.concatenate(list(p.values()))
+    thr = best_threshold(y_choice, p_choice)
+    confident = confident_threshold(y_choice, p_choice)
     report = {"size": args.size, "threshold": thr, "confident_threshold": confident, "above_fraction": ABOVE_FRACTION}
-    for k in ("val", "test"):
-        acc, prec, rec, f = metrics(data[k][1], run(data[k][0]) if k == "test" else p_val, thr)
+    if len(p) > 1:
+        acc, prec, rec, f = metrics(y_choice, p_choice, thr)
+        report["val_all_views"] = dict(n=len(y_choice), ev=int(y_choice.sum()), accuracy=acc, precision=prec,
+                                       recall=rec, f=f)
+    for k in [k for k in ("val", "val_detected", "test", "test_detected") if k in data]:
+        acc, prec, rec, f = metrics(data[k][1], p[k] if k in p else run(data[k][0]), thr)
         report[k] = dict(n=len(data[k][1]), ev=int(data[k][1].sum()), accuracy=acc, precision=prec, recall=rec, f=f)
     set_metadata(out, {"ev_threshold": f"{thr:.2f}", "confident_threshold": f"{confident:.2f}",
                        "above_fraction": f"{ABOVE_FRACTION}",
