@@ -13,6 +13,10 @@ four of five folds, grouped by source photo (out of fold: an in-sample score wou
 ``train`` is read; ``val`` and ``test`` are left to the student's scoring.
 
 Output: JSON ``{"path relative to ev_train|x1,y1,x2,y2": p_ev}`` (box empty for whole images).
+
+``--holdout`` instead fits the teacher on all of ``train`` and prints its figures on ``val`` and ``test`` at its
+``val`` threshold of best min(P, R), per C: what the data allows a model this strong (about five times the RSU's
+cost per crop), the ceiling a student is measured against.
 """
 
 from __future__ import annotations
@@ -95,13 +99,61 @@ def out_of_fold_scores(feats: np.ndarray, labels: np.ndarray, groups: np.ndarray
     return out
 
 
+def holdout_figures(feats: dict[str, np.ndarray], labels: dict[str, np.ndarray],
+                    cs: tuple[float, ...] = (0.02, 0.05, 0.1)) -> list[dict]:
+    """Per C: a logistic regression on all ``train`` features (crop and mirror image, standardised, balanced),
+    scored on ``val`` and ``test`` at its ``val`` threshold of best min(P, R) (accuracy, P, R, F)."""
+    from sklearn.linear_model import LogisticRegression
+
+    from models.train_ev_body import best_threshold
+    from rsu.classify.evaluation import metrics
+
+    x = np.concatenate([feats["train"][0], feats["train"][1]])
+    mu, sd = x.mean(0), x.std(0) + 1e-6
+    out = []
+    for c in cs:
+        lr = LogisticRegression(C=c, max_iter=3000, class_weight="balanced").fit(
+            (x - mu) / sd, np.concatenate([labels["train"]] * 2))
+        p = {k: 0.5 * sum(lr.predict_proba((feats[k][m] - mu) / sd)[:, 1] for m in (0, 1)) for k in ("val", "test")}
+        t = best_threshold(labels["val"], p["val"])
+        out.append({"C": c, "threshold": round(t, 2), "val": metrics(labels["val"], p["val"], t),
+                    "test": metrics(labels["test"], p["test"], t)})
+    return out
+
+
+def print_holdout(root: Path, threads: int) -> int:
+    split = split_by_group(load_ev_train(root))
+    pairs = {k: usable_crops(split[k], log=lambda *_: None) for k in ("train", "val", "test")}
+    labels = {k: np.array([s.label for s, _c in v], float) for k, v in pairs.items()}
+    parts: dict[str, list] = {k: [] for k in pairs}
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, size in BACKBONES:
+            t0 = time.time()
+            graph = Path(tmp) / f"lite{k}_{size}.onnx"
+            export_features(k, size, graph)
+            for name, v in pairs.items():
+                parts[name].append(features(graph, [c for _s, c in v], size, threads))
+            print(f"Lite{k} at {size} px: features in {time.time() - t0:.0f} s", flush=True)
+    for row in holdout_figures({k: np.concatenate(v, axis=2) for k, v in parts.items()}, labels):
+        print(f"C {row['C']}: threshold {row['threshold']:.2f}; " + "; ".join(
+            f"{k} accuracy {row[k][0]:.3f} precision {row[k][1]:.3f} recall {row[k][2]:.3f} F {row[k][3]:.3f}"
+            for k in ("val", "test")), flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="the ev_train folder")
-    ap.add_argument("--out", required=True, help="the teacher JSON to write")
+    ap.add_argument("--out", default=None, help="the teacher JSON to write")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--holdout", action="store_true",
+                    help="print the teacher's figures on val and test (fitted on all of train) instead of writing")
     args = ap.parse_args(argv)
+    if not args.out and not args.holdout:
+        raise SystemExit("give --out TEACHER.json (out-of-fold train scores) or --holdout (val and test figures)")
     root = Path(args.data)
+    if args.holdout:
+        return print_holdout(root, args.threads)
     pairs = usable_crops(split_by_group(load_ev_train(root))["train"])
     samples, crops = [s for s, _c in pairs], [c for _s, c in pairs]
     labels = np.array([s.label for s in samples], float)
