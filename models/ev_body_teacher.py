@@ -1,6 +1,6 @@
 """Out-of-fold teacher scores for distilling the EV-body classifier (issue 17).
 
-    python -m models.ev_body_teacher [--data ../shared/data/real/ev_train] [--out TEACHER.json]
+    python -m models.ev_body_teacher [--data ../shared/data/real/ev_train] (--out TEACHER.json | --holdout)
     python -m models.train_ev_body --teacher TEACHER.json --distill-weight 0.5 ...
 
 Three frozen ImageNet backbones (EfficientNet-Lite0 at 224 px, Lite1 at 240, Lite2 at 260; weights shipped inside
