@@ -155,8 +155,9 @@ def main(argv=None) -> int:
     keys = cache["key"][train_idx]
     given = cache["view"][train_idx] == "given"
     folds = group_folds(cache["group"][train_idx], max(args.folds, 1), args.seed)
+    fold_sizes = np.bincount(folds, minlength=args.folds).tolist() if args.folds else "none"
     log(f"device {device} ({torch.cuda.get_device_name() if device == 'cuda' else 'cpu'}); {len(x)} train crops "
-        f"({int(y.sum())} EV; {int((~given).sum())} detected views), folds {np.bincount(folds, minlength=args.folds).tolist() if args.folds else 'none'}")
+        f"({int(y.sum())} EV; {int((~given).sum())} detected views), folds {fold_sizes}")
 
     stages = max(args.folds, 0) + len(students)
 

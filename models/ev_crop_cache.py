@@ -29,7 +29,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
 DEFAULT_YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
-VIEWS = ("given", "detected")
 MAX_DETECTED_AREA_FRACTION = 0.85
 """A detected box covering more of the photo than this adds nothing the whole photo does not show."""
 

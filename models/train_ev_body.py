@@ -58,7 +58,7 @@ def usable_crops(samples, log=print) -> list[tuple[CropSample, np.ndarray]]:
     return out
 
 
-def detected_views(samples, yolox: str | Path, log=print) -> list[tuple[CropSample, np.ndarray]]:
+def detected_views(samples, yolox: str | Path) -> list[tuple[CropSample, np.ndarray]]:
     """Each whole-photo sample with its largest YOLOX vehicle cropped as the RSU crops a track
     (:func:`models.ev_crop_cache.detected_view`); samples without one are left out."""
     from models.ev_crop_cache import detected_view
