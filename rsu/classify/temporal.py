@@ -190,6 +190,17 @@ def lamp_activity(lamps: LampMeasurement, bar: LampMeasurement, config: Evidence
     return False
 
 
+def median_of(x: np.ndarray) -> float:
+    """``float(np.median(x))`` of a short 1-D array, the same value (the middle one, or the mean of the two middle
+    ones; NaN when any value is NaN) at a tenth of numpy's per-call cost on the few dozen samples of a window."""
+    v = sorted(x.tolist())
+    n = len(v)
+    if n == 0 or any(a != a for a in v):
+        return float(np.median(x))  # empty (numpy's warning and NaN) or NaN present: numpy's answer
+    m = n // 2
+    return float(v[m]) if n % 2 else (v[m - 1] + v[m]) / 2.0
+
+
 def _logit(p: float) -> float:
     p = min(max(p, 1e-4), 1 - 1e-4)
     return math.log(p / (1 - p))
@@ -214,20 +225,42 @@ class TrackEvidence:
     body_scores: deque = field(default_factory=lambda: deque(maxlen=32))
     _t: deque = field(default_factory=deque)
     _signals: dict = field(default_factory=lambda: {k: deque() for k in SIGNALS})
+    _arrays: dict = field(default_factory=dict, repr=False, compare=False)
+    """This frame's history as arrays (``"t"`` and each signal, made on first use), and its per-window masks and
+    frame intervals: every cue reads the same history, so each is made once per :meth:`update`."""
+
+    def _history(self, name: str) -> np.ndarray:
+        a = self._arrays.get(name)
+        if a is None:
+            a = self._arrays[name] = np.fromiter(self._t if name == "t" else self._signals[name], float)
+        return a
+
+    def _window(self, now_s: float, window_s: float) -> np.ndarray:
+        """The mask of the history's samples within ``window_s`` of ``now_s``."""
+        key = ("keep", now_s, window_s)
+        keep = self._arrays.get(key)
+        if keep is None:
+            keep = self._arrays[key] = self._history("t") >= now_s - window_s
+        return keep
+
+    def _frame_s(self, t: np.ndarray, window_s: float) -> float:
+        """The median frame interval of the window's times ``t``."""
+        key = ("frame_s", float(t[-1]), window_s)
+        f = self._arrays.get(key)
+        if f is None:
+            f = self._arrays[key] = median_of(np.diff(t))
+        return f
 
     def _series(self, now_s: float, window_s: float, kind: str = "bright"):
         """Times in the window and, per colour, the (fraction, centre share) series of one measurement kind."""
-        t = np.fromiter(self._t, float)
-        keep = t >= now_s - window_s
-        sig = self._signals
-        out = {c: (np.fromiter(sig[f"{kind}_{c}"], float)[keep], np.fromiter(sig[f"{kind}_{c}_centre"], float)[keep])
+        keep = self._window(now_s, window_s)
+        out = {c: (self._history(f"{kind}_{c}")[keep], self._history(f"{kind}_{c}_centre")[keep])
                for c in COLOURS[kind]}
-        return t[keep], out
+        return self._history("t")[keep], out
 
     def _recent(self, name: str, now_s: float, window_s: float) -> np.ndarray:
         """One signal's samples in the window (aligned with the times :meth:`_series` returns)."""
-        keep = np.fromiter(self._t, float) >= now_s - window_s
-        return np.fromiter(self._signals[name], float)[keep]
+        return self._history(name)[self._window(now_s, window_s)]
 
     def _lamp_lit(self, runs: list[LampRun], t: np.ndarray, x: np.ndarray, on_level: float, colour: str,
                   now_s: float, window_s: float) -> list[LampRun]:
@@ -239,11 +272,11 @@ class TrackEvidence:
         peak = self._recent(f"bar_{colour}_peak", now_s, window_s)
         lit = x >= on_level
         return [r for r in runs if (m := lit & (t >= r.start_s) & (t <= r.end_s)).any()
-                and float(np.median(peak[m])) >= self.config.bar_flash_min_peak]
+                and median_of(peak[m]) >= self.config.bar_flash_min_peak]
 
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
         lit = x >= on_level
-        return bool(lit.any()) and float(np.median(centre[lit])) >= self.config.centre_min_share
+        return bool(lit.any()) and median_of(centre[lit]) >= self.config.centre_min_share
 
     def _flash_cue(self, now_s: float, kind: str = "bright") -> EvCue | None:
         cfg = self.config
@@ -251,7 +284,7 @@ class TrackEvidence:
         t, series = self._series(now_s, cfg.flash_window_s, kind)
         if len(t) < 3:
             return None
-        frame_s = float(np.median(np.diff(t)))
+        frame_s = self._frame_s(t, cfg.flash_window_s)
         runs: dict[str, list[LampRun]] = {}
         best_hz = None
         for colour, (x, centre) in series.items():
@@ -291,7 +324,7 @@ class TrackEvidence:
         t, series = self._series(now_s, cfg.flash_window_s, "bar")
         if len(t) < 2 * cfg.strong_bar_flashes:
             return False
-        frame_s = float(np.median(np.diff(t)))
+        frame_s = self._frame_s(t, cfg.flash_window_s)
         for colour in ("red", "blue"):
             x, centre = series[colour]
             peak = float(x.max())
@@ -321,9 +354,9 @@ class TrackEvidence:
             lit = x >= cfg.bar_on_fraction
             core = self._recent(f"bar_{colour}_core", now_s, cfg.steady_window_s)
             peak = self._recent(f"bar_{colour}_peak", now_s, cfg.steady_window_s)
-            if (lit.mean() >= cfg.steady_min_share and float(np.median(x[lit])) <= cfg.steady_max_fraction
-                    and float(np.median(core[lit])) >= cfg.steady_min_core
-                    and float(np.median(peak[lit])) >= cfg.steady_min_peak
+            if (lit.mean() >= cfg.steady_min_share and median_of(x[lit]) <= cfg.steady_max_fraction
+                    and median_of(core[lit]) >= cfg.steady_min_core
+                    and median_of(peak[lit]) >= cfg.steady_min_peak
                     and self._central(x, centre, cfg.bar_on_fraction)):
                 return True
         return False
@@ -362,6 +395,7 @@ class TrackEvidence:
             self._t.popleft()
             for d in self._signals.values():
                 d.popleft()
+        self._arrays.clear()  # the history changed: its arrays are made again on first use
         self.frames += 1
         if body_score is not None:
             self.body_scores.append(float(np.clip(body_score, 0.0, 1.0)))

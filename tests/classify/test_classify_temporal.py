@@ -141,3 +141,16 @@ def test_measure_lamps_reads_the_top_band_only():
     dull = np.full((100, 80, 3), 60, np.uint8)
     dull[:30] = (30, 30, 140)  # dark red paint: saturated but not lamp-bright
     assert measure_lamps(dull).red == 0.0
+
+
+def test_median_of_is_numpys_median_on_short_windows():
+    from rsu.classify.temporal import median_of
+
+    rng = np.random.default_rng(0)
+    for n in range(1, 40):
+        for scale in (1.0, 1e-3, 1e6):
+            x = rng.random(n) * scale
+            assert median_of(x) == float(np.median(x))
+            assert median_of(np.round(x, 1)) == float(np.median(np.round(x, 1)))  # ties
+    assert median_of(np.array([3, 1, 2])) == 2.0 and median_of(np.array([4, 1, 2, 3])) == 2.5
+    assert np.isnan(median_of(np.array([1.0, np.nan, 2.0])))
