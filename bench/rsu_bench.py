@@ -182,16 +182,21 @@ def body_crop_ms(body: EvBodyClassifier, n: int, seed: int = 0) -> float:
     return ms_per_crop(body, crops, n)
 
 
-def ev_classifier_cost(frames: list, config: PipelineConfig, corridor, rsu_id: str) -> dict[str, float]:
+def ev_classifier_cost(frames: list, config: PipelineConfig, corridor, rsu_id: str,
+                       repeats: int = 3) -> dict[str, float]:
     """Processed fps (CPU time, one core) of detect -> SORT -> EV classifier -> localise on the dense clip,
-    with the lamp evidence alone and with the EV-body classifier fused in (issue 17), and the drop."""
+    with the lamp evidence alone and with the EV-body classifier fused in (issue 17), and the drop. The two are run
+    ``repeats`` times in turn, each from a fresh pipeline, and each keeps its best pass: a single pass of each read
+    drops of -0.4 % to 12.8 % on one machine within the hour (the machine's slow spells, not the classifier)."""
     out: dict[str, float] = {}
-    for name, body in (("lamps", None), ("lamps_and_body", "default")):
-        pipeline = build_pipeline(replace(config, ev_classifier=True, ev_body=body), corridor, rsu_id)
-        r = pipeline_fps(((f.image, f.timestamp_s) for f in frames), pipeline)
-        out[f"fps_{name}"] = r["end_to_end_fps_cpu"]
-        out[f"classify_fps_{name}"] = r["classify_fps"]
+    for _ in range(repeats):
+        for name, body in (("lamps", None), ("lamps_and_body", "default")):
+            pipeline = build_pipeline(replace(config, ev_classifier=True, ev_body=body), corridor, rsu_id)
+            r = pipeline_fps(((f.image, f.timestamp_s) for f in frames), pipeline)
+            out[f"fps_{name}"] = max(out.get(f"fps_{name}", 0.0), r["end_to_end_fps_cpu"])
+            out[f"classify_fps_{name}"] = max(out.get(f"classify_fps_{name}", 0.0), r["classify_fps"])
     out["ev_body_fps_drop"] = 1.0 - out["fps_lamps_and_body"] / out["fps_lamps"]
+    out["ev_body_cost_repeats"] = repeats
     return out
 
 
@@ -276,13 +281,13 @@ def main(argv: list[str] | None = None) -> int:
         body = EvBodyClassifier(DEFAULT_BODY_MODEL, threads=1)
         figures["crop_ms"] = body_crop_ms(body, 30 if quick else 300)
         main_config = sim_detectors().get("project") or next(iter(sim_detectors().values()))
-        cost = ev_classifier_cost(clip.frames, main_config, corridor, rsu_id)
+        cost = ev_classifier_cost(clip.frames, main_config, corridor, rsu_id, repeats=1 if quick else 3)
         figures["ev_classifier_cost"] = cost
         figures["ev_body_fps_drop"] = cost["ev_body_fps_drop"]
         print(f"EV-body classifier ({DEFAULT_BODY_MODEL.name}): {figures['crop_ms']:.2f} ms per crop (median, one "
               f"core); dense clip processed at {cost['fps_lamps']:.1f} fps with lamp evidence alone, "
               f"{cost['fps_lamps_and_body']:.1f} fps with the body classifier fused in: a drop of "
-              f"{100 * cost['ev_body_fps_drop']:.1f} %")
+              f"{100 * cost['ev_body_fps_drop']:.1f} % (best of {cost['ev_body_cost_repeats']} passes each)")
     else:
         print(f"EV-body classifier: {DEFAULT_BODY_MODEL} absent, skipped")
 
