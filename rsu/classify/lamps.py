@@ -86,7 +86,11 @@ BAR_COLOURED = LampColours(kind="chroma", min_value=180, min_chroma=50, white_mi
 40 of each other: a lit white strobe clips the sensor) (module docstring)."""
 
 
-def _centre_share(mask: np.ndarray) -> float:
+def _centre_share(mask: np.ndarray, count: int | None = None) -> float:
+    """The share of the mask's pixels in the middle half of its columns (1.0 for an empty mask); ``count``: the
+    mask's pixel count when the caller has it (an empty mask, the common case, then costs nothing)."""
+    if count == 0:
+        return 1.0
     cols = np.count_nonzero(mask, axis=0)
     total = int(cols.sum())
     if total == 0:
@@ -126,8 +130,9 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
         if keep is not None:
             red, blue = red & keep, blue & keep
             white = None if white is None else white & keep
-        w_frac, w_centre = (0.0, 1.0) if white is None else (float(np.count_nonzero(white)) / n, _centre_share(white))
-        n_red, n_blue = np.count_nonzero(red), np.count_nonzero(blue)
+        n_white = 0 if white is None else int(np.count_nonzero(white))
+        w_frac, w_centre = (0.0, 1.0) if white is None else (float(n_white) / n, _centre_share(white, n_white))
+        n_red, n_blue = int(np.count_nonzero(red)), int(np.count_nonzero(blue))
         red_core = blue_core = 1.0
         red_peak = blue_peak = 1.0
         if c.kind == "chroma":
@@ -136,7 +141,8 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
                 blue_core = float(np.count_nonzero(blue & (b >= c.core_min_value))) / n_blue if n_blue else 1.0
             red_peak = float(r[red].max()) / 255.0 if n_red else 1.0
             blue_peak = float(b[blue].max()) / 255.0 if n_blue else 1.0
-        out.append(LampMeasurement(float(n_red) / n, float(n_blue) / n, _centre_share(red), _centre_share(blue),
+        out.append(LampMeasurement(float(n_red) / n, float(n_blue) / n, _centre_share(red, n_red),
+                                   _centre_share(blue, n_blue),
                                    w_frac, w_centre, red_core, blue_core, red_peak, blue_peak))
     return tuple(out)
 
