@@ -130,6 +130,7 @@ def test_a_cache_written_before_views_reads_as_given(tmp_path: Path):
 
 
 def test_teacher_holdout_figures_are_chosen_on_val_and_reported_on_test():
+    pytest.importorskip("sklearn", reason="scikit-learn (train extra) not installed: pip install -e .[train]")
     from models.ev_body_teacher import holdout_figures
 
     rng = np.random.default_rng(0)
