@@ -26,8 +26,16 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/iea demo
 
+# The suite in two phases: the tests that start processes or Zenoh sessions or time themselves (marker `serial`)
+# one at a time, the rest (pure, deterministic, CPU-bound) on TEST_WORKERS processes (pytest-xdist, a test file per
+# worker so module fixtures run once). Both phases run; make fails if either does.
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	$(PY) -m pytest
+	@$(PY) -m pytest -m "not serial" -n $(TEST_WORKERS) --dist loadfile; parallel=$$?; \
+	$(PY) -m pytest -m serial; serial=$$?; \
+	echo "make test: parallel phase exit $$parallel, serial phase exit $$serial"; \
+	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"

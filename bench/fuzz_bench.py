@@ -152,7 +152,9 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
     """``n`` inputs of one seed's stream into a fresh target."""
     import logging
 
-    logging.getLogger().setLevel(logging.CRITICAL)  # handler errors are counted, not printed
+    root = logging.getLogger()
+    root_level = root.level
+    root.setLevel(logging.CRITICAL)  # handler errors are counted, not printed (the level is put back at the end)
     rng = random.Random(f"{seed}-{name}")
     target = factory(rng)
     res = Result(name, seeds=[seed])
@@ -220,6 +222,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
             res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
     gc.callbacks.remove(on_gc)
     gc.unfreeze()  # the next target starts from its own start-up heap
+    root.setLevel(root_level)  # a caller in the same process (a test) logs as before
     res.rejected = res.inputs - res.accepted
     res.seconds = time.perf_counter() - t_start
     res.mean_input_us = total_ns / max(1, n) / 1000.0

@@ -30,8 +30,12 @@ def corridor_id() -> str:
 
 
 @pytest.fixture
-def spawn():
-    """Start ``python -m ...`` processes with the repository on PYTHONPATH; all are killed at teardown."""
+def spawn(request):
+    """Start ``python -m ...`` processes with the repository on PYTHONPATH; all are killed at teardown. Only for tests
+    marked ``serial`` (``make test`` runs those one at a time: processes beside a parallel test would share its
+    two cores and miss their deadlines)."""
+    if request.node.get_closest_marker("serial") is None:
+        pytest.fail(f"{request.node.nodeid} starts processes: mark it `serial` (pytestmark = pytest.mark.serial)")
     procs: list[subprocess.Popen] = []
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
 

@@ -19,6 +19,9 @@ from protocol.corridor import load_corridor
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
 from protocol.messages import AckStatus, AlertState, CommandAck, EvAlert, Manoeuvre, VehicleMode, VehicleState
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 zenoh = pytest.importorskip("zenoh")
 

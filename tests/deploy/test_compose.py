@@ -20,6 +20,9 @@ from deploy.compose import METRICS_PORT, PROMETHEUS_IMAGE, ROUTER_ENDPOINT, ZENO
 from deploy.compose_schema import COMPOSE_SPEC, DOCKER_COMPOSE_V1, compose_errors
 from protocol.corridor import load_corridor
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "docker-compose.yml"
 

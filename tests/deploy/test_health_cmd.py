@@ -7,7 +7,12 @@ import sys
 from pathlib import Path
 from uuid import uuid4
 
+import pytest
+
 from deploy.procs import stop_process
+
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
 
 ROOT = Path(__file__).resolve().parents[2]
 

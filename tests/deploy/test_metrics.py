@@ -22,6 +22,9 @@ from protocol.corridor import load_corridor
 from protocol.examples import example_messages
 from protocol.transport import LocalBus
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

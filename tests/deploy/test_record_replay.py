@@ -21,6 +21,9 @@ from protocol.codec import encode
 from protocol.examples import example_messages
 from protocol.schema_export import SCHEMA_DIR
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -16,6 +16,9 @@ from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
 from protocol.security import TrustList, load_private_key
 from vehicle.commands import CommandGate
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -11,6 +11,9 @@ import pytest
 
 from deploy.cli import main as iea_main
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 def test_status_help(capsys):
     with pytest.raises(SystemExit) as exc:

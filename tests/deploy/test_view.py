@@ -21,6 +21,9 @@ from deploy.view_model import CorridorPicture, corridor_plan
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

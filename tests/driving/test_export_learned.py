@@ -13,6 +13,9 @@ from sim.driving import make_scenario
 from sim.export_driving import DrivingExportConfig, augment, export_driving, side_correction_rad
 from vehicle.learned_steering import MODELS_DIR, LearnedSteering, LearnedVehicle
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 def test_augmentation_flips_the_image_and_mask_and_negates_the_angle():
     rng = np.random.default_rng(1)

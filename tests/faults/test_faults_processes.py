@@ -10,7 +10,7 @@ import pytest
 
 from scenario.process_faults import ddm_restarted, router_restarted, rsu_killed
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(150)]
+pytestmark = [pytest.mark.serial, pytest.mark.slow, pytest.mark.timeout(150)]
 
 
 @pytest.fixture(scope="module")

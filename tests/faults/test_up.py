@@ -13,6 +13,9 @@ import pytest
 from deploy.cli import main as iea_main
 from deploy.procs import ServiceGroup
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 def test_up_help(capsys):
     with pytest.raises(SystemExit) as exc:

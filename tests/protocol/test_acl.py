@@ -5,10 +5,15 @@ from __future__ import annotations
 import socket
 import time
 
+import pytest
+
 from protocol import keys
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
+
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
 
 
 def _free_port() -> int:

@@ -17,6 +17,9 @@ from protocol.messages import CommandAck, Health, ObjectList
 from protocol.transport import DsrcLink, LocalBus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 # ------------------------------------------------------------------ key layout
 def test_builders_and_parser_agree():

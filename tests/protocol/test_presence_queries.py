@@ -29,6 +29,9 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
 from zenoh_corridor_stub import CorridorStub  # noqa: E402
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 # ------------------------------------------------------------------------------------------ QoS
 def test_qos_by_kind_commands_first_bulk_last_and_never_mixed():

@@ -16,6 +16,9 @@ from protocol.examples import example_messages
 from protocol.transport import DsrcLink, LocalBus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 KINDS = {m.KIND for _, m in example_messages()}
 
 

@@ -18,6 +18,9 @@ from protocol.clock import WallClock
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from tests.protocol.test_presence_queries import ROOT, _acl_checks, _free_port, _wait, _wait_line
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 @pytest.mark.timeout(150)
 @pytest.mark.parametrize("auth", ["password", "mtls"])

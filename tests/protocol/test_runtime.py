@@ -11,6 +11,9 @@ import pytest
 
 from protocol.runtime import freeze_startup_heap
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 SLEEPER = ("import sys, time\n"
            "if sys.argv[1] == 'fix':\n"
            "    from protocol.runtime import stop_on_ctrl_c; stop_on_ctrl_c()\n"

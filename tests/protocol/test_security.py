@@ -18,6 +18,9 @@ from protocol.security import (
     new_key_pair,
 )
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory):

@@ -24,6 +24,9 @@ from protocol import keys
 from protocol.codec import ProtocolError, decode, encode
 from protocol.examples import example_messages
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 pytest.importorskip("jsonschema", reason="jsonschema is in the dev extra: pip install -e '.[dev]'")
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -24,6 +24,9 @@ from rsu.localize import Localizer
 from rsu.pipeline import RsuPipeline
 from rsu.service import RsuService
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 CORRIDOR = load_corridor()
 FPS = 15.0

@@ -15,6 +15,9 @@ from protocol.keys import rsu_key
 from protocol.messages import AlertState, EvAlert
 from protocol.zenoh_transport import ZenohTransport
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

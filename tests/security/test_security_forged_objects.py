@@ -19,6 +19,9 @@ from protocol.security import new_key_pair
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from scenario.faults import _detected
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 AV_X0, EV_X0, AV_V, EV_V = 60.0, 20.0, 13.4, 19.0
 

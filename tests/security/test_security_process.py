@@ -16,6 +16,9 @@ from protocol.keys import vehicle_key
 from protocol.messages import AckStatus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -22,6 +22,9 @@ from sim.scenario import load_scenario
 from sim.service import SimService
 from sim.world import World
 
+pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
+
+
 REPO = Path(__file__).resolve().parents[2]
 
 

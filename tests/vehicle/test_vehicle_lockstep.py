@@ -20,6 +20,7 @@ def check_field_test(m):
     assert m["max_decel_mps2"] <= 3.0
 
 
+@pytest.mark.serial  # it times itself
 def test_field_test_13_4_mps_reproduced():
     t0 = time.perf_counter()
     r = run_scenario(field_test_scenario(13.4, sigma_m=0.2, latency_s=0.1, rate_hz=10.0))
