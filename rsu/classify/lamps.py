@@ -23,7 +23,8 @@ paint, so it counts only together with a confident EV body, a compact central bl
 body) and the corner-lamp rejection (:class:`rsu.classify.temporal.TrackEvidence`).
 
 :func:`lamp_runs` cuts a lamp signal into lit runs with hysteresis and :func:`flash_pattern` names the
-cue a window of runs shows: ``flash`` or ``alternation``.
+cue a window of runs shows: ``flash`` or ``alternation``; :func:`median_of` is the exact median of a window's
+samples at a tenth of numpy's per-call cost.
 """
 
 from __future__ import annotations
@@ -154,6 +155,17 @@ def measure_lamps(crop_bgr: np.ndarray, top_fraction: float = 0.4, min_value: in
     shares (:func:`measure_band` with one definition; ``colours`` overrides the keyword thresholds)."""
     c = colours or LampColours(min_value=min_value, min_saturation=min_saturation)
     return measure_band(crop_bgr, top_fraction, (c,), ignore)[0]
+
+
+def median_of(x: np.ndarray) -> float:
+    """``float(np.median(x))`` of a short 1-D array, the same value (the middle one, or the mean of the two middle
+    ones; NaN when any value is NaN) at a tenth of numpy's per-call cost on the few dozen samples of a window."""
+    v = sorted(x.tolist())
+    n = len(v)
+    if n == 0 or any(a != a for a in v):
+        return float(np.median(x))  # empty (numpy's warning and NaN) or NaN present: numpy's answer
+    m = n // 2
+    return float(v[m]) if n % 2 else (v[m - 1] + v[m]) / 2.0
 
 
 def blink_transitions(values: np.ndarray, on_level: float, off_level: float) -> int:

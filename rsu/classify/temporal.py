@@ -79,6 +79,7 @@ from rsu.classify.lamps import (  # noqa: F401  (re-exported: the lamp signal AP
     flash_pattern,
     lamp_runs,
     measure_lamps,
+    median_of,
 )
 
 
@@ -188,17 +189,6 @@ def lamp_activity(lamps: LampMeasurement, bar: LampMeasurement, config: Evidence
         if config.bar_on_fraction <= x <= config.steady_max_fraction and centre >= config.centre_min_share:
             return True
     return False
-
-
-def median_of(x: np.ndarray) -> float:
-    """``float(np.median(x))`` of a short 1-D array, the same value (the middle one, or the mean of the two middle
-    ones; NaN when any value is NaN) at a tenth of numpy's per-call cost on the few dozen samples of a window."""
-    v = sorted(x.tolist())
-    n = len(v)
-    if n == 0 or any(a != a for a in v):
-        return float(np.median(x))  # empty (numpy's warning and NaN) or NaN present: numpy's answer
-    m = n // 2
-    return float(v[m]) if n % 2 else (v[m - 1] + v[m]) / 2.0
 
 
 def _logit(p: float) -> float:

@@ -144,7 +144,7 @@ def test_measure_lamps_reads_the_top_band_only():
 
 
 def test_median_of_is_numpys_median_on_short_windows():
-    from rsu.classify.temporal import median_of
+    from rsu.classify.lamps import median_of
 
     rng = np.random.default_rng(0)
     for n in range(1, 40):
