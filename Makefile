@@ -38,7 +38,9 @@ test: $(STAMP)
 	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -m "not slow"
+	@$(PY) -m pytest -m "not slow and not serial" -n $(TEST_WORKERS) --dist loadfile; parallel=$$?; \
+	$(PY) -m pytest -m "not slow and serial"; serial=$$?; \
+	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
 
 bench: $(STAMP)
 	@for b in bench/*_bench.py; do echo "== $$b"; $(PY) $$b || exit 1; done
