@@ -30,17 +30,17 @@ demo: $(STAMP)
 # one at a time, the rest (pure, deterministic, CPU-bound) on TEST_WORKERS processes (pytest-xdist, a test file per
 # worker so module fixtures run once). Both phases run; make fails if either does.
 TEST_WORKERS ?= 2
+# $(call test_phases,SELECTION): both phases of the tests whose markers match SELECTION ("" for all)
+test_phases = $(PY) -m pytest -m "$(1)not serial" -n $(TEST_WORKERS) --dist loadfile; parallel=$$?; \
+	$(PY) -m pytest -m "$(1)serial"; serial=$$?; \
+	echo "make: parallel phase exit $$parallel, serial phase exit $$serial"; \
+	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
 
 test: $(STAMP)
-	@$(PY) -m pytest -m "not serial" -n $(TEST_WORKERS) --dist loadfile; parallel=$$?; \
-	$(PY) -m pytest -m serial; serial=$$?; \
-	echo "make test: parallel phase exit $$parallel, serial phase exit $$serial"; \
-	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
+	@$(call test_phases,)
 
 test-fast: $(STAMP)
-	@$(PY) -m pytest -m "not slow and not serial" -n $(TEST_WORKERS) --dist loadfile; parallel=$$?; \
-	$(PY) -m pytest -m "not slow and serial"; serial=$$?; \
-	[ $$parallel -eq 0 ] && [ $$serial -eq 0 ]
+	@$(call test_phases,not slow and )
 
 bench: $(STAMP)
 	@for b in bench/*_bench.py; do echo "== $$b"; $(PY) $$b || exit 1; done

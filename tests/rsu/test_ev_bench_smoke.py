@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.mark.timeout(90)
 def test_ev_bench_quick_json():
     r = subprocess.run([sys.executable, "bench/ev_bench.py", "--quick", "--json"], cwd=ROOT, capture_output=True,
-                       text=True, timeout=160)
+                       text=True, timeout=80)
     assert r.returncode == 0, r.stderr[-2000:]
     figures = json.loads(r.stdout.strip().splitlines()[-1])
     assert {"track_recall", "false_alerts", "lights_on_to_alert_median_s", "decoy_lamp_vehicles",

@@ -54,7 +54,7 @@ def test_cli_help_and_bad_vehicle():
 
 def test_bench_quick_json(tmp_path):
     out = subprocess.run([sys.executable, "bench/control_bench.py", "--quick", "--json"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     figures = json.loads(out.stdout.strip().splitlines()[-1])
     for key in ("max_lateral_error_m", "settled_lateral_error_m", "max_yaw_error_rad", "stop_error_m",
