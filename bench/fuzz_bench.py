@@ -154,17 +154,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
 
     root = logging.getLogger()
     root_level = root.level
-    root.setLevel(logging.CRITICAL)  # handler errors are counted, not printed (the level is put back at the end)
-    rng = random.Random(f"{seed}-{name}")
-    target = factory(rng)
     res = Result(name, seeds=[seed])
-    freeze_startup_heap()  # as every service does when its run() starts (protocol.runtime)
-    if trace:
-        tracemalloc.start()
-    rss_mark = None
-    traced_mark = 0
-    total_ns = 0
-    last_accepted: tuple[int, bytes] = (-1, b"")
     thread_ns, wall_ns = time.thread_time_ns, time.perf_counter_ns
     gc_ns, gc_start = [0], [0]
 
@@ -176,64 +166,82 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
             gc_ns[0] += pause
             res.max_gc_pause_ms = max(res.max_gc_pause_ms, pause / 1e6)
 
-    gc.callbacks.append(on_gc)
-    t_start = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # numpy overflow warnings on 1e308 inputs are not crashes
-        for i in range(n):
-            if i == n // 10:
-                gc.collect()
-                rss_mark = _rss_kb()
-                if trace:
-                    traced_mark = tracemalloc.get_traced_memory()[0]
-            payload = target.payload()
-            g0 = gc_ns[0]
-            w0, c0 = wall_ns(), thread_ns()
-            try:
-                ok = target.feed(payload)
-            except Exception as exc:  # noqa: BLE001 - a crash: record it and go on
-                ok = False
-                res.crashes += 1
-                if len(res.crash_samples) < max_samples:
-                    res.crash_samples.append(_sample(exc, "on this input", seed, name, i, payload))
-                if isinstance(target, _BusTarget):  # keep counting per input
-                    target.bus.stats.handler_errors = 0
-            c1, w1 = thread_ns(), wall_ns()
-            dt_ms = (c1 - c0) / 1e6
-            total_ns += c1 - c0
-            if dt_ms > res.max_input_ms:
-                res.max_input_ms = dt_ms
-                res.slowest_input = f"seed {seed} input {i}: {len(payload)} bytes, head {payload[:24].hex()}"
-            res.max_input_wall_ms = max(res.max_input_wall_ms, (w1 - w0) / 1e6)
-            res.max_input_net_gc_ms = max(res.max_input_net_gc_ms, dt_ms - (gc_ns[0] - g0) / 1e6)
-            res.inputs += 1
-            res.accepted += bool(ok)
-            if ok:
-                last_accepted = (i, payload)
-            try:
-                target.after()
-            except Exception as exc:  # noqa: BLE001 - the state an accepted input left broke the scene
-                res.crashes += 1
-                if len(res.crash_samples) < max_samples:
-                    res.crash_samples.append(_sample(exc, "in the scene's step after the last accepted input",
-                                                     seed, name, last_accepted[0], last_accepted[1]))
-                if isinstance(target, _BusTarget):
-                    target.bus.stats.handler_errors = 0
-            res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
-    gc.callbacks.remove(on_gc)
-    gc.unfreeze()  # the next target starts from its own start-up heap
-    root.setLevel(root_level)  # a caller in the same process (a test) logs as before
-    res.rejected = res.inputs - res.accepted
-    res.seconds = time.perf_counter() - t_start
-    res.mean_input_us = total_ns / max(1, n) / 1000.0
-    payload, last_accepted = b"", (-1, b"")  # the last inputs (up to 256 kB) are not state the target kept
-    gc.collect()
-    res.rss_growth_kb = _rss_kb() - (rss_mark if rss_mark is not None else _rss_kb())
-    if trace:
-        current, peak = tracemalloc.get_traced_memory()
-        res.traced_peak_kb, res.traced_growth_kb = peak / 1024.0, (current - traced_mark) / 1024.0
-        tracemalloc.stop()
-    res.state = target.sizes()
+    root.setLevel(logging.CRITICAL)  # handler errors are counted, not printed (the level is put back at the end)
+    try:
+        rng = random.Random(f"{seed}-{name}")
+        target = factory(rng)
+        freeze_startup_heap()  # as every service does when its run() starts (protocol.runtime)
+        if trace:
+            tracemalloc.start()
+        rss_mark = None
+        traced_mark = 0
+        total_ns = 0
+        last_accepted: tuple[int, bytes] = (-1, b"")
+        gc.callbacks.append(on_gc)
+        t_start = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy overflow warnings on 1e308 inputs are not crashes
+            for i in range(n):
+                if i == n // 10:
+                    gc.collect()
+                    rss_mark = _rss_kb()
+                    if trace:
+                        traced_mark = tracemalloc.get_traced_memory()[0]
+                payload = target.payload()
+                g0 = gc_ns[0]
+                w0, c0 = wall_ns(), thread_ns()
+                try:
+                    ok = target.feed(payload)
+                except Exception as exc:  # noqa: BLE001 - a crash: record it and go on
+                    ok = False
+                    res.crashes += 1
+                    if len(res.crash_samples) < max_samples:
+                        res.crash_samples.append(_sample(exc, "on this input", seed, name, i, payload))
+                    if isinstance(target, _BusTarget):  # keep counting per input
+                        target.bus.stats.handler_errors = 0
+                c1, w1 = thread_ns(), wall_ns()
+                dt_ms = (c1 - c0) / 1e6
+                total_ns += c1 - c0
+                if dt_ms > res.max_input_ms:
+                    res.max_input_ms = dt_ms
+                    res.slowest_input = f"seed {seed} input {i}: {len(payload)} bytes, head {payload[:24].hex()}"
+                res.max_input_wall_ms = max(res.max_input_wall_ms, (w1 - w0) / 1e6)
+                res.max_input_net_gc_ms = max(res.max_input_net_gc_ms, dt_ms - (gc_ns[0] - g0) / 1e6)
+                res.inputs += 1
+                res.accepted += bool(ok)
+                if ok:
+                    last_accepted = (i, payload)
+                try:
+                    target.after()
+                except Exception as exc:  # noqa: BLE001 - the state an accepted input left broke the scene
+                    res.crashes += 1
+                    if len(res.crash_samples) < max_samples:
+                        res.crash_samples.append(_sample(exc, "in the scene's step after the last accepted input",
+                                                         seed, name, last_accepted[0], last_accepted[1]))
+                    if isinstance(target, _BusTarget):
+                        target.bus.stats.handler_errors = 0
+                res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
+        gc.callbacks.remove(on_gc)
+        gc.unfreeze()  # the next target starts from its own start-up heap
+        root.setLevel(root_level)  # a caller in the same process (a test) logs as before
+        res.rejected = res.inputs - res.accepted
+        res.seconds = time.perf_counter() - t_start
+        res.mean_input_us = total_ns / max(1, n) / 1000.0
+        payload, last_accepted = b"", (-1, b"")  # the last inputs (up to 256 kB) are not state the target kept
+        gc.collect()
+        res.rss_growth_kb = _rss_kb() - (rss_mark if rss_mark is not None else _rss_kb())
+        if trace:
+            current, peak = tracemalloc.get_traced_memory()
+            res.traced_peak_kb, res.traced_growth_kb = peak / 1024.0, (current - traced_mark) / 1024.0
+            tracemalloc.stop()
+        res.state = target.sizes()
+    finally:  # an input stream that stops on an exception (or Ctrl-C) leaves the process as it found it
+        if on_gc in gc.callbacks:
+            gc.callbacks.remove(on_gc)
+        gc.unfreeze()
+        root.setLevel(root_level)
+        if trace and tracemalloc.is_tracing():
+            tracemalloc.stop()
     return res
 
 

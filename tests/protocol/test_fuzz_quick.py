@@ -71,3 +71,22 @@ def test_a_crash_is_reported_with_its_payload_in_hex_and_how_to_regenerate_it(mo
     assert sample.startswith("OverflowError: cannot convert float infinity to integer")
     assert "regenerate: seed 5, target decode_CommandAck, input 0" in sample
     assert f"payload {len(first)} bytes: {first.hex()}" in sample
+
+
+def test_a_target_that_fails_to_start_leaves_the_process_as_it_found_it():
+    """``run_target`` silences logging and hooks the garbage collector for its inputs: when its target cannot even be
+    made (or a stream stops on an exception), the log level, the gc hooks and the heap freeze are put back all the
+    same, or a later test in the same process would read no log records."""
+    import gc
+    import logging
+
+    import pytest
+
+    def broken(_rng):
+        raise RuntimeError("target cannot start")
+
+    root = logging.getLogger()
+    level, callbacks = root.level, list(gc.callbacks)
+    with pytest.raises(RuntimeError, match="cannot start"):
+        fuzz_bench.run_target("broken", broken, 10, trace=True)
+    assert root.level == level and gc.callbacks == callbacks and gc.get_freeze_count() == 0
