@@ -66,8 +66,14 @@ flashers, 3 turn signals), 0 false alerts on them; tuning seeds from now on. Hel
 once (sixteenth session), were run once in the seventeenth (2026-11-28; the EV path's outputs unchanged since they
 were drawn; ``python bench/ev_bench.py --seeds 65805 97823 --json``, 281 s): track recall 1.0 (24/24), 0 false
 alerts, median lights-on -> alert 0.20 s (max 0.60 s), 7 flasher/turn-signal cars seen (2 hazard flashers, 5 turn
-signals), 0 false alerts on them; tuning seeds from now on. The held-out seeds are now ``HELD_OUT_SEEDS`` = 51100,
-68157, drawn at random once (seventeenth session) and not run: do not tune on them.
+signals), 0 false alerts on them; tuning seeds from now on. Held-out 51100/68157, drawn at random once (seventeenth
+session), were run once in the eighteenth (2026-11-28; the EV path unchanged since they were drawn; ``python
+bench/ev_bench.py --seeds 51100 68157 --json``, 252 s): track recall 1.0 (24/24), median lights-on -> alert 0.23 s
+(max 0.60 s), 17 flasher/turn-signal cars seen (7 hazard flashers, 10 turn signals), and **2 false alerts, both on
+one of them**: ``night_ev`` 51100, vehicle v0, on rsu1 (track 50, 9.13 s, body score 0.34) and rsu2 (track 19,
+10.4 s, body score 0.04): issue 17's 0 false alerts is not met on this pair (not traced yet); tuning seeds from now
+on. The held-out seeds are now ``HELD_OUT_SEEDS`` = 36545, 16790, drawn at random once (eighteenth session) and not
+run: do not tune on them.
 With ``--json`` the last line is one JSON object of the figures.
 
 Fifth session (2026-11-25), lamps counted for one vehicle only (``rsu.classify.ev``, ``rsu.classify.temporal``):
@@ -162,7 +168,7 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (51100, 68157)
+HELD_OUT_SEEDS = (36545, 16790)
 """Drawn at random once (2026-11-28, seventeenth session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737 and 65805/97823 are tuning seeds
 (module docstring)."""
@@ -298,7 +304,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 51100 68157; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 36545 16790; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
