@@ -23,7 +23,9 @@ lose every one of them to such switches (Framework A's weakness, thesis 2.2, rea
 Framework B). So when a track id appears that the classifier has not seen, it takes over the evidence
 of a track lost within the last ``handover_after_s`` whose last box, moved on at that box's own
 velocity (:func:`extrapolate_box`), overlaps it by IoU >= ``handover_iou`` (SORT's own association
-threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`match_lost_tracks`).
+threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`match_lost_tracks`). A new box
+that holds most of a nearer vehicle's box takes over nothing: it is two vehicles merged by the detector
+(:func:`rsu.classify.ownership.holds_nearer_vehicle`).
 
 The EvAlert life cycle built on its verdicts is :class:`rsu.classify.alerts.EvAlertManager`.
 """
@@ -42,6 +44,7 @@ from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_b
 from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined here before)
     band_exclusions,
     farther_boxes,
+    holds_nearer_vehicle,
     rect_mask,
 )
 from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, lamp_activity
@@ -166,6 +169,14 @@ class EvVerdict:
     track: TrackInfo | None = None
     """The track's evidence record (read by :class:`~rsu.classify.alerts.EvAlertManager` and ``iea-rsu scan``); None for a hook that
     keeps none."""
+
+
+def _may_own_flashes(info: TrackInfo) -> bool:
+    """Could the flashes seen around this track be its own: a confirmed EV, or a track whose own band showed a lamp
+    cue within ``clear_after_s`` (``light_state`` flashing or steady), such as an EV whose track SORT started again
+    and whose evidence is building up anew."""
+    return info.evidence.state == EvState.CONFIRMED or info.evidence.light_state in (LightState.FLASHING,
+                                                                                      LightState.STEADY)
 
 
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
@@ -346,24 +357,26 @@ class TrackEvClassifier:
         return out
 
     def _lost_evs(self, now_s: float, ids: list[int]) -> np.ndarray:
-        """The boxes (N, 4), moved on at their own velocity, of confirmed EV tracks not in this frame's ``ids`` and
-        lost within ``handover_after_s``: SORT drops a track after one missed detection, and an EV just ahead is
+        """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids``, lost within
+        ``handover_after_s``, that were confirmed EVs or flashing themselves (``_may_own_flashes``): SORT drops a track after one missed detection, and an EV just ahead is
         still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof
         lit by the EV's strobe, confirmed in that frame)."""
         current = set(ids)
         out = [extrapolate_box(i.box, i.centre_velocity_pxps, now_s - i.last_seen_s)
                for tid, i in self.tracks.items() if tid not in current and i.box is not None
-               and i.evidence.state == EvState.CONFIRMED and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
+               and _may_own_flashes(i) and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
         return np.asarray(out, float).reshape(-1, 4)
 
     def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,
                   lost_evs: np.ndarray | None = None) -> bool:
         """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
-        higher) whose box reaches into ``k``'s crop and that is either a confirmed EV (or one lost within the
-        hand-over time: ``lost_evs``) or too small for its own lamps to be measured (``min_box_px``) while it rises
-        above ``k``'s roof? Its flashes light this vehicle's roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
+        higher) whose box reaches into ``k``'s crop and that is either a confirmed EV or a track with lamp cues of
+        its own (``_may_own_flashes``; or one of those lost within the hand-over time: ``lost_evs``) or too small for
+        its own lamps to be measured (``min_box_px``) while it rises above ``k``'s roof? Its flashes light this vehicle's roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
         the EV's box, flashed in step with it; simulator tuning seeds 91468, and 44077, where the EV, 28 px tall,
-        was never measured and its strobe confirmed the bus), so ``k``'s flash pattern then confirms only with a
+        was never measured and its strobe confirmed the bus; ev_bench seed 51100, ``night_ev``, rsu2: the EV's track
+        started again after the EV passed a truck, its new evidence not yet confirmed while its flashes, seen in the
+        truck's band just behind it, confirmed the truck), so ``k``'s flash pattern then confirms only with a
         confident body (``TrackEvidence.update``)."""
         box, crop = boxes[k], bounds[k]
         if crop is None:
@@ -373,7 +386,7 @@ class TrackEvClassifier:
                                                    and other[1] < crop[3] and other[3] > crop[1]):
                 continue
             info = self.tracks.get(ids[j])
-            if info is not None and info.evidence.state == EvState.CONFIRMED:
+            if info is not None and _may_own_flashes(info):
                 return True
             if other[1] < box[1] and min(other[2] - other[0], other[3] - other[1]) < self.min_box_px:
                 return True
@@ -396,7 +409,7 @@ class TrackEvClassifier:
         current = set(ids)
         lost = [tid for tid, i in self.tracks.items() if tid not in current and i.box is not None
                 and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
-        new = [k for k, tid in enumerate(ids) if tid not in self.tracks]
+        new = [k for k, tid in enumerate(ids) if tid not in self.tracks and not holds_nearer_vehicle(k, boxes)]
         if not lost or not new:
             return
         predicted = np.array([extrapolate_box(self.tracks[t].box, self.tracks[t].centre_velocity_pxps,

@@ -71,3 +71,20 @@ def rect_mask(bounds: tuple[int, int, int, int], rects: Iterable[tuple[int, int,
             mask = np.zeros((yb - ya, xb - xa), bool)
         mask[max(ob[1] - ya, 0):ob[3] - ya, max(ob[0] - xa, 0):ob[2] - xa] = True
     return mask
+
+
+def holds_nearer_vehicle(k: int, boxes: np.ndarray, fraction: float = 0.5) -> bool:
+    """Does track ``k``'s box hold at least ``fraction`` of the box of a vehicle nearer the camera (its bottom edge
+    lower in the image)? Boxes are visible parts, so such a box is two vehicles merged by the detector, not one seen
+    again: it must not take over a lost EV's evidence (ev_bench seed 51100, ``night_ev``, rsu1: one box over the EV
+    and the top of the truck behind it took over the EV's confirmed track and raised its alert at the truck's place)."""
+    box = boxes[k]
+    for j, other in enumerate(boxes):
+        if j == k or other[3] <= box[3]:
+            continue
+        iw = min(box[2], other[2]) - max(box[0], other[0])
+        ih = min(box[3], other[3]) - max(box[1], other[1])
+        area = (other[2] - other[0]) * (other[3] - other[1])
+        if iw > 0 and ih > 0 and area > 0 and iw * ih >= fraction * area:
+            return True
+    return False

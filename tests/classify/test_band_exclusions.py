@@ -94,3 +94,40 @@ def test_a_confirmed_ev_lost_for_a_frame_still_counts_as_just_ahead():
     assert not clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.0 + clf.handover_after_s + 0.1, [1]))
     ev.evidence.state = EvState.CANDIDATE
     assert not clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.2, [1]))
+
+
+def _flashing_evidence(until_s: float):
+    """Evidence of a track whose own band flashed red and blue (an EV's bar) until ``until_s``: not confirmed yet."""
+    from rsu.classify.temporal import LampMeasurement, TrackEvidence
+
+    ev = TrackEvidence()
+    for i in range(int(until_s * 15) + 1):
+        t = i / 15
+        red = (t * 2.0) % 1.0 < 0.5
+        ev.update(t, LampMeasurement(0.04 if red else 0.0, 0.0 if red else 0.04), lamps_alone=False)
+    return ev
+
+
+def test_a_flashing_track_just_ahead_may_own_the_flashes_before_it_is_confirmed():
+    """An EV whose track SORT started again (it had passed a truck) builds its evidence anew; until it is confirmed
+    its flashes, seen in the band of the truck just behind it, must not confirm the truck alone (ev_bench seed 51100,
+    ``night_ev``, rsu2), in the frame where it is tracked and in one where SORT lost it."""
+    from protocol.messages import EvState, LightState
+    from rsu.classify.ev import TrackInfo
+    from rsu.classify.temporal import LampMeasurement
+
+    clf, boxes, bounds = _bus_behind_ev()
+    big = boxes.copy()
+    big[1] = (120.0, 60.0, 190.0, 125.0)  # measured (65 px tall): without lamp cues its lamps are judged as its own
+    big_bounds = [clf.crop_bounds(b, 400, 300) for b in big]
+    ev = TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=big[1].copy())
+    assert ev.evidence.state != EvState.CONFIRMED and ev.evidence.light_state != LightState.OFF
+    clf.tracks = {2: ev}
+    assert clf._ev_ahead(0, [1, 2], big, big_bounds)
+    assert clf._lost_evs(1.2, [1]).shape == (1, 4)  # lost for a frame: still just ahead
+    assert clf._ev_ahead(0, [1], big[:1], big_bounds[:1], clf._lost_evs(1.2, [1]))
+    quiet = TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=big[1].copy())
+    quiet.evidence.update(4.0, LampMeasurement(0.0, 0.0))
+    assert quiet.evidence.light_state == LightState.OFF  # no lamp cue for clear_after_s: its lamps are out
+    clf.tracks = {2: quiet}
+    assert not clf._ev_ahead(0, [1, 2], big, big_bounds)

@@ -233,3 +233,22 @@ def test_a_confirmed_ev_is_not_body_scored_again():
     assert per_frame[first][1] >= 1  # scored while a candidate
     assert all(state == EvState.CONFIRMED for state, _n in per_frame[first:])
     assert per_frame[-1][1] == per_frame[first][1]  # ~3 s confirmed (12 scores at 4 Hz before): none since
+
+
+def test_a_box_that_merges_the_lost_ev_with_a_nearer_vehicle_does_not_take_over_its_evidence():
+    """A detector box over the EV and the top of the truck just behind it (nearer the camera) overlaps the EV's lost
+    track, but it holds most of the truck's box: two vehicles merged, not the EV seen again, so it must not carry
+    the EV's alert to the truck's place (ev_bench seed 51100, ``night_ev``, rsu1). The EV's own box seen again does."""
+    from rsu.classify.ownership import holds_nearer_vehicle
+
+    ev_box, truck = (100.0, 100.0, 140.0, 140.0), (105.0, 125.0, 150.0, 180.0)
+    merged = (100.0, 98.0, 150.0, 165.0)
+    boxes = np.array([merged, truck])
+    assert holds_nearer_vehicle(0, boxes) and not holds_nearer_vehicle(1, boxes)
+    assert not holds_nearer_vehicle(0, np.array([ev_box, truck]))  # the EV alone holds a sliver of the truck
+    for new_box, takes_over in ((merged, False), (ev_box, True)):
+        clf = TrackEvClassifier()
+        img = np.full((240, 320, 3), 90, np.uint8)
+        clf(Frame(img, 0.0, 0, "cam"), tracks([(1, ev_box), (2, truck)]))
+        clf(Frame(img, 1 / FPS, 1, "cam"), tracks([(3, new_box), (2, truck)]))
+        assert (clf.tracks[3].handed_over_from == (1,)) == takes_over
