@@ -75,8 +75,14 @@ one of them**: ``night_ev`` 51100, vehicle v0, on rsu1 (track 50, 9.13 s) and rs
 on. Traced there: the EV's restarted track, not yet confirmed, beside the truck behind it (rsu2), and a box over the EV
 and the truck's top taking over the EV's lost track (rsu1); mended in ``rsu.classify.ev`` (a farther track flashing on
 its own may own the flashes; a box holding most of a nearer vehicle's box takes over nothing): tuning seeds
-51100/68157/65805/97823, recall 1.0 (48/48), 0 false alerts, median 0.20 s. The held-out seeds are now ``HELD_OUT_SEEDS`` = 36545, 16790, drawn at random once (eighteenth session) and not
-run: do not tune on them.
+51100/68157/65805/97823, recall 1.0 (48/48), 0 false alerts, median 0.20 s. Held-out 36545/16790, drawn at random
+once (eighteenth session), were run once after that change (``python bench/ev_bench.py --seeds 36545 16790 --json``,
+299 s): track recall 1.0 (24/24), **3 false alerts**, none on a flasher or turn-signal car (``rellis_ev_yield`` 16790:
+rsu4 vehicle v0 twice, tracks 22 and 44; ``ev_two_lanes_dense`` 36545: rsu3 vehicle d0), median lights-on -> alert
+0.33 s (max 0.93 s), 19 flasher/turn-signal cars seen; the code before the change raises the same three (those two
+scenarios, same seeds): issue 17's 0 false alerts is not met on this pair; not traced; tuning seeds from now on. The
+held-out seeds are now ``HELD_OUT_SEEDS`` = 57097, 72786, drawn at random once (eighteenth session) and not run: do
+not tune on them.
 With ``--json`` the last line is one JSON object of the figures.
 
 Fifth session (2026-11-25), lamps counted for one vehicle only (``rsu.classify.ev``, ``rsu.classify.temporal``):
@@ -171,7 +177,7 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (36545, 16790)
+HELD_OUT_SEEDS = (57097, 72786)
 """Drawn at random once (2026-11-28, seventeenth session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737 and 65805/97823 are tuning seeds
 (module docstring)."""
@@ -307,7 +313,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 36545 16790; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 57097 72786; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
