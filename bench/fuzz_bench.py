@@ -222,8 +222,7 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
                         target.bus.stats.handler_errors = 0
                 res.max_step_ms = max(res.max_step_ms, (thread_ns() - c1) / 1e6)
         gc.callbacks.remove(on_gc)
-        gc.unfreeze()  # the next target starts from its own start-up heap
-        root.setLevel(root_level)  # a caller in the same process (a test) logs as before
+        gc.unfreeze()  # the next target starts from its own start-up heap (before the growth's collect below)
         res.rejected = res.inputs - res.accepted
         res.seconds = time.perf_counter() - t_start
         res.mean_input_us = total_ns / max(1, n) / 1000.0
@@ -235,11 +234,11 @@ def run_target(name: str, factory: Callable[[random.Random], Target], n: int, se
             res.traced_peak_kb, res.traced_growth_kb = peak / 1024.0, (current - traced_mark) / 1024.0
             tracemalloc.stop()
         res.state = target.sizes()
-    finally:  # an input stream that stops on an exception (or Ctrl-C) leaves the process as it found it
+    finally:  # the process as it was found, also when a stream stops on an exception (or Ctrl-C)
         if on_gc in gc.callbacks:
             gc.callbacks.remove(on_gc)
         gc.unfreeze()
-        root.setLevel(root_level)
+        root.setLevel(root_level)  # a caller in the same process (a test) logs as before
         if trace and tracemalloc.is_tracing():
             tracemalloc.stop()
     return res

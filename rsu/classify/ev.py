@@ -358,9 +358,10 @@ class TrackEvClassifier:
 
     def _lost_evs(self, now_s: float, ids: list[int]) -> np.ndarray:
         """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids``, lost within
-        ``handover_after_s``, that were confirmed EVs or flashing themselves (``_may_own_flashes``): SORT drops a track after one missed detection, and an EV just ahead is
-        still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof
-        lit by the EV's strobe, confirmed in that frame)."""
+        ``handover_after_s``, that were confirmed EVs or flashing themselves (``_may_own_flashes``): SORT drops a
+        track after one missed detection, and an EV just ahead is still there (simulator tuning seed 44077: the
+        EV's track lost for one frame, the bus behind it, its roof lit by the EV's strobe, confirmed in that
+        frame)."""
         current = set(ids)
         out = [extrapolate_box(i.box, i.centre_velocity_pxps, now_s - i.last_seen_s)
                for tid, i in self.tracks.items() if tid not in current and i.box is not None
@@ -372,9 +373,10 @@ class TrackEvClassifier:
         """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
         higher) whose box reaches into ``k``'s crop and that is either a confirmed EV or a track with lamp cues of
         its own (``_may_own_flashes``; or one of those lost within the hand-over time: ``lost_evs``) or too small for
-        its own lamps to be measured (``min_box_px``) while it rises above ``k``'s roof? Its flashes light this vehicle's roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus roof, outside
-        the EV's box, flashed in step with it; simulator tuning seeds 91468, and 44077, where the EV, 28 px tall,
-        was never measured and its strobe confirmed the bus; ev_bench seed 51100, ``night_ev``, rsu2: the EV's track
+        its own lamps to be measured (``min_box_px``) while it rises above ``k``'s roof? Its flashes light this
+        vehicle's roof and the band above it (a bus behind the EV, nearer the camera: the bar's glow on the bus
+        roof, outside the EV's box, flashed in step with it; simulator tuning seeds 91468, and 44077, where the
+        EV, 28 px tall, was never measured and its strobe confirmed the bus; ev_bench seed 51100, ``night_ev``, rsu2: the EV's track
         started again after the EV passed a truck, its new evidence not yet confirmed while its flashes, seen in the
         truck's band just behind it, confirmed the truck), so ``k``'s flash pattern then confirms only with a
         confident body (``TrackEvidence.update``)."""
@@ -409,8 +411,10 @@ class TrackEvClassifier:
         current = set(ids)
         lost = [tid for tid, i in self.tracks.items() if tid not in current and i.box is not None
                 and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
+        if not lost:
+            return
         new = [k for k, tid in enumerate(ids) if tid not in self.tracks and not holds_nearer_vehicle(k, boxes)]
-        if not lost or not new:
+        if not new:
             return
         predicted = np.array([extrapolate_box(self.tracks[t].box, self.tracks[t].centre_velocity_pxps,
                                               now_s - self.tracks[t].last_seen_s) for t in lost])
