@@ -350,8 +350,11 @@ class TrackEvClassifier:
                                                         farther_boxes(k, boxes))
                 if lost_evs is None:
                     lost_evs = self._lost_evs(now, ids)
-                state = ev.update(now, lamps, score, self._body_score(info, now, lamps, bar, crop), bar,
-                                  lamps_alone=not self._ev_ahead(k, ids, boxes, bounds, lost_evs))
+                ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs)
+                # with a flashing vehicle just ahead, this crop (grown above the box) holds part of that
+                # vehicle too, and its body score says as much about it as about this one: none taken now
+                body = None if ahead else self._body_score(info, now, lamps, bar, crop)
+                state = ev.update(now, lamps, score, body, bar, lamps_alone=not ahead)
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)
         return out
@@ -379,7 +382,9 @@ class TrackEvClassifier:
         EV, 28 px tall, was never measured and its strobe confirmed the bus; ev_bench seed 51100, ``night_ev``, rsu2: the EV's track
         started again after the EV passed a truck, its new evidence not yet confirmed while its flashes, seen in the
         truck's band just behind it, confirmed the truck), so ``k``'s flash pattern then confirms only with a
-        confident body (``TrackEvidence.update``)."""
+        confident body (``TrackEvidence.update``), scored while no such vehicle was ahead: its crop, grown above
+        the box, would hold part of the vehicle ahead (ev_bench seeds 16790 and 36545: a car 11-13 m behind the
+        EV, its crop scored 0.40-0.68 with the EV in it)."""
         box, crop = boxes[k], bounds[k]
         if crop is None:
             return False

@@ -252,3 +252,35 @@ def test_a_box_that_merges_the_lost_ev_with_a_nearer_vehicle_does_not_take_over_
         clf(Frame(img, 0.0, 0, "cam"), tracks([(1, ev_box), (2, truck)]))
         clf(Frame(img, 1 / FPS, 1, "cam"), tracks([(3, new_box), (2, truck)]))
         assert (clf.tracks[3].handed_over_from == (1,)) == takes_over
+
+
+def test_a_car_just_behind_a_flashing_ev_is_not_body_scored_with_the_ev_in_its_crop():
+    """A car 11-13 m behind the EV (nearer the camera, the EV just above it in the image): its crop, grown above its
+    box, holds the EV's bar and body, so the body classifier would score the EV there; with the EV's track flashing
+    just ahead, the car takes no body score and does not confirm (ev_bench seeds 16790 and 36545). Alone in the
+    same image, the car is scored: the EV's lamps do reach its band."""
+    car = (95.0, 125.0, 185.0, 190.0)
+
+    def tall_bar(t):  # the EV's flashes light the car's roof, in step (rows 126-132, inside the car's box)
+        img = scene(t)
+        img[126:133] = img[103:110]
+        return img
+
+    def run_on(clf, entries):
+        out = []
+        for k in range(int(4 * FPS)):
+            t = k / FPS
+            out.append(clf(Frame(tall_bar(t), t, k, "cam"), tracks(entries)))
+        return out
+
+    scored = []
+    crop_rows = TrackEvClassifier().crop_bounds(car, 480, 240)
+    car_rows = crop_rows[3] - crop_rows[1]
+    clf = TrackEvClassifier(body=lambda crop: scored.append(crop.shape[0]) or 0.95)
+    states = run_on(clf, [(1, BOX_A), (2, car)])
+    assert any(out[1].ev_state == EvState.CONFIRMED for out in states)  # the EV alerts
+    with_ev_ahead = scored.count(car_rows)  # once at most: before the EV's own flashes are seen
+    assert all(out[2].ev_state != EvState.CONFIRMED for out in states)
+    scored.clear()
+    run_on(TrackEvClassifier(body=lambda crop: scored.append(crop.shape[0]) or 0.95), [(2, car)])
+    assert with_ev_ahead <= 1 < scored.count(car_rows)
