@@ -425,6 +425,8 @@ class TrackEvClassifier:
                                               now_s - self.tracks[t].last_seen_s) for t in lost])
         for i, j in match_lost_tracks(boxes[new], predicted, self.handover_iou):
             info = self.tracks.pop(lost[j])
+            info.evidence.handed_over()
+            info.last_body_s = None  # score the new box on its first frame with lamp activity
             info.handed_over_from = (*info.handed_over_from, lost[j])[-8:]
             self.tracks[ids[new[i]]] = info
 

@@ -213,6 +213,9 @@ class TrackEvidence:
     cues: tuple[EvCue, ...] = ()
     """The cues that confirmed the track (refreshed while it stays confirmed); empty before."""
     body_scores: deque = field(default_factory=lambda: deque(maxlen=32))
+    body_current: bool = True
+    """False from a hand-over to another track id (:meth:`handed_over`) until that track's box is body-scored: the
+    hand-over matches boxes by position, and the new box may be another vehicle."""
     _t: deque = field(default_factory=deque)
     _signals: dict = field(default_factory=lambda: {k: deque() for k in SIGNALS})
     _arrays: dict = field(default_factory=dict, repr=False, compare=False)
@@ -362,7 +365,16 @@ class TrackEvidence:
     @property
     def body_confident(self) -> bool:
         b = self.body_score
-        return b is not None and len(self.body_scores) >= self.config.body_min_scores and b >= self.config.body_threshold
+        return (self.body_current and b is not None and len(self.body_scores) >= self.config.body_min_scores
+                and b >= self.config.body_threshold)
+
+    def handed_over(self) -> None:
+        """This evidence now belongs to a new track id, matched by position alone (``TrackEvClassifier._hand_over``).
+        The lamp history and a confirmed state carry over; the body scores count again only once the new box has
+        been scored too (a black truck that entered the view just behind an ambulance took over the ambulance's
+        lost track, and with it the ambulance's body scores: ev_bench seed 16790, ``rellis_ev_yield``, rsu4)."""
+        if self.state != EvState.CONFIRMED:
+            self.body_current = False
 
     def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None,
                body_score: float | None = None, bar: LampMeasurement | None = None,
@@ -389,6 +401,7 @@ class TrackEvidence:
         self.frames += 1
         if body_score is not None:
             self.body_scores.append(float(np.clip(body_score, 0.0, 1.0)))
+            self.body_current = True
         flash = self._flash_cue(now_s, "bright")
         if flash is not None:
             self.last_flash_s = now_s

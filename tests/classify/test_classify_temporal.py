@@ -154,3 +154,25 @@ def test_median_of_is_numpys_median_on_short_windows():
             assert median_of(np.round(x, 1)) == float(np.median(np.round(x, 1)))  # ties
     assert median_of(np.array([3, 1, 2])) == 2.0 and median_of(np.array([4, 1, 2, 3])) == 2.5
     assert np.isnan(median_of(np.array([1.0, np.nan, 2.0])))
+
+
+def test_body_scores_handed_to_a_new_track_count_only_after_its_own_box_is_scored():
+    ev = TrackEvidence()
+    for i in range(4):
+        ev.update(i / FPS, LampMeasurement(0.0, 0.0), body_score=0.9)
+    assert ev.body_confident and ev.state != EvState.CONFIRMED
+    ev.handed_over()  # matched by position alone: the new box may be another vehicle
+    assert not ev.body_confident
+    ev.update(4 / FPS, LampMeasurement(0.0, 0.0))  # frames without a body score keep it out
+    assert not ev.body_confident
+    ev.update(5 / FPS, LampMeasurement(0.0, 0.0), body_score=0.9)  # the new box scored as an EV too
+    assert ev.body_confident
+
+
+def test_a_confirmed_ev_keeps_its_body_evidence_through_a_hand_over():
+    ev, states = run(alternating(2.0), duration_s=3.0)
+    assert states[-1][1] == EvState.CONFIRMED
+    for t in np.arange(3.0, 3.5, 1 / FPS):
+        ev.update(float(t), LampMeasurement(0.0, 0.0), body_score=0.9)
+    ev.handed_over()
+    assert ev.body_confident and ev.state == EvState.CONFIRMED
