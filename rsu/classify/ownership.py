@@ -88,3 +88,18 @@ def holds_nearer_vehicle(k: int, boxes: np.ndarray, fraction: float = 0.5) -> bo
         if iw > 0 and ih > 0 and area > 0 and iw * ih >= fraction * area:
             return True
     return False
+
+
+def blank_rects(crop: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """``crop`` with the pixels of ``mask`` (another vehicle's, :func:`rect_mask` of :func:`farther_boxes`) set to
+    the median colour of the rest, so that the EV-body classifier scores this vehicle and not the one behind or
+    ahead of it in the crop; ``crop`` itself when there is nothing to blank (or nothing left around it). A black
+    truck that entered the view just behind an ambulance, its crop grown upwards over the ambulance, scored 0.68
+    and 0.18 with the ambulance blanked; the ambulance's own crops, up to 40 % blanked, kept their scores
+    (ev_bench tuning seeds 16790/36545/51100/68157/65805/97823: 8 EV crops with a farther box, 0.72-0.88 before
+    and 0.76-0.87 after; 81 other-vehicle crops, 15 scored >= 0.5 before and 9 after; measured blanking with the whole crop's median)."""
+    if mask is None or not mask.any() or mask.all():
+        return crop
+    out = crop.copy()
+    out[mask] = np.median(crop[~mask], axis=0).astype(crop.dtype)
+    return out

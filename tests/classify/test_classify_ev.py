@@ -284,3 +284,34 @@ def test_a_car_just_behind_a_flashing_ev_is_not_body_scored_with_the_ev_in_its_c
     scored.clear()
     run_on(TrackEvClassifier(body=lambda crop: scored.append(crop.shape[0]) or 0.95), [(2, car)])
     assert with_ev_ahead <= 1 < scored.count(car_rows)
+
+
+def test_the_body_classifier_does_not_see_a_farther_vehicle_in_the_crop():
+    """The crop, grown above the box for the roof bar, takes in a farther vehicle seen above this one; the body
+    classifier gets it with that vehicle's box blanked, so that it scores this vehicle (ev_bench seed 16790: a black
+    truck just behind an ambulance scored 0.68 with the ambulance in its crop, 0.18 without)."""
+    from rsu.classify.ownership import blank_rects
+
+    far = (120.0, 55.0, 200.0, 100.0)  # a green van farther up the road, its bottom at the EV's roof
+
+    def with_van(t):
+        img = scene(t)
+        img[55:100, 120:200] = (0, 200, 0)
+        return img
+
+    def greens_seen(entries):
+        seen = []
+        clf = TrackEvClassifier(body=lambda crop: seen.append(int((crop[..., 1] == 200).sum())) or 0.2)
+        for k in range(int(2 * FPS)):
+            t = k / FPS
+            clf(Frame(with_van(t), t, k, "cam"), tracks(entries))
+        assert seen  # the flashing EV was scored
+        return seen
+
+    assert all(n > 0 for n in greens_seen([(1, BOX_A)]))  # untracked, the van is in the crop
+    assert all(n == 0 for n in greens_seen([(1, BOX_A), (2, far)]))  # tracked: blanked
+    crop = np.zeros((4, 4, 3), np.uint8)
+    crop[:2] = 7
+    mask = np.zeros((4, 4), bool)
+    mask[:1] = True
+    assert (blank_rects(crop, mask)[0] == 0).all() and blank_rects(crop, None) is crop  # median of the rest
