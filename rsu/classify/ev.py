@@ -42,6 +42,7 @@ import numpy as np
 from protocol.messages import EvState, LightState
 from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
 from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined here before)
+    above_top,
     band_exclusions,
     blank_rects,
     farther_boxes,
@@ -303,9 +304,11 @@ class TrackEvClassifier:
         return lamps, bar, score, crop
 
     def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, bar: LampMeasurement,
-                    crop: np.ndarray | None, others: Callable[[], np.ndarray | None] = lambda: None) -> float | None:
-        """The EV-body score of this frame's crop, its pixels of ``others()`` (farther vehicles' boxes) blanked
-        (:func:`~rsu.classify.ownership.blank_rects`), when the band shows lamp activity
+                    crop: np.ndarray | None, bounds: tuple[int, int, int, int] | None = None,
+                    others: Iterable[tuple[int, int, int, int]] = ()) -> float | None:
+        """The EV-body score of this frame's crop (at ``bounds``), its pixels in the rectangles ``others``
+        (farther vehicles' boxes above its top) blanked (:func:`~rsu.classify.ownership.blank_rects`), when the
+        band shows lamp activity
         (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least ``body_period_s`` old;
         else None. A confirmed EV is not scored again: confirmation is what the body score is for, and only the
         lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
@@ -318,7 +321,8 @@ class TrackEvClassifier:
         if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
             return None
         info.last_body_s = now_s
-        return float(np.clip(self.body(blank_rects(crop, others())), 0.0, 1.0))
+        mask = rect_mask(bounds, others) if bounds is not None else None
+        return float(np.clip(self.body(blank_rects(crop, mask)), 0.0, 1.0))
 
     def __call__(self, frame, tracks) -> dict[int, EvVerdict]:
         now = float(frame.timestamp_s)
@@ -356,7 +360,7 @@ class TrackEvClassifier:
                 # with a flashing vehicle just ahead, this crop (grown above the box) holds part of that
                 # vehicle too, and its body score says as much about it as about this one: none taken now
                 body = None if ahead else self._body_score(info, now, lamps, bar, crop,
-                                                           lambda: rect_mask(bounds[k], farther))
+                                                           bounds[k], above_top(farther, box))
                 state = ev.update(now, lamps, score, body, bar, lamps_alone=not ahead)
             out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
         self._forget(now)

@@ -310,6 +310,15 @@ def test_the_body_classifier_does_not_see_a_farther_vehicle_in_the_crop():
 
     assert all(n > 0 for n in greens_seen([(1, BOX_A)]))  # untracked, the van is in the crop
     assert all(n == 0 for n in greens_seen([(1, BOX_A), (2, far)]))  # tracked: blanked
+    # a bus behind the EV, its box taking in the EV's upper body: only its part above the EV's top is blanked,
+    # the EV's own box (which hides the bus there) is scored as it is
+    bus = (90.0, 40.0, 200.0, 130.0)
+    whites = []
+    clf = TrackEvClassifier(body=lambda crop: whites.append(int((crop == 230).all(axis=2).sum())) or 0.2)
+    for k in range(int(2 * FPS)):
+        clf(Frame(with_van(k / FPS), k / FPS, k, "cam"), tracks([(1, BOX_A), (2, bus)]))
+    body_px = 80 * 60 - 60 * 20 - 25 * 8  # the white body, less its red stripe and the lamps drawn over it
+    assert whites and all(n >= body_px - 25 * 8 for n in whites)
     crop = np.zeros((4, 4, 3), np.uint8)
     crop[:2] = 7
     mask = np.zeros((4, 4), bool)
