@@ -149,8 +149,10 @@ Twentieth session (2026-11-29): the three false alerts of 36545/16790 (tuning se
 traced there: an ordinary vehicle just behind the EV, nearer the camera, whose crop (grown above its box for the
 roof bar) held the EV, so that the body classifier scored the EV in it; and on 16790 a truck that took over the
 ambulance's lost track by position, with its body scores. Three changes in ``rsu.classify``: a track with a flashing
-vehicle just ahead takes no body score; a crop is body-scored with the farther vehicles' boxes blanked
-(``ownership.blank_rects``); body scores handed over to a new track id count again only once its own box is scored.
+vehicle just ahead takes no body score; a crop is body-scored with the farther vehicles' boxes blanked where
+they rise above its box's top (``ownership.above_top``, ``blank_rects``; blanking them whole, the first version, run on
+57097/72786 below, would erase the roof and upper body of an EV in front of a bus); body scores handed over to a new
+track id count again only once its own box is scored.
 Tuning seeds 16790/36545: 0 false alerts (3 before), recall 1.0, median 0.33 s; 51100/68157/65805/97823: unchanged
 (recall 1.0, 0 false alerts, median 0.20 s). Then held-out 57097/72786, run once (``python bench/ev_bench.py
 --json``, 196 s): track recall 1.0 (24/24), 0 false alerts, median lights-on -> alert 0.50 s (the mean of the middle
