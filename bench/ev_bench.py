@@ -157,7 +157,16 @@ Tuning seeds 16790/36545: 0 false alerts (3 before), recall 1.0, median 0.33 s; 
 (recall 1.0, 0 false alerts, median 0.20 s). Then held-out 57097/72786, run once (``python bench/ev_bench.py
 --json``, 196 s): track recall 1.0 (24/24), 0 false alerts, median lights-on -> alert 0.50 s (the mean of the middle
 two of six runs, 0.33 and 0.67 s; max 1.20 s), 15 flasher/turn-signal cars seen with 0 false alerts on them. They are
-tuning seeds now; the next held-out pair is 21376/45884.
+tuning seeds now. The blanking then changed to the part above the box's top (the change above); on tuning seeds
+16790/36545: 0 false alerts, recall 1.0, median 0.33 s; 51100/68157/65805/97823/57097/72786: recall 1.0 (72/72),
+0 false alerts, median 0.23 s (57097/72786 the same run by run as with whole-box blanking). Then held-out
+21376/45884, run once (``python bench/ev_bench.py --json``, 2026-11-29): track recall 0.958 (23/24: rsu1 missed ev1
+of ``ev_two_lanes_dense`` 21376, the fourth held-out pair with that miss), 2 false alerts (``ev_two_lanes_dense``:
+rsu1 vehicle v6 of 21376, a 312 x 294 px box, and rsu3 vehicle v1 of 45884, both on a flash alone, body 0.03-0.40),
+median 0.27 s (max 5.13 s), 13 flasher/turn-signal cars seen with 0 false alerts on them: issue 17's recall and
+false-alert targets **not met** on this pair. The code before this session's changes (26f3d8e) gives the same miss
+and the same two false alerts on those runs. Not traced further; tuning seeds now. The next held-out pair is
+93492/82788, drawn at random.
 """
 
 from __future__ import annotations
@@ -191,10 +200,10 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (21376, 45884)
+HELD_OUT_SEEDS = (93492, 82788)
 """Drawn at random once (2026-11-29, twentieth session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737, 65805/97823, 51100/68157,
-36545/16790 and 57097/72786 are tuning seeds (module docstring)."""
+36545/16790, 57097/72786 and 21376/45884 are tuning seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
