@@ -304,16 +304,15 @@ class TrackEvClassifier:
         return lamps, bar, score, crop
 
     def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, bar: LampMeasurement,
-                    crop: np.ndarray | None, bounds: tuple[int, int, int, int] | None = None,
-                    others: Iterable[tuple[int, int, int, int]] = ()) -> float | None:
+                    crop: np.ndarray | None, bounds: tuple[int, int, int, int] | None,
+                    others: Iterable[tuple[int, int, int, int]]) -> float | None:
         """The EV-body score of this frame's crop (at ``bounds``), its pixels in the rectangles ``others``
         (farther vehicles' boxes above its top) blanked (:func:`~rsu.classify.ownership.blank_rects`), when the
-        band shows lamp activity
-        (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least ``body_period_s`` old;
-        else None. A confirmed EV is not scored again: confirmation is what the body score is for, and only the
-        lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
+        band shows lamp activity (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least
+        ``body_period_s`` old; else None. A confirmed EV is not scored again: confirmation is what the body score is
+        for, and only the lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
         on four RSUs at once halved their processed fps while the EV was in view)."""
-        if self.body is None or crop is None or info.evidence.state == EvState.CONFIRMED:
+        if self.body is None or crop is None or bounds is None or info.evidence.state == EvState.CONFIRMED:
             return None
         cue_s = info.evidence.last_lamp_cue_s  # e.g. a white strobe's flashes, which lamp_activity does not see
         if not lamp_activity(lamps, bar, self.config) and (cue_s is None or now_s - cue_s > self.config.steady_window_s):
@@ -321,8 +320,7 @@ class TrackEvClassifier:
         if info.last_body_s is not None and now_s - info.last_body_s < self.body_period_s:
             return None
         info.last_body_s = now_s
-        mask = rect_mask(bounds, others) if bounds is not None else None
-        return float(np.clip(self.body(blank_rects(crop, mask)), 0.0, 1.0))
+        return float(np.clip(self.body(blank_rects(crop, rect_mask(bounds, others))), 0.0, 1.0))
 
     def __call__(self, frame, tracks) -> dict[int, EvVerdict]:
         now = float(frame.timestamp_s)

@@ -288,8 +288,9 @@ def test_a_car_just_behind_a_flashing_ev_is_not_body_scored_with_the_ev_in_its_c
 
 def test_the_body_classifier_does_not_see_a_farther_vehicle_in_the_crop():
     """The crop, grown above the box for the roof bar, takes in a farther vehicle seen above this one; the body
-    classifier gets it with that vehicle's box blanked, so that it scores this vehicle (ev_bench seed 16790: a black
-    truck just behind an ambulance scored 0.68 with the ambulance in its crop, 0.18 without)."""
+    classifier gets it with that vehicle's box blanked where it rises above this box's top, so that it scores this
+    vehicle (ev_bench seed 16790: a black truck just behind an ambulance scored 0.68 with the ambulance in its crop,
+    0.40 with the ambulance's box blanked above the truck's top)."""
     from rsu.classify.ownership import blank_rects
 
     far = (120.0, 55.0, 200.0, 100.0)  # a green van farther up the road, its bottom at the EV's roof
