@@ -152,8 +152,8 @@ class Renderer:
     def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
         ``uv`` (4, 2) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added to the image."""
-        (x1, y1), (x2, y2) = np.floor(uv.min(axis=0)).astype(int).tolist(), np.ceil(uv.max(axis=0)).astype(int).tolist()
-        x1, y1, x2, y2 = x1 - 6, y1 - 6, x2 + 7, y2 + 7
+        us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # four points: plain floats beat numpy's per-call cost
+        x1, y1, x2, y2 = math.floor(min(us)) - 6, math.floor(min(vs)) - 6, math.ceil(max(us)) + 7, math.ceil(max(vs)) + 7
         ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
         if ox2 - ox1 < 2 or oy2 - oy1 < 2:
             return
@@ -161,7 +161,9 @@ class Renderer:
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
-        self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
+        self._dirty.mark(ox1, oy1, ox2, oy2)
+        roi = img[oy1:oy2, ox1:ox2]
+        cv2.add(roi, cv2.blur(pool, (7, 7))[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
 
     def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,

@@ -3,8 +3,9 @@ per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be te
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from functools import cache
+from functools import cache, lru_cache
 
 import cv2
 import numpy as np
@@ -17,15 +18,29 @@ def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     """Motion-blur kernel for an image motion ``vec`` (px) during the exposure: n + 1 = min(25, ceil(|vec|)) + 1
     samples along the line through the centre of a (2n + 1)^2 grid, normalised; returned as the line's bounding box
     with the anchor (x, y) of the grid's centre in it, the same correlation as the full grid (which OpenCV would
-    apply by DFT: a 51 x 51 kernel cost 4 ms a frame at night)."""
-    length = float(np.hypot(*vec))
-    n = int(min(25, np.ceil(length)))
-    direction = vec / max(1e-6, length)
-    xy = np.clip(np.round(n + direction * (np.arange(n + 1) - n / 2)[:, None]).astype(int), 0, 2 * n)
-    (c0, r0), (c1, r1) = xy.min(axis=0).tolist(), xy.max(axis=0).tolist()
-    k = np.zeros((r1 - r0 + 1, c1 - c0 + 1), np.float32)
-    np.add.at(k, (xy[:, 1] - r0, xy[:, 0] - c0), 1.0)
+    apply by DFT: a 51 x 51 kernel cost 4 ms a frame at night). The taps are plain floats rounded half to even as
+    ``np.round`` does, and the kernel is made once per set of taps (``_taps_kernel``; they repeat from frame to
+    frame): 7 us a kernel against 24-35 us with numpy arrays (2-core Xeon, 2026-12-01)."""
+    vx, vy = float(vec[0]), float(vec[1])
+    length = math.hypot(vx, vy)
+    n = int(min(25, math.ceil(length)))
+    dx, dy = vx / max(1e-6, length), vy / max(1e-6, length)
+    top = 2 * n
+    taps = tuple((min(top, max(0, round(n + dx * (i - n / 2)))), min(top, max(0, round(n + dy * (i - n / 2)))))
+                 for i in range(n + 1))
+    return _taps_kernel(n, taps)
+
+
+@lru_cache(maxsize=1024)
+def _taps_kernel(n: int, taps: tuple[tuple[int, int], ...]) -> tuple[np.ndarray, tuple[int, int]]:
+    """The normalised kernel (float32, read-only) of ``line_kernel``'s taps (x, y) on the (2n + 1)^2 grid, cut to
+    their bounding box, and the grid centre's anchor in it."""
+    xs, ys = [x for x, _y in taps], [y for _x, y in taps]
+    c0, r0 = min(xs), min(ys)
+    k = np.zeros((max(ys) - r0 + 1, max(xs) - c0 + 1), np.float32)
+    np.add.at(k, (np.array(ys) - r0, np.array(xs) - c0), 1.0)
     k /= k.sum()
+    k.flags.writeable = False
     return k, (n - c0, n - r0)
 
 
