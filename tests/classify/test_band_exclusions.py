@@ -29,11 +29,15 @@ def test_car_beside_an_ev_does_not_measure_the_evs_bar():
     assert bar_ev.coloured > 0.0  # the EV keeps its own bar
 
 
-def test_a_nearer_vehicle_hides_its_whole_crop_and_a_far_one_only_its_side():
+def test_a_nearer_vehicle_hides_its_box_and_its_crop_outside_this_box_and_a_far_one_only_its_side():
     boxes = np.array([[100.0, 50.0, 180.0, 100.0], [90.0, 80.0, 200.0, 160.0], [150.0, 40.0, 230.0, 95.0]])
     bounds = [(100, 38, 180, 100), (90, 60, 200, 160), (150, 27, 230, 95)]
     out = band_exclusions(0, boxes, bounds)
-    assert (90, 60, 200, 160) in out  # box 1 is nearer (bottom 160 > 100): all of it
+    assert (90, 80, 200, 160) in out  # box 1 is nearer (bottom 160 > 100): all of its box
+    # and its crop above its box (rows 60-80), except where box 0 is (columns 100-180)
+    assert (90, 60, 100, 80) in out and (180, 60, 200, 80) in out
+    assert not any(x1 < 180 and x2 > 100 and y1 < 80 and y2 > 60 for x1, y1, x2, y2 in out
+                   if (x1, y1, x2, y2) != (90, 80, 200, 160) and y2 <= 80 and x1 >= 90)
     assert (165, 27, 230, 95) in out  # box 2 is farther, to the right: from the midpoint 165 of the centres 140, 190
     assert band_exclusions(1, boxes, bounds)[0] == (100, 38, 142, 100)  # box 1 (centre 145) gives up box 0's side (centre 140)
 
@@ -131,3 +135,23 @@ def test_a_flashing_track_just_ahead_may_own_the_flashes_before_it_is_confirmed(
     assert quiet.evidence.light_state == LightState.OFF  # no lamp cue for clear_after_s: its lamps are out
     clf.tracks = {2: quiet}
     assert not clf._ev_ahead(0, [1, 2], big, big_bounds)
+
+
+def test_an_ev_just_ahead_of_a_bus_keeps_its_bar_inside_the_bus_crop():
+    """The bus is nearer (bottom edge lower) and its crop, grown above its box for a roof bar, reaches over the police
+    car just ahead of it: the car's bar, inside the car's own box, is the car's (ev_bench tuning seed 21376,
+    ``ev_two_lanes_dense``, rsu1: the car's band lost every flash to the bus's crop and it was never confirmed);
+    above the bus's box and outside the car's box the bus's crop stays the bus's."""
+    image = np.zeros((300, 400, 3), np.uint8)
+    boxes = np.array([[100.0, 120.0, 300.0, 280.0],   # the bus, nearer: its crop reaches 40 px above its box
+                      [170.0, 85.0, 240.0, 130.0]])   # the police car just ahead, its roof inside the bus's crop
+    image[86:92, 190:220] = (255, 60, 0)  # the car's lit blue bar, at its box's top (BGR)
+    clf = TrackEvClassifier()
+    bounds = [clf.crop_bounds(b, image.shape[1], image.shape[0]) for b in boxes]
+    assert bounds[0][1] < 86  # the bus's crop takes in the bar
+    _, bar_car, _, _ = clf._measure(image, bounds[1], band_exclusions(1, boxes, bounds))
+    assert bar_car.blue > 0.0
+    image[86:92, 190:220] = 0
+    image[80:84, 190:220] = (255, 60, 0)  # a blue light above the car's box, in both crops: the bus's crop keeps it
+    _, bar_car, _, _ = clf._measure(image, bounds[1], band_exclusions(1, boxes, bounds))
+    assert bar_car.blue == 0.0
