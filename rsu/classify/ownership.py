@@ -15,10 +15,13 @@ def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int,
                     ) -> list[tuple[int, int, int, int]]:
     """The parts of track ``k``'s crop that belong to other vehicles, left out of its lamp band so that a lamp
     is counted for one vehicle only: the box of every vehicle nearer the camera (its box's bottom edge lower in
-    the image: it occludes this one) and its crop above that box, except where this vehicle's own box is (there
-    the detector saw this vehicle, not the roof of the nearer one: a police car just ahead of a bus, its bar
-    inside the bus's upward-grown crop, lost every flash to it and was never confirmed, ev_bench tuning seed
-    21376, ``ev_two_lanes_dense``, rsu1), and, of every other vehicle whose crop overlaps this one, the
+    the image: it occludes this one) and its crop above that box, except where this vehicle's own box is and
+    nearer this box's top than that vehicle's top (rows split at the midpoint of the two tops: a roof bar sits at
+    its own vehicle's top. Without the exception a police car just ahead of a bus, its bar inside the bus's
+    upward-grown crop, lost every flash to it and was never confirmed, ev_bench tuning seed 21376,
+    ``ev_two_lanes_dense``, rsu1; without the split a car just ahead of the ambulance of the Japanese clip took
+    in the ambulance's bar, just above the ambulance's box), and, of every other vehicle whose crop overlaps this
+    one, the
     columns nearer its box centre than this box's (the two crops split at the midpoint between the centres),
     and, of every farther vehicle (bottom edge higher) seen above this box's top, its own box above that top.
     Without the split, a car beside an EV counts the EV's roof bar, which its own upward-grown crop takes in;
@@ -35,7 +38,9 @@ def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int,
         if other[3] > box[3]:
             top = min(max(int(np.floor(other[1])), ob[1]), ob[3])
             out.append((ob[0], top, ob[2], ob[3]))  # its box hides this vehicle
-            out.extend(rect_minus((ob[0], ob[1], ob[2], top), own))  # its crop above its box, where not this box
+            # its crop above its box, except this box's rows nearer this box's top than the nearer one's top
+            mid = int(round(0.5 * (box[1] + other[1])))
+            out.extend(rect_minus((ob[0], ob[1], ob[2], top), (own[0], own[1], own[2], min(own[3], mid))))
             continue
         ocx = 0.5 * (other[0] + other[2])
         if ocx != cx:

@@ -208,6 +208,8 @@ class TrackEvidence:
     last_flash_s: float | None = None
     last_lamp_on_s: float | None = None
     last_lamp_cue_s: float | None = None
+    last_flash_cue_s: float | None = None
+    """When the band last gave a flash or alternation cue (lamp-bright or light-bar colours), not a steady bar."""
     confirmed_at_s: float | None = None
     flash_hz: float | None = None
     cues: tuple[EvCue, ...] = ()
@@ -405,7 +407,10 @@ class TrackEvidence:
         flash = self._flash_cue(now_s, "bright")
         if flash is not None:
             self.last_flash_s = now_s
-        lamp_cue = flash or self._flash_cue(now_s, "bar") or (EvCue.STEADY_BAR if self._steady_bar(now_s) else None)
+        flash_cue = flash or self._flash_cue(now_s, "bar")
+        if flash_cue is not None:
+            self.last_flash_cue_s = now_s
+        lamp_cue = flash_cue or (EvCue.STEADY_BAR if self._steady_bar(now_s) else None)
         if lamp_cue is not None:
             self.last_lamp_cue_s = now_s
         if lamps.coloured >= cfg.lamp_on_fraction or bar.coloured >= cfg.bar_on_fraction:  # red/blue: white may be sky

@@ -34,10 +34,10 @@ def test_a_nearer_vehicle_hides_its_box_and_its_crop_outside_this_box_and_a_far_
     bounds = [(100, 38, 180, 100), (90, 60, 200, 160), (150, 27, 230, 95)]
     out = band_exclusions(0, boxes, bounds)
     assert (90, 80, 200, 160) in out  # box 1 is nearer (bottom 160 > 100): all of its box
-    # and its crop above its box (rows 60-80), except where box 0 is (columns 100-180)
-    assert (90, 60, 100, 80) in out and (180, 60, 200, 80) in out
-    assert not any(x1 < 180 and x2 > 100 and y1 < 80 and y2 > 60 for x1, y1, x2, y2 in out
-                   if (x1, y1, x2, y2) != (90, 80, 200, 160) and y2 <= 80 and x1 >= 90)
+    # and its crop above its box (rows 60-80), except box 0's rows nearer box 0's top (50) than box 1's top (80):
+    # columns 100-180 above the midpoint, row 65
+    assert {(90, 65, 200, 80), (90, 60, 100, 65), (180, 60, 200, 65)} <= set(out)
+    assert not any(x1 < 180 and x2 > 100 and y1 < 65 and y2 > 60 for x1, y1, x2, y2 in out if x1 >= 90 and x2 <= 200)
     assert (165, 27, 230, 95) in out  # box 2 is farther, to the right: from the midpoint 165 of the centres 140, 190
     assert band_exclusions(1, boxes, bounds)[0] == (100, 38, 142, 100)  # box 1 (centre 145) gives up box 0's side (centre 140)
 
@@ -155,3 +155,24 @@ def test_an_ev_just_ahead_of_a_bus_keeps_its_bar_inside_the_bus_crop():
     image[80:84, 190:220] = (255, 60, 0)  # a blue light above the car's box, in both crops: the bus's crop keeps it
     _, bar_car, _, _ = clf._measure(image, bounds[1], band_exclusions(1, boxes, bounds))
     assert bar_car.blue == 0.0
+
+
+def test_a_steady_bar_just_ahead_does_not_hold_back_the_vehicle_behind():
+    """A farther track whose band gave only a steady-bar cue (a blue object on a van's roof line in the Japanese
+    clip, body 0.08) does not own flashes: the ambulance just behind it keeps its body scores. One that flashed does."""
+    from protocol.messages import LightState
+    from rsu.classify.ev import TrackInfo, _may_own_flashes
+    from rsu.classify.temporal import LampMeasurement, TrackEvidence
+
+    steady = TrackEvidence()
+    for i in range(15):
+        steady.update(i / 15, LampMeasurement(0.0, 0.0), bar=LampMeasurement(0.0, 0.03))
+    assert steady.light_state == LightState.STEADY and steady.last_flash_cue_s is None
+    clf, boxes, bounds = _bus_behind_ev()
+    big = boxes.copy()
+    big[1] = (120.0, 60.0, 190.0, 125.0)
+    big_bounds = [clf.crop_bounds(b, 400, 300) for b in big]
+    clf.tracks = {2: TrackInfo(steady, 0.0, 1.0, box=big[1].copy())}
+    assert not _may_own_flashes(clf.tracks[2]) and not clf._ev_ahead(0, [1, 2], big, big_bounds)
+    clf.tracks = {2: TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=big[1].copy())}
+    assert _may_own_flashes(clf.tracks[2]) and clf._ev_ahead(0, [1, 2], big, big_bounds)
