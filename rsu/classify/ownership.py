@@ -14,19 +14,19 @@ import numpy as np
 def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int, int] | None]
                     ) -> list[tuple[int, int, int, int]]:
     """The parts of track ``k``'s crop that belong to other vehicles, left out of its lamp band so that a lamp
-    is counted for one vehicle only: the box of every vehicle nearer the camera (its box's bottom edge lower in
-    the image: it occludes this one) and its crop above that box, except where this vehicle's own box is and
-    nearer this box's top than that vehicle's top (rows split at the midpoint of the two tops: a roof bar sits at
-    its own vehicle's top. Without the exception a police car just ahead of a bus, its bar inside the bus's
-    upward-grown crop, lost every flash to it and was never confirmed, ev_bench tuning seed 21376,
-    ``ev_two_lanes_dense``, rsu1; without the split a car just ahead of the ambulance of the Japanese clip took
-    in the ambulance's bar, just above the ambulance's box), and, of every other vehicle whose crop overlaps this
-    one, the
-    columns nearer its box centre than this box's (the two crops split at the midpoint between the centres),
-    and, of every farther vehicle (bottom edge higher) seen above this box's top, its own box above that top.
-    Without the split, a car beside an EV counts the EV's roof bar, which its own upward-grown crop takes in;
-    without the last part, a truck or bus behind a car or an EV counts the tail lights or the light bar of the
-    vehicle ahead, which its upward-grown band takes in (simulator tuning seeds 31372/91468: 4 false alerts)."""
+    is counted for one vehicle only:
+    - of every vehicle nearer the camera (its box's bottom edge lower in the image), its box (it occludes this
+      one) and its crop above that box, except this box's rows nearer this box's top than that vehicle's top
+      (:func:`rect_minus`; the rows split at the midpoint of the two tops, as a roof bar sits at its own vehicle's
+      top). Without the exception a police car just ahead of a bus, its bar inside the bus's upward-grown crop,
+      lost every flash to it and was never confirmed (ev_bench tuning seed 21376, ``ev_two_lanes_dense``, rsu1);
+      the split keeps a nearer EV's bar, just above its box, out of a farther box that reaches down to its roof;
+    - of every other vehicle whose crop overlaps this one, the columns nearer its box centre than this box's (the
+      two crops split at the midpoint between the centres): without it a car beside an EV counts the EV's roof
+      bar, which its own upward-grown crop takes in;
+    - of every farther vehicle (bottom edge higher) seen above this box's top, its own box above that top: without
+      it a truck or bus behind a car or an EV counts the tail lights or the light bar of the vehicle ahead, which
+      its upward-grown band takes in (simulator tuning seeds 31372/91468: 4 false alerts)."""
     out: list[tuple[int, int, int, int]] = []
     box = boxes[k]
     own = (int(np.floor(box[0])), int(np.floor(box[1])), int(np.ceil(box[2])), int(np.ceil(box[3])))
