@@ -167,6 +167,22 @@ median 0.27 s (max 5.13 s), 13 flasher/turn-signal cars seen with 0 false alerts
 false-alert targets **not met** on this pair. The code before this session's changes (26f3d8e) gives the same miss
 and the same two false alerts on those runs. Not traced further; tuning seeds now. The next held-out pair is
 93492/82788, drawn at random.
+
+Twenty-first session (2026-12-01): the rsu1 miss of ``ev_two_lanes_dense`` (held-out 21674, 76285, 41751 and 21376)
+traced on 21376: a police car just ahead of a bus (nearer the camera), its bar inside the bus's crop grown
+above the bus's box; the police car's band left out the bus's whole crop, so it lost every flash to it and was never
+confirmed. Now a nearer vehicle's crop above its box yields to this box's rows nearer this box's top
+(``ownership.band_exclusions``), and a steady bar alone no longer makes a track one that may own the flashes around it
+(``TrackEvidence.last_flash_cue_s``; with the band change alone the Japanese clip's ambulance lost its body scores
+to a van just ahead with a steady-bar cue). Tuning seeds 21376/21674/76285/41751/45884/30023: recall 1.0 (72/72;
+the four rsu1 misses found), 1 false alert (the bus of 21376, rsu1, on a flash alone: a merged box over the bus and
+the police car before the car had a box of its own; not mended: the bus's body scored 0.03-0.28, but sim EVs at
+night score 0.01-0.1 too, so a body veto would cost recall); 51100/68157/65805/97823/57097/72786: recall 1.0
+(72/72), 0 false alerts, median 0.23 s (unchanged); 21376/21674/36545/16790: 64 of 64. Then held-out 93492/82788,
+run once (``python bench/ev_bench.py --json``, 198 s): track recall **1.0** (24/24), **0 false alerts**, median
+lights-on -> alert **0.37 s** (max 0.60 s), 22 flasher/turn-signal cars seen (12 hazard, 10 turn signals) with 0
+false alerts on them: issue 17's simulator figures met on this pair. Tuning seeds now; the next held-out pair is
+52609/82241, drawn at random.
 """
 
 from __future__ import annotations
@@ -200,10 +216,10 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (93492, 82788)
-"""Drawn at random once (2026-11-29, twentieth session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
+HELD_OUT_SEEDS = (52609, 82241)
+"""Drawn at random once (2026-12-01, twenty-first session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737, 65805/97823, 51100/68157,
-36545/16790, 57097/72786 and 21376/45884 are tuning seeds (module docstring)."""
+36545/16790, 57097/72786, 21376/45884 and 93492/82788 are tuning seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
@@ -336,7 +352,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 57097 72786; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 52609 82241; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
