@@ -176,8 +176,9 @@ confirmed. Now a nearer vehicle's crop above its box yields to this box's rows n
 (``TrackEvidence.last_flash_cue_s``; with the band change alone the Japanese clip's ambulance lost its body scores
 to a van just ahead with a steady-bar cue). Tuning seeds 21376/21674/76285/41751/45884/30023: recall 1.0 (72/72;
 the four rsu1 misses found), 1 false alert (the bus of 21376, rsu1, on a flash alone: a merged box over the bus and
-the police car before the car had a box of its own; not mended: the bus's body scored 0.03-0.28, but sim EVs at
-night score 0.01-0.1 too, so a body veto would cost recall); 51100/68157/65805/97823/57097/72786: recall 1.0
+the police car before the car had a box of its own; not mended: the bus's body scored 0.03-0.28, but sim EVs score
+as low as 0.01, 31 of 92 EV alerts on four tuning seeds with a body mean under 0.11, so a body veto would cost
+recall); 51100/68157/65805/97823/57097/72786: recall 1.0
 (72/72), 0 false alerts, median 0.23 s (unchanged); 21376/21674/36545/16790: 64 of 64. Then held-out 93492/82788,
 run once (``python bench/ev_bench.py --json``, 198 s): track recall **1.0** (24/24), **0 false alerts**, median
 lights-on -> alert **0.37 s** (max 0.60 s), 22 flasher/turn-signal cars seen (12 hazard, 10 turn signals) with 0
