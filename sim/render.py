@@ -161,9 +161,7 @@ class Renderer:
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
-        self._dirty.mark(ox1, oy1, ox2, oy2)
-        roi = img[oy1:oy2, ox1:ox2]
-        cv2.add(roi, cv2.blur(pool, (7, 7))[oy1 - y1:oy2 - y1, ox1 - x1:ox2 - x1], dst=roi)
+        self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
 
     def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
         """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,

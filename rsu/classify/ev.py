@@ -179,12 +179,7 @@ def _may_own_flashes(info: TrackInfo) -> bool:
     building up anew. A steady bar alone does not count: it is no flash, and confirms nothing without a confident
     body (a blue object on the roof line of a van in the Japanese clip, a steady-bar cue, held back the body scores of
     the ambulance just behind it for 1.5 s)."""
-    ev = info.evidence
-    if ev.state == EvState.CONFIRMED:
-        return True
-    last = ev._t[-1] if ev._t else None
-    return (ev.last_flash_cue_s is not None and last is not None
-            and last - ev.last_flash_cue_s < ev.config.clear_after_s)
+    return info.evidence.state == EvState.CONFIRMED or info.evidence.flashed_recently
 
 
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:

@@ -441,14 +441,22 @@ class TrackEvidence:
                 self.cues = (lamp_cue, *body)
         return self.state
 
+    def _within_clear(self, t_s: float | None) -> bool:
+        """Is ``t_s`` (a last-cue time) within ``clear_after_s`` of the last sample?"""
+        return t_s is not None and bool(self._t) and self._t[-1] - t_s < self.config.clear_after_s
+
+    @property
+    def flashed_recently(self) -> bool:
+        """Did the band give a flash or alternation cue (not a steady bar) within ``clear_after_s``?"""
+        return self._within_clear(self.last_flash_cue_s)
+
     @property
     def light_state(self) -> LightState:
         if self.frames == 0:
             return LightState.UNKNOWN
-        last = self._t[-1] if self._t else None
-        if self.last_flash_s is not None and last is not None and last - self.last_flash_s < self.config.clear_after_s:
+        if self._within_clear(self.last_flash_s):
             return LightState.FLASHING
-        if self.last_lamp_cue_s is not None and last is not None and last - self.last_lamp_cue_s < self.config.clear_after_s:
+        if self._within_clear(self.last_lamp_cue_s):
             return LightState.STEADY
         return LightState.OFF
 
