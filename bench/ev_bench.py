@@ -204,8 +204,8 @@ import numpy as np  # noqa: E402
 
 from protocol.messages import AlertState  # noqa: E402
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
+from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
-from rsu.classify.temporal import EvidenceConfig  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
 from rsu.track import iou_matrix  # noqa: E402
 from sim.camera_source import SimCamera  # noqa: E402

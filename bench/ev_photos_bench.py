@@ -28,7 +28,8 @@ import numpy as np  # noqa: E402
 from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
 from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402
-from rsu.classify.temporal import EvidenceConfig, measure_lamps  # noqa: E402
+from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
+from rsu.classify.lamps import measure_lamps  # noqa: E402
 
 
 class LampRule:

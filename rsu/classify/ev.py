@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.messages import EvState, LightState
+from rsu.classify.evidence_config import EvidenceConfig, lamp_activity
 from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
 from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined here before)
     above_top,
@@ -49,7 +50,7 @@ from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined
     holds_nearer_vehicle,
     rect_mask,
 )
-from rsu.classify.temporal import EvidenceConfig, LampMeasurement, TrackEvidence, lamp_activity
+from rsu.classify.temporal import LampMeasurement, TrackEvidence
 from rsu.track import associate
 
 CropScore = Callable[[np.ndarray], float]
@@ -309,7 +310,7 @@ class TrackEvClassifier:
                     others: Iterable[tuple[int, int, int, int]]) -> float | None:
         """The EV-body score of this frame's crop (at ``bounds``), its pixels in the rectangles ``others``
         (farther vehicles' boxes above its top) blanked (:func:`~rsu.classify.ownership.blank_rects`), when the
-        band shows lamp activity (:func:`~rsu.classify.temporal.lamp_activity`) and the last score is at least
+        band shows lamp activity (:func:`~rsu.classify.evidence_config.lamp_activity`) and the last score is at least
         ``body_period_s`` old; else None. A confirmed EV is not scored again: confirmation is what the body score is
         for, and only the lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
         on four RSUs at once halved their processed fps while the EV was in view)."""

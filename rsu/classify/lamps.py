@@ -242,7 +242,7 @@ def flash_pattern(red: list[LampRun], blue: list[LampRun], cfg) -> str | None:
     docstring): ``"flash"`` for two complete flashes of one colour at most ``max_dark_s`` apart,
     ``"alternation"`` for a complete flash of one colour handing over to (or lit together with) the other
     colour, each with at least ``min_on_samples`` lit samples in all (one glitch frame is not a flash);
-    None when neither. ``cfg`` is a :class:`rsu.classify.temporal.EvidenceConfig`."""
+    None when neither. ``cfg`` is a :class:`rsu.classify.evidence_config.EvidenceConfig`."""
     for runs in (red, blue):
         flashes = [r for r in runs if r.is_flash(cfg.min_dark_ratio)]
         for a, b in zip(flashes, flashes[1:], strict=False):
