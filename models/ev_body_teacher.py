@@ -16,7 +16,9 @@ Output: JSON ``{"path relative to ev_train|x1,y1,x2,y2": p_ev}`` (box empty for 
 
 ``--holdout`` instead fits the teacher on all of ``train`` and prints its figures on ``val`` and ``test`` at its
 ``val`` threshold of best min(P, R), per C: what the data allows a model this strong (about five times the RSU's
-cost per crop), the ceiling a student is measured against.
+cost per crop), the ceiling a student is measured against. ``--photos`` adds the whole-scene photos of ``ev_images``
+(YOLOX, the largest vehicle box grown upwards, as ``bench/ev_real_bench.py`` scores the shipped model; a photo without
+a vehicle is non-EV) at the same threshold: a ceiling measured on the test set, never a choice made by it.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from models.train_ev_body import DEFAULT_DATA, teacher_key, usable_crops  # noqa: E402
+from models.train_ev_body import ABOVE_FRACTION, DEFAULT_DATA, teacher_key, usable_crops  # noqa: E402
 from rsu.classify.real_data import load_ev_train, split_by_group  # noqa: E402
 
 BACKBONES = ((0, 224), (1, 240), (2, 260))
@@ -100,9 +102,11 @@ def out_of_fold_scores(feats: np.ndarray, labels: np.ndarray, groups: np.ndarray
 
 
 def holdout_figures(feats: dict[str, np.ndarray], labels: dict[str, np.ndarray],
-                    cs: tuple[float, ...] = (0.02, 0.05, 0.1)) -> list[dict]:
+                    cs: tuple[float, ...] = (0.02, 0.05, 0.1), missing: dict[str, np.ndarray] | None = None
+                    ) -> list[dict]:
     """Per C: a logistic regression on all ``train`` features (crop and mirror image, standardised, balanced),
-    scored on ``val`` and ``test`` at its ``val`` threshold of best min(P, R) (accuracy, P, R, F)."""
+    scored on ``val``, ``test`` and any other set of ``feats`` at its ``val`` threshold of best min(P, R) (accuracy,
+    P, R, F). ``missing[name]``: a mask of that set's items that have no crop (scored 0: not an EV)."""
     from sklearn.linear_model import LogisticRegression
 
     from models.train_ev_body import best_threshold
@@ -114,17 +118,30 @@ def holdout_figures(feats: dict[str, np.ndarray], labels: dict[str, np.ndarray],
     for c in cs:
         lr = LogisticRegression(C=c, max_iter=3000, class_weight="balanced").fit(
             (x - mu) / sd, np.concatenate([labels["train"]] * 2))
-        p = {k: 0.5 * sum(lr.predict_proba((feats[k][m] - mu) / sd)[:, 1] for m in (0, 1)) for k in ("val", "test")}
+        scored = [k for k in feats if k != "train"]
+        p = {k: 0.5 * sum(lr.predict_proba((feats[k][m] - mu) / sd)[:, 1] for m in (0, 1)) for k in scored}
+        for k, none in (missing or {}).items():
+            p[k] = np.where(none, 0.0, p[k])
         t = best_threshold(labels["val"], p["val"])
-        out.append({"C": c, "threshold": round(t, 2), "val": metrics(labels["val"], p["val"], t),
-                    "test": metrics(labels["test"], p["test"], t)})
+        out.append({"C": c, "threshold": round(t, 2), **{k: metrics(labels[k], p[k], t) for k in scored}})
     return out
 
 
-def print_holdout(root: Path, threads: int) -> int:
+def print_holdout(root: Path, threads: int, photos: Path | None = None) -> int:
     split = split_by_group(load_ev_train(root))
     pairs = {k: usable_crops(split[k], log=lambda *_: None) for k in ("train", "val", "test")}
     labels = {k: np.array([s.label for s, _c in v], float) for k, v in pairs.items()}
+    missing = {}
+    if photos is not None:
+        from rsu.build import PipelineConfig, build_detector
+        from rsu.classify.evaluation import load_scene_crops
+        from rsu.scan import DEFAULT_DETECTOR
+
+        scene, labels["photos"] = load_scene_crops(photos, build_detector(PipelineConfig(detector=str(DEFAULT_DETECTOR))),
+                                                   above_fraction=ABOVE_FRACTION)
+        missing["photos"] = np.array([c is None for c in scene])
+        blank = np.zeros((8, 8, 3), np.uint8)  # (scored, then set to 0 by ``missing``)
+        pairs["photos"] = [(None, blank if c is None else c) for c in scene]
     parts: dict[str, list] = {k: [] for k in pairs}
     with tempfile.TemporaryDirectory() as tmp:
         for k, size in BACKBONES:
@@ -134,10 +151,10 @@ def print_holdout(root: Path, threads: int) -> int:
             for name, v in pairs.items():
                 parts[name].append(features(graph, [c for _s, c in v], size, threads))
             print(f"Lite{k} at {size} px: features in {time.time() - t0:.0f} s", flush=True)
-    for row in holdout_figures({k: np.concatenate(v, axis=2) for k, v in parts.items()}, labels):
+    for row in holdout_figures({k: np.concatenate(v, axis=2) for k, v in parts.items()}, labels, missing=missing):
         print(f"C {row['C']}: threshold {row['threshold']:.2f}; " + "; ".join(
             f"{k} accuracy {row[k][0]:.3f} precision {row[k][1]:.3f} recall {row[k][2]:.3f} F {row[k][3]:.3f}"
-            for k in ("val", "test")), flush=True)
+            for k in pairs if k != "train"), flush=True)
     return 0
 
 
@@ -148,12 +165,14 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--holdout", action="store_true",
                     help="print the teacher's figures on val and test (fitted on all of train) instead of writing")
+    ap.add_argument("--photos", default=None, metavar="EV_IMAGES",
+                    help="with --holdout: also the whole-scene photos of this folder (../shared/data/real/ev_images)")
     args = ap.parse_args(argv)
     if not args.out and not args.holdout:
         raise SystemExit("give --out TEACHER.json (out-of-fold train scores) or --holdout (val and test figures)")
     root = Path(args.data)
     if args.holdout:
-        return print_holdout(root, args.threads)
+        return print_holdout(root, args.threads, Path(args.photos) if args.photos else None)
     pairs = usable_crops(split_by_group(load_ev_train(root))["train"])
     samples, crops = [s for s, _c in pairs], [c for _s, c in pairs]
     labels = np.array([s.label for s in samples], float)

@@ -146,3 +146,23 @@ def test_teacher_holdout_figures_are_chosen_on_val_and_reported_on_test():
     rows = holdout_figures(feats, labels, cs=(0.05,))
     assert len(rows) == 1 and rows[0]["C"] == 0.05 and 0.05 <= rows[0]["threshold"] <= 0.95
     assert rows[0]["val"][1] > 0.95 and rows[0]["test"][2] > 0.95  # precision on val, recall on test
+
+
+def test_teacher_holdout_scores_another_set_and_its_items_without_a_crop_as_not_ev():
+    pytest.importorskip("sklearn", reason="scikit-learn (train extra) not installed: pip install -e .[train]")
+    from models.ev_body_teacher import holdout_figures
+
+    rng = np.random.default_rng(1)
+    feats, labels = {}, {}
+    for k, n in (("train", 200), ("val", 80), ("test", 80), ("photos", 40)):
+        labels[k] = rng.integers(0, 2, n).astype(float)
+        if k == "photos":
+            labels[k][:20] = 1.0
+        feats[k] = rng.normal(0, 1, (2, n, 6)) + 6.0 * labels[k][None, :, None]  # well apart: none missed
+    none = np.zeros(40, bool)
+    none[:10] = True  # ten EV photos whose detector found no vehicle
+    (row,) = holdout_figures(feats, labels, cs=(0.05,), missing={"photos": none})
+    n_ev = labels["photos"].sum()
+    assert row["photos"][2] == pytest.approx((n_ev - 10) / n_ev, abs=0.03)  # those ten are missed, no others
+    (full,) = holdout_figures(feats, labels, cs=(0.05,))
+    assert full["photos"][2] > row["photos"][2]
