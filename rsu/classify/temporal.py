@@ -70,7 +70,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.messages import EvCue, EvState, LightState
-from rsu.classify.evidence_config import EvidenceConfig, lamp_activity  # noqa: F401  (re-exported)
+from rsu.classify.evidence_config import EvidenceConfig
 from rsu.classify.lamps import (  # noqa: F401  (re-exported: the lamp signal API lived here before)
     BAR_COLOURED,
     LAMP_BRIGHT,
