@@ -264,6 +264,8 @@ class BodyModel:
     top: np.ndarray  # (P, 5) top faces
     decal_part: np.ndarray  # (D,) part index of each decal
     decal_face: np.ndarray  # (D,) face index (FACE_NAMES) of each decal
+    face_points: np.ndarray  # (P, 5, 4) each part face's corners: indices into ``points``
+    decal_points: np.ndarray  # (D, 4) each decal quad's corners: indices into ``points``
     off_bgr: dict[str, list] = field(default_factory=dict)  # per lighting, each decal's unlit colour (renderer's)
 
 
@@ -295,4 +297,6 @@ def body_model(actor: Actor) -> BodyModel:
     points = np.concatenate([corners.reshape(-1, 3), *quads, foot])
     return BodyModel(parts, decals, points, n, centres, norm[..., 0] > 1e-9, base, glass, top,
                      np.array([dc.part for dc in decals], dtype=int),
-                     np.array([FACE_NAMES.index(dc.face) for dc in decals], dtype=int))
+                     np.array([FACE_NAMES.index(dc.face) for dc in decals], dtype=int),
+                     8 * np.arange(len(parts))[:, None, None] + FACE_IDX,
+                     (8 * len(parts) + np.arange(4 * len(decals))).reshape(-1, 4))

@@ -23,7 +23,7 @@ import numpy as np
 
 from protocol.corridor import CameraConfig, Road
 from protocol.messages import Actor, WorldSnapshot
-from sim.bodies import FACE_IDX, BodyModel, body_model, body_parts, ev_lamps_on
+from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
@@ -37,7 +37,7 @@ from sim.render_effects import (
     unlit_bgr,
 )
 from sim.render_labels import MIN_VISIBLE_FRACTION, Label, visible_labels
-from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines
+from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines, visible_polygons
 from sim.scenery import LIGHTING, render_scenery, scenery_geometry
 from sim.sensor import (
     DirtyBands,
@@ -149,9 +149,10 @@ class Renderer:
         out.sort(key=lambda t: -t[0])
         return out
 
-    def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, colour: tuple) -> None:
+    def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, uv16: np.ndarray, colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
-        ``uv`` (4, 2) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added to the image."""
+        ``uv`` (4, 2; ``uv16`` the same x 16 rounded) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added
+        to the image."""
         us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # four points: plain floats beat numpy's per-call cost
         x1, y1, x2, y2 = math.floor(min(us)) - 6, math.floor(min(vs)) - 6, math.ceil(max(us)) + 7, math.ceil(max(vs)) + 7
         ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
@@ -160,26 +161,30 @@ class Renderer:
         # the canvas is the pool's box cut to the image and the blur's reach (3 px): the same pixels in the image
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
-        cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
+        cv2.fillConvexPoly(pool, uv16 - (16 * x1, 16 * y1), colour, cv2.LINE_AA, 4)  # (whole pixels: the same points)
         self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
 
-    def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
-        """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,
-        cut to the image); None when the box is under 2 px either way."""
+    def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
+                      ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+        """The polygon ``uv`` (K, 2 px; ``uv16`` the same x 16 rounded, made here when not given) filled
+        anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1, cut to the image); None when the box is
+        under 2 px either way."""
         us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # a few points: plain floats beat numpy's per-call cost
         x1, y1 = max(0, math.floor(min(us))), max(0, math.floor(min(vs)))
         x2, y2 = min(self.w, math.ceil(max(us)) + 1), min(self.h, math.ceil(max(vs)) + 1)
         if x2 - x1 < 2 or y2 - y1 < 2:
             return None
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        cv2.fillConvexPoly(mask, np.round((uv - (x1, y1)) * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
+        if uv16 is None:
+            uv16 = np.round(uv * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, uv16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
         return (x1, y1, x2, y2), mask
 
-    def _draw_shadow(self, img: np.ndarray, outline: np.ndarray, strength: float) -> None:
-        """Cast shadow on the road, its pixel ``outline`` (``sim.render_pose.shadow_outlines``) darkened:
+    def _draw_shadow(self, img: np.ndarray, outline: tuple[np.ndarray, np.ndarray], strength: float) -> None:
+        """Cast shadow on the road, its pixel ``outline`` (and x 16 rounded: ``sim.render_pose.shadow_outlines``) darkened:
         v * round(256 (1 - strength)) >> 8 (a saturating scale rounded down) where the anti-aliased polygon covers
         more than half."""
-        cut = self._polygon_mask(outline)
+        cut = self._polygon_mask(*outline)
         if cut is None:
             return
         (x1, y1, x2, y2), mask = cut
@@ -275,7 +280,7 @@ class Renderer:
         ordered = [a for _dist, a in self._ordered(snapshot)]
         pools = L["running_lights"]
         if pools:
-            pool_uv, pool_ok = pool_quads(ordered, self.cam)
+            pool_uv, pool_uv16, pool_ok = pool_quads(ordered, self.cam)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
         for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi), box)) in enumerate(
                 zip(ordered, pose_actors(ordered, [self._model(a) for a in ordered], self.cam), strict=True)):
@@ -290,36 +295,39 @@ class Renderer:
             if cast and outlines[k_a] is not None:
                 self._draw_shadow(img, outlines[k_a], 0.45 * L["sun"] / 0.55)
             if pools and pool_ok[d[11]] and d[0].kind.value != "debris":
-                self._draw_headlight_pool(img, pool_uv[d[11]], pool_colour)
+                self._draw_headlight_pool(img, pool_uv[d[11]], pool_uv16[d[11]], pool_colour)
         drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
         blurs = (blur_vectors([d[0] for d in drawn], [d[2] for d in drawn], L["exposure_s"])
                  if self.blur_enabled else [None] * len(drawn))
         vis_all, colours_all, first_part = shade_faces(
             [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
+        polygons = visible_polygons([d[1] for d in drawn], [d[9] for d in drawn], vis_all, colours_all, first_part)
+        fill = cv2.fillConvexPoly
         for k_a, (a, model, _pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, _i) in enumerate(drawn):
+            faces, face_colours, decals_seen, decal_quads = polygons[k_a]
             parts, decals = model.parts, model.decals
             self._dirty.mark(box[0] - 2, box[1] - 2, box[2] + 3, box[3] + 3)  # (anti-aliased edges reach 1 px out)
             n_corner = 8 * len(parts)
             blur_px = blurs[k_a]
-            cv2.fillConvexPoly(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
-            p0, p1 = first_part[k_a], first_part[k_a + 1]
-            vis = vis_all[p0:p1]
-            faces16 = uv16[:n_corner].reshape(len(parts), 8, 2)[:, FACE_IDX][vis]  # (visible faces, 4, 2), in order
-            for face16, colour in zip(faces16, colours_all[p0:p1][vis].tolist(), strict=True):
-                cv2.fillConvexPoly(img, face16, colour, cv2.LINE_AA, 4)
+            fill(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
+            for face16, colour in zip(faces, face_colours, strict=True):
+                fill(img, face16, colour, cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             off = self._off_colours(model, lighting)
             n_glows = len(glows)
-            for k_dc in np.flatnonzero(vis[model.decal_part, model.decal_face]).tolist():
+            for k_dc in decals_seen:
                 dc = decals[k_dc]
+                if not dc.lamp:  # paint, glass, a plate: never lit
+                    fill(img, decal_quads[k_dc], off[k_dc], cv2.LINE_AA, 4)
+                    continue
                 if dc.lamp == "turn" and not sig_on:
                     continue  # the tail light under it shows
                 colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
-                q = n_corner + 4 * k_dc
-                cv2.fillConvexPoly(img, uv16[q:q + 4], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
+                fill(img, decal_quads[k_dc], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
                 if colour is not None:
+                    q = n_corner + 4 * k_dc
                     queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on,
                                     uv[q:q + 4], colour)
             if blur_px is not None:

@@ -178,5 +178,4 @@ def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray,
             hulls[a] = [cv2.convexHull(c.astype(np.float32)) for c in silhouettes(int(a))]
         point = (float(centres[f, 0]), float(centres[f, 1]))
         covered[f] = any(cv2.pointPolygonTest(h, point, False) > 0 for h in hulls[a])
-    ends = np.cumsum(sizes)
-    return [bool(covered[e - n:e].all()) for n, e in zip(sizes, ends, strict=True)]
+    return np.logical_and.reduceat(covered, np.cumsum([0, *sizes[:-1]])).tolist()  # (every lamp has a face)

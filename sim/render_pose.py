@@ -16,9 +16,10 @@ from sim.camera import NEAR_M, PinholeCamera
 POOL_LOCAL_M = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])  # headlight pool, ahead of the bumper
 
 
-def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.ndarray]:
-    """Headlight pools of ``actors``: pixel quads (N, 4, 2) and whether each is in front of the camera (N,). The
-    pool: a trapezoid on the road from 0.5 to 18 m ahead of the front bumper."""
+def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Headlight pools of ``actors``: pixel quads (N, 4, 2), the same x 16 rounded (int32, the fixed point the
+    drawing takes) and whether each is in front of the camera (N,). The pool: a trapezoid on the road from 0.5 to
+    18 m ahead of the front bumper."""
     cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
                    for a in actors]).reshape(-1, 5)
     c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
@@ -26,7 +27,8 @@ def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.
     lx, ly = POOL_LOCAL_M[:, 0], POOL_LOCAL_M[:, 1]
     pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
     uv, depth = cam.project(pts.reshape(-1, 3))
-    return uv.reshape(-1, 4, 2), (depth.reshape(-1, 4) > NEAR_M).all(axis=1)
+    uv = uv.reshape(-1, 4, 2)
+    return uv, np.round(uv * 16).astype(np.int32), (depth.reshape(-1, 4) > NEAR_M).all(axis=1)
 
 
 def pose_actors(actors: list[Actor], models: list[BodyModel], cam: PinholeCamera) -> list[tuple]:
@@ -58,8 +60,9 @@ def pose_actors(actors: list[Actor], models: list[BodyModel], cam: PinholeCamera
 
 
 def shadow_outlines(posed: list[tuple], sun: np.ndarray, ground_m: np.ndarray, ground_t: np.ndarray
-                    ) -> list[np.ndarray | None]:
-    """Per actor (body model, rotation 3x3, x m, y m), its cast shadow's outline in pixels (K, 2), None when any
+                    ) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    """Per actor (body model, rotation 3x3, x m, y m), its cast shadow's outline in pixels (K, 2) and the same x 16
+    rounded (int32, the drawing's fixed point), None when any
     of it is behind the camera: the part corners projected along the unit vector ``sun`` onto z = 0
     (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull`` takes them), every actor's in
     one product, and into the image (a road point (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); each
@@ -75,11 +78,12 @@ def shadow_outlines(posed: list[tuple], sun: np.ndarray, ground_m: np.ndarray, g
     h = ground.astype(float) @ ground_m - ground_t
     near = np.minimum.reduceat(h[:, 2], np.cumsum([0, *counts[:-1]])).tolist()
     uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
-    out: list[np.ndarray | None] = []
+    uv16 = np.round(uv * 16).astype(np.int32)
+    out: list[tuple[np.ndarray, np.ndarray] | None] = []
     start = 0
     for n, z in zip(counts, near, strict=True):
         hull = cv2.convexHull(ground[start:start + n], returnPoints=False).ravel() + start
-        out.append(None if z <= NEAR_M else uv[hull])
+        out.append(None if z <= NEAR_M else (uv[hull], uv16[hull]))
         start += n
     return out
 
@@ -100,3 +104,33 @@ def blur_vectors(actors: list[Actor], poses: list[tuple[np.ndarray, np.ndarray]]
     vec = (h1[:, :2] / np.where(ok, h1[:, 2], 1.0)[:, None] - h0[:, :2] / np.where(ok, h0[:, 2], 1.0)[:, None])
     ok &= (np.array([a.speed_mps for a in actors]) >= 0.5) & (np.hypot(vec[:, 0], vec[:, 1]) >= 1.5)
     return [v if k else None for v, k in zip(vec, ok.tolist(), strict=True)]
+
+
+def visible_polygons(models: list[BodyModel], uv16_blocks: list[np.ndarray], vis: np.ndarray, colours: np.ndarray,
+                     first_part: list[int]) -> list[tuple[list, list, list[int], list]]:
+    """Per actor (its body model and its points' pixels x 16, int32, from ``pose_actors``), what it draws: its
+    visible part faces' quads ((4, 2) int32 each, in drawing order) with their shaded colours (``vis``, ``colours``
+    and ``first_part`` from ``sim.render_effects.shade_faces``), the indices of its decals that lie on visible faces,
+    and every decal's quad; all actors' in a few array operations (issue 19: a handful of numpy calls per actor
+    cost more than drawing its faces)."""
+    if not models:
+        return []
+    starts = np.cumsum([0, *[len(b) for b in uv16_blocks[:-1]]])
+    all16 = np.concatenate(uv16_blocks)
+    n_parts = np.diff(first_part)
+    n_decals = [len(md.decals) for md in models]
+    face_idx = np.concatenate([md.face_points for md in models]) + np.repeat(starts, n_parts)[:, None, None]
+    quads = list(all16[face_idx[vis]])
+    cols = colours[vis].tolist()
+    face_ends = np.cumsum(np.add.reduceat(vis.sum(axis=1), first_part[:-1])).tolist()
+    decal_ends = np.cumsum(n_decals).tolist()
+    decal_quads = list(all16[np.concatenate([md.decal_points for md in models]).reshape(-1, 4)
+                             + np.repeat(starts, n_decals)[:, None]])
+    decal_vis = vis[np.concatenate([md.decal_part for md in models]).astype(int) + np.repeat(first_part[:-1], n_decals),
+                    np.concatenate([md.decal_face for md in models]).astype(int)]
+    out = []
+    f0 = d0 = 0
+    for f1, d1 in zip(face_ends, decal_ends, strict=True):
+        out.append((quads[f0:f1], cols[f0:f1], np.flatnonzero(decal_vis[d0:d1]).tolist(), decal_quads[d0:d1]))
+        f0, d0 = f1, d1
+    return out
