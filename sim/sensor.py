@@ -9,7 +9,10 @@ the pixels a frame drew on (``DirtyBands``) go through a table, this frame's ``e
 is the direct form, kept for ``sim.render_reference``.
 
 Noise: a Gaussian field a little larger than the image, generated once per lighting, added (saturating) at an
-offset drawn per frame."""
+offset: one of ``NOISE_SLOTS`` offsets, drawn per frame (``noise_slot``). ``sim.render.Renderer`` keeps the static scene
+exposed at unit gain with each slot's noise added (``noise_bank``) and scales it by the frame's gain
+(``expose_bank``); the pixels a frame drew on take the exposure table and then the noise. ``ReferenceRenderer``
+exposes and then adds the noise everywhere."""
 
 from __future__ import annotations
 
@@ -22,6 +25,10 @@ import numpy as np
 EXPOSURE_GAMMA = {"day": 0.95, "dusk": 0.9, "night": 0.85}
 NOISE_PAD_PX = 64
 """How much larger than the image the noise field is, either way: the range of its per-frame offset."""
+NOISE_SLOTS = 8
+"""How many noise offsets a camera's frames take theirs from (``noise_slot``): the static scene is kept exposed at
+unit gain with each slot's noise added (``noise_bank``, 8 x 2.8 MB at 1280x720), so a frame's static part is one
+scale of a kept image (issue 19: the exposure's and the noise's three passes over the frame cost ~2 ms)."""
 GAMMA_SCALE = 256
 """The gamma table's fixed-point scale: its uint16 entries are 256 x the 0-255 value, so that one scale per frame
 loses under 1/256 of a level to the table's rounding."""
@@ -85,14 +92,39 @@ def noise_field(seed: int, lighting: str, sigma: float, height_px: int, width_px
     return np.clip(n, 0, 255).astype(np.uint8), np.clip(-n, 0, 255).astype(np.uint8)
 
 
-def noise_offset(seed: int, frame_index: int) -> tuple[int, int]:
-    """Where frame ``frame_index`` cuts the image out of the noise field: (dx, dy) in [0, NOISE_PAD_PX), from a
-    SplitMix64 hash of (seed, frame_index) (a few microseconds; a seeded numpy generator costs ~50 per frame)."""
-    z = (seed * 0x9E3779B97F4A7C15 + frame_index * 0xBF58476D1CE4E5B9 + 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+def _splitmix(seed: int, index: int) -> int:
+    """A SplitMix64 hash of (seed, index) (a few microseconds; a seeded numpy generator costs ~50)."""
+    z = (seed * 0x9E3779B97F4A7C15 + index * 0xBF58476D1CE4E5B9 + 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    z ^= z >> 31
+    return z ^ (z >> 31)
+
+
+def noise_offset(seed: int, slot: int) -> tuple[int, int]:
+    """Where noise slot ``slot`` (``noise_slot``) cuts the image out of the noise field: (dx, dy) in
+    [0, NOISE_PAD_PX), from a hash of (seed, slot)."""
+    z = _splitmix(seed, slot)
     return int(z % NOISE_PAD_PX), int((z >> 32) % NOISE_PAD_PX)
+
+
+def noise_slot(seed: int, frame_index: int) -> int:
+    """Which of the ``NOISE_SLOTS`` noise offsets frame ``frame_index`` takes: a hash of (seed, frame index)."""
+    return int(_splitmix(seed + 0x632BE59BD9B4E019, frame_index) % NOISE_SLOTS)
+
+
+def noise_bank(unit_exposed: np.ndarray, field: tuple[np.ndarray, np.ndarray], seed: int) -> list[np.ndarray]:
+    """Per noise slot, ``unit_exposed`` (a static scene exposed at unit gain: ``exposure_table(lighting,
+    1 / GAMMA_SCALE)``) with the slot's noise added: what a frame's static part is, before the frame's gain
+    (``expose_bank``)."""
+    return [add_noise(unit_exposed.copy(), field, noise_offset(seed, slot)) for slot in range(NOISE_SLOTS)]
+
+
+def expose_bank(bank_image: np.ndarray, scale: float) -> np.ndarray:
+    """A new uint8 image: a ``noise_bank`` image at this frame's exposure (``exposure_scale``): saturate(round(
+    scale x GAMMA_SCALE x v)), the gain applied after the noise, as a sensor's analogue gain amplifies its read
+    noise. Against the gain before the noise it differs by the gain's share of the noise (under 11 %) and a level of
+    rounding, and where the value saturates (sensor noise: sigma 2.5-6 levels)."""
+    return cv2.convertScaleAbs(bank_image, alpha=scale * GAMMA_SCALE)
 
 
 def add_noise(img: np.ndarray, field: tuple[np.ndarray, np.ndarray], offset: tuple[int, int]) -> np.ndarray:

@@ -1,10 +1,31 @@
 """The renderer's cached fast path (issue 19: body models built once per look, posed and shaded with array
-operations, shadows darkened by a scale, the exposure a gamma image scaled) draws the same pixels as issue 17's
-straightforward renderer (``sim.render_reference.ReferenceRenderer``) within noise, and the static scene is rendered
-once per lighting."""
+operations, shadows darkened by a scale, the static scene kept exposed at unit gain with each noise slot's noise and
+scaled per frame) draws the same pixels as issue 17's straightforward renderer (``sim.render_reference.
+ReferenceRenderer``) within noise, and the static scene is rendered once per lighting."""
 
+import cv2
 import numpy as np
 import pytest
+
+from sim.scenery import LIGHTING
+
+
+def assert_within_noise(a: np.ndarray, b: np.ndarray, lighting: str, where) -> None:
+    """Frames ``a`` and ``b`` differ by no more than their sensor noise (sigma 2.5 / 4 / 6 levels by day / dusk /
+    night) and without structure. The fast path applies the frame's gain after the static scene's noise (a sensor's
+    gain amplifies its read noise), so a pixel may differ by a level of rounding (the kept scene is 8-bit: a scene's
+    mean moves by up to half a level) and the gain's share of its noise (under 11 %); where the value saturates, by
+    the noise itself. Motion blur's cropped kernel rounds a few pixels
+    1-2 levels apart. Anything drawn differently (a face, a lamp, a shadow) would differ by tens of levels over
+    whole patches, which the local means catch."""
+    d = a.astype(int) - b.astype(int)
+    m = np.abs(d)
+    sigma = LIGHTING[lighting]["noise"]
+    assert m.max() <= 3 * sigma, (where, int(m.max()))
+    assert (m > 2).mean() < 5e-4 and (m > 1).mean() < 0.01, (where, np.bincount(m.ravel()))
+    assert abs(d.mean()) < 0.5 and m.mean() < 0.7, (where, float(d.mean()), float(m.mean()))
+    local = np.abs(cv2.blur(d.astype(np.float32), (15, 15)))
+    assert local.max() <= 2.0, (where, float(local.max()))  # no patch drawn differently
 
 from sim.render import Renderer
 from sim.render_reference import ReferenceRenderer
@@ -28,13 +49,7 @@ def test_fast_path_draws_the_reference_pixels(corridor, scenario, t_s):
         fast, ref = (cls(rsu.camera, corridor.road, seed=3) for cls in (Renderer, ReferenceRenderer))
         ref._backgrounds = fast._backgrounds  # one static scene for both (it is not what is compared)
         for k, snap in enumerate(snaps):
-            a, b = fast.render(snap, k), ref.render(snap, k)
-            d = np.abs(a.astype(int) - b.astype(int))
-            # motion blur's cropped kernel rounds a few pixels 1-2 levels apart, and the exposure's fixed point
-            # (``sim.sensor``) puts a value a whole level apart where the exact one is within 1/256 of an integer
-            # (sensor noise: sigma 2.5-6 levels); nothing else may differ
-            assert d.max() <= 3, (scenario, rsu.rsu_id, k, int(d.max()))
-            assert (d > 1).mean() < 1e-3 and (d > 0).mean() < 0.05, (scenario, rsu.rsu_id, k, np.bincount(d.ravel()))
+            assert_within_noise(fast.render(snap, k), ref.render(snap, k), snap.lighting.value, (scenario, rsu.rsu_id, k))
             compared += len(fast._models) > 0
     assert compared > 0  # some camera saw actors
 
@@ -51,8 +66,7 @@ def test_fast_path_matches_in_every_lighting_with_blur_shadows_and_lamps(corrido
     ref._backgrounds = fast._backgrounds
     for k in (0, 3, 7):  # the light bar's red and blue halves
         s = scene(k / 15.0, lighting)
-        d = np.abs(fast.render(s, k).astype(int) - ref.render(s, k).astype(int))
-        assert d.max() <= 3 and (d > 1).mean() < 1e-3 and (d > 0).mean() < 0.05, (lighting, k, np.bincount(d.ravel()))
+        assert_within_noise(fast.render(s, k), ref.render(s, k), lighting, k)
 
 
 def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):

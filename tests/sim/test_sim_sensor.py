@@ -53,6 +53,46 @@ def test_noise_offset_is_a_pure_function_in_range():
     assert noise_offset(8, 5) != noise_offset(7, 5) or noise_offset(8, 6) != noise_offset(7, 6)
 
 
+def test_noise_slot_is_a_pure_function_over_every_slot():
+    from sim.sensor import NOISE_SLOTS, noise_slot
+
+    slots = [noise_slot(7, k) for k in range(4000)]
+    assert slots == [noise_slot(7, k) for k in range(4000)]
+    counts = np.bincount(slots, minlength=NOISE_SLOTS)
+    assert len(counts) == NOISE_SLOTS and counts.min() > 4000 / NOISE_SLOTS * 0.8  # every slot, evenly
+    assert [noise_slot(8, k) for k in range(50)] != slots[:50]  # another camera, another sequence
+    repeats = sum(a == b for a, b in zip(slots, slots[1:], strict=False)) / (len(slots) - 1)
+    assert repeats < 2 / NOISE_SLOTS  # frame to frame the noise changes (a repeat is 1 in NOISE_SLOTS)
+
+
+@pytest.mark.parametrize("lighting", ["day", "dusk", "night"])
+def test_kept_noisy_scene_scaled_is_the_exposure_then_the_noise_within_noise(lighting):
+    """sim.sensor.noise_bank + expose_bank: the static scene at unit gain with a slot's noise, scaled by the frame's
+    gain, against the frame's exposure table and then the same noise: the gain's share of the noise and a level of
+    rounding apart, the noise itself where the value saturates; every slot's noise a different cut."""
+    import cv2
+
+    from sim.sensor import NOISE_SLOTS, add_noise, expose_bank, noise_bank, noise_field
+
+    rng = np.random.default_rng(5)
+    scene = rng.integers(0, 256, (90, 160, 3)).astype(np.uint8)
+    field = noise_field(3, lighting, {"day": 2.5, "dusk": 4.0, "night": 6.0}[lighting], 90, 160)
+    bank = noise_bank(cv2.LUT(scene, exposure_table(lighting, 1 / 256)), field, 3)
+    assert len(bank) == NOISE_SLOTS and len({b.tobytes() for b in bank}) == NOISE_SLOTS
+    for t_s in (0.0, 2.0, 5.0, 8.0):
+        scale = exposure_scale(t_s, 3, lighting)
+        for slot in (0, NOISE_SLOTS - 1):
+            exposed = cv2.LUT(scene, exposure_table(lighting, scale))
+            direct = add_noise(exposed.copy(), field, noise_offset(3, slot))
+            d = expose_bank(bank[slot], scale).astype(int) - direct
+            clear = (bank[slot] > 0) & (bank[slot] < 255) & (exposed < 255) & (direct > 0) & (direct < 255)
+            assert clear.mean() > 0.9
+            assert np.abs(d[clear]).max() <= 3, (t_s, slot)  # a level of rounding and 11 % of the noise
+            assert (np.abs(d[clear]) > 1).mean() < 0.03, (t_s, slot)
+            assert np.abs(d).max() <= 6 * {"day": 2.5, "dusk": 4.0, "night": 6.0}[lighting]  # saturated: the noise
+            assert abs(d.mean()) < 0.5
+
+
 def test_exposure_table_gives_the_two_pass_values():
     """One uint8 table pass over a frame's drawn pixels gives what the gamma table (to uint16) and the frame's scale
     gave, for every 0-255 value, lighting and a spread of scales (the renderer's dirty bands)."""
