@@ -6,9 +6,9 @@ boxes with decals (``sim.bodies``; each actor's body model built once per look a
 few array operations per frame, issue 19) drawn back to front (painter's order by depth), cast shadows (a LUT under
 a mask), a cheap ROI glow for lamps that
 are on, motion blur on vehicle ROIs when the image motion during the exposure exceeds ~1.5 px, then exposure and sensor
-noise (``sim.sensor``: the static scene's gamma image scaled, the pixels the frame drew on through this frame's
-exposure table, a pre-generated noise field shifted per frame). Everything is deterministic for a given (snapshot,
-frame index).
+noise (``sim.sensor``: the static scene kept exposed at unit gain with each noise slot's noise and scaled by the
+frame's gain, the pixels the frame drew on through this frame's exposure table and the slot's noise). Everything is
+deterministic for a given (snapshot, frame index).
 
 Labels (``labels``, ``sim.render_labels``) come from the same geometry: the visible part of each vehicle's silhouette
 in a per-vehicle id buffer, as a box, with the visible fraction (``sim.dataset`` writes them out).
@@ -45,6 +45,7 @@ from sim.sensor import (
     add_noise,
     expose,
     expose_bank,
+    expose_spans,
     exposure_scale,
     exposure_table,
     gamma_table,
@@ -279,15 +280,8 @@ class Renderer:
         scale = exposure_scale(t_s, self.seed, lighting)
         slot = noise_slot(self.seed, frame_index)
         out = expose_bank(self._noise_bank(lighting)[slot], scale)
-        table = exposure_table(lighting, scale)
-        pos, neg = self.noise_textures(lighting)
-        dx, dy = noise_offset(self.seed, slot)
-        for y1, y2, x1, x2 in self._dirty.spans():
-            o = out[y1:y2, x1:x2]
-            cv2.LUT(canvas[y1:y2, x1:x2], table, dst=o)
-            cv2.add(o, pos[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
-            cv2.subtract(o, neg[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
-        return out
+        return expose_spans(out, canvas, self._dirty.spans(), exposure_table(lighting, scale),
+                            self.noise_textures(lighting), noise_offset(self.seed, slot))
 
     def _expose(self, canvas: np.ndarray, lighting: str, t_s: float) -> np.ndarray:
         """The exposed frame (a new image; ``sim.sensor``): the static scene's gamma image scaled, and where the frame

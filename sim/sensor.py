@@ -2,17 +2,17 @@
 
 Exposure: a slow gain oscillation ``g(t)`` and a per-lighting gamma: ``255 (min(1, x g / 255)) ** gamma`` per
 channel value x. Since ``(x g / 255) ** gamma = g ** gamma (x / 255) ** gamma``, it is also a fixed gamma table
-followed by one scale per frame, clipped at 255. ``sim.render.Renderer`` uses that form (issue 19): the static
-scene's gamma-corrected image is kept and the per-frame step is one saturating scale of the whole frame
-(``expose``): 4.1 M instructions for a 1280x720 frame against 16.7 M for a 256-entry LUT pass (callgrind); only
-the pixels a frame drew on (``DirtyBands``) go through a table, this frame's ``exposure_table``. ``exposure_lut``
-is the direct form, kept for ``sim.render_reference``.
+followed by one scale per frame, clipped at 255: a saturating scale of a kept image costs 4.1 M instructions for
+a 1280x720 frame against 16.7 M for a 256-entry LUT pass (callgrind). Only the pixels a frame drew on
+(``DirtyBands``) go through a table, this frame's ``exposure_table``. ``exposure_lut`` is the direct form, kept for
+``sim.render_reference``; a renderer without noise scales the static scene's gamma image (``expose``).
 
 Noise: a Gaussian field a little larger than the image, generated once per lighting, added (saturating) at an
-offset: one of ``NOISE_SLOTS`` offsets, drawn per frame (``noise_slot``). ``sim.render.Renderer`` keeps the static scene
-exposed at unit gain with each slot's noise added (``noise_bank``) and scales it by the frame's gain
-(``expose_bank``); the pixels a frame drew on take the exposure table and then the noise. ``ReferenceRenderer``
-exposes and then adds the noise everywhere."""
+offset: one of ``NOISE_SLOTS`` offsets, drawn per frame (``noise_slot``). With noise on, ``sim.render.Renderer``
+keeps the static scene exposed at unit gain with each slot's noise added (``noise_bank``) and scales it by the
+frame's gain (``expose_bank``: one pass over the frame instead of a scale and the noise's add and subtract); the
+pixels a frame drew on take the exposure table and then the slot's noise. ``ReferenceRenderer`` exposes and then adds
+the noise everywhere."""
 
 from __future__ import annotations
 
@@ -73,6 +73,19 @@ def exposure_table(lighting: str, scale: float) -> np.ndarray:
     table pass over the pixels a frame drew on gives what the table to uint16 and the scale gave, in one pass
     instead of two (a 16 x 900 band: 29 us against 81)."""
     return expose(gamma_table(lighting).reshape(1, 256), scale).reshape(256)
+
+
+def expose_spans(out: np.ndarray, canvas: np.ndarray, spans: list[tuple[int, int, int, int]], table: np.ndarray,
+                 field: tuple[np.ndarray, np.ndarray], offset: tuple[int, int]) -> np.ndarray:
+    """``out`` (changed in place and returned) with each span (y1, y2, x1, x2: ``DirtyBands.spans``) of ``canvas``
+    through the frame's ``exposure_table`` and the noise field cut at ``offset`` added (saturating)."""
+    (pos, neg), (dx, dy) = field, offset
+    for y1, y2, x1, x2 in spans:
+        o = out[y1:y2, x1:x2]
+        cv2.LUT(canvas[y1:y2, x1:x2], table, dst=o)
+        cv2.add(o, pos[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
+        cv2.subtract(o, neg[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
+    return out
 
 
 def standard_noise(seed: int, height_px: int, width_px: int) -> np.ndarray:

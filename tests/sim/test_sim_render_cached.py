@@ -7,7 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
+from sim.render import Renderer
+from sim.render_reference import ReferenceRenderer
+from sim.scenario import load_scenario
 from sim.scenery import LIGHTING
+from sim.world import World
 
 
 def assert_within_noise(a: np.ndarray, b: np.ndarray, lighting: str, where) -> None:
@@ -27,10 +31,6 @@ def assert_within_noise(a: np.ndarray, b: np.ndarray, lighting: str, where) -> N
     local = np.abs(cv2.blur(d.astype(np.float32), (15, 15)))
     assert local.max() <= 2.0, (where, float(local.max()))  # no patch drawn differently
 
-from sim.render import Renderer
-from sim.render_reference import ReferenceRenderer
-from sim.scenario import load_scenario
-from sim.world import World
 
 CASES = [("ev_two_lanes_dense", 8.0), ("rellis_ev_yield", 6.0), ("night_ev", 5.0), ("hazard_in_lane", 7.0),
          ("ev_lights_never_on", 12.0)]
