@@ -27,6 +27,7 @@ from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
+    box_blur,
     halo_falloff,
     halo_numbers,
     hidden_lamps,
@@ -171,7 +172,7 @@ class Renderer:
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, uv16 - (16 * x1, 16 * y1), colour, cv2.LINE_AA, 4)  # (whole pixels: the same points)
-        self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
+        self._add_at(img, box_blur(pool, 7), x1, y1)
 
     def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
                       ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:

@@ -44,6 +44,13 @@ def _taps_kernel(n: int, taps: tuple[tuple[int, int], ...]) -> tuple[np.ndarray,
     return k, (n - c0, n - r0)
 
 
+def box_blur(patch: np.ndarray, k: int) -> np.ndarray:
+    """``cv2.blur(patch, (k, k))`` of a uint8 image, the same values (the k x k box's sum over k^2, rounded; an odd
+    k^2 has no ties), from an unnormalised 16-bit box sum and one scale: about 30 % cheaper on a headlight pool
+    (identical on 400 random pools; issue 19). k <= 15, so that a sum fits 16 bits."""
+    return cv2.convertScaleAbs(cv2.boxFilter(patch, cv2.CV_16U, (k, k), normalize=False), alpha=1.0 / (k * k))
+
+
 @cache
 def halo_falloff(r: int) -> np.ndarray:
     """A halo's Gaussian falloff on its (4r+1)-square sprite, sigma 0.75 r, float32 (4r+1, 4r+1, 1), read-only: made
