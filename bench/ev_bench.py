@@ -184,6 +184,14 @@ run once (``python bench/ev_bench.py --json``, 198 s): track recall **1.0** (24/
 lights-on -> alert **0.37 s** (max 0.60 s), 22 flasher/turn-signal cars seen (12 hazard, 10 turn signals) with 0
 false alerts on them: issue 17's simulator figures met on this pair. Tuning seeds now; the next held-out pair is
 52609/82241, drawn at random.
+
+Twenty-third session (2026-12-01): held-out 52609/82241, run once after the renderer's noise change (issue 19;
+``python bench/ev_bench.py --json``, 226 s): track recall **0.958** (23/24: rsu4 missed ev1 of ``ev_two_lanes_dense``
+52609), **1 false alert** (the same run, rsu4, t 17.87 s: a 214 x 232 px box scored as vehicle v0), median
+lights-on -> alert 0.23 s (max 0.60 s), 13 flasher/turn-signal cars seen (7 turn signals, 6 hazard) with 0 false
+alerts on them: issue 17's simulator figures **not met** on this pair. The renderer before this session's changes
+(``bb3046f``) gives the same miss and the same false alert, run by run (207 s), so the renderer's change did not
+cause them. Not traced; tuning seeds now. The next held-out pair is 47390/38696, drawn at random.
 """
 
 from __future__ import annotations
@@ -217,10 +225,10 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (52609, 82241)
-"""Drawn at random once (2026-12-01, twenty-first session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
+HELD_OUT_SEEDS = (47390, 38696)
+"""Drawn at random once (2026-12-01, twenty-third session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737, 65805/97823, 51100/68157,
-36545/16790, 57097/72786, 21376/45884 and 93492/82788 are tuning seeds (module docstring)."""
+36545/16790, 57097/72786, 21376/45884, 93492/82788 and 52609/82241 are tuning seeds (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
@@ -353,7 +361,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 52609 82241; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 47390 38696; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
