@@ -422,8 +422,8 @@ class Renderer:
             sprite = np.clip(halo_falloff(r) * np.array(colour, np.float32), 0, 255).astype(np.uint8)
             if with_core:
                 cv2.circle(sprite, (2 * r, 2 * r), core_r, (235, 235, 255), -1, cv2.LINE_AA)
-            if len(self._glow_cache) > 512:
-                self._glow_cache.clear()
+            if len(self._glow_cache) >= 512:  # the oldest goes: a moving lamp's sprites change a few at a time
+                del self._glow_cache[next(iter(self._glow_cache))]
             self._glow_cache[key] = sprite
         return sprite
 
