@@ -61,7 +61,7 @@ from sim.sensor import (
 class Renderer:
     """Renders one camera's view of world snapshots."""
 
-    noise_bank = True
+    keeps_noisy_scene = True
     """Expose and add noise through the kept noisy static scenes (``_expose_with_noise``) when both are on."""
 
     def __init__(self, camera: CameraConfig, road: Road, seed: int = 0, *, noise: bool = True,
@@ -130,7 +130,7 @@ class Renderer:
                                                     standard=standard)
         for lighting in lightings:
             self.background(lighting)
-            if self.exposure_enabled and not (self.noise_enabled and self.noise_bank):  # (the bank needs none)
+            if self.exposure_enabled and not (self.noise_enabled and self.keeps_noisy_scene):  # (the bank needs none)
                 self.gamma_background(lighting)
             if self.noise_enabled:
                 self.noise_textures(lighting)
@@ -255,7 +255,7 @@ class Renderer:
         glows.extend(tuple(v) for v in bar_halos.values())
         if glows:
             self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
-        if self.exposure_enabled and self.noise_enabled and self.noise_bank:
+        if self.exposure_enabled and self.noise_enabled and self.keeps_noisy_scene:
             return self._expose_with_noise(img, lighting, t_s, frame_index)
         if self.exposure_enabled:
             img = self._expose(img, lighting, t_s)

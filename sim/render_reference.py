@@ -22,7 +22,7 @@ from sim.sensor import exposure_lut
 class ReferenceRenderer(Renderer):
     """``Renderer`` with issue 17's per-frame drawing: the reference for the fast path's tests and bench."""
 
-    noise_bank = False  # the exposure table over the whole frame, then the noise (issue 17's sensor)
+    keeps_noisy_scene = False  # the exposure table over the whole frame, then the noise (issue 17's sensor)
 
     @staticmethod
     def _visible_faces(parts, corners, C) -> list[dict[str, np.ndarray]]:
