@@ -79,12 +79,10 @@ def expose_spans(out: np.ndarray, canvas: np.ndarray, spans: list[tuple[int, int
                  field: tuple[np.ndarray, np.ndarray], offset: tuple[int, int]) -> np.ndarray:
     """``out`` (changed in place and returned) with each span (y1, y2, x1, x2: ``DirtyBands.spans``) of ``canvas``
     through the frame's ``exposure_table`` and the noise field cut at ``offset`` added (saturating)."""
-    (pos, neg), (dx, dy) = field, offset
+    dx, dy = offset
     for y1, y2, x1, x2 in spans:
         o = out[y1:y2, x1:x2]
-        cv2.LUT(canvas[y1:y2, x1:x2], table, dst=o)
-        cv2.add(o, pos[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
-        cv2.subtract(o, neg[dy + y1:dy + y2, dx + x1:dx + x2], dst=o)
+        add_noise(cv2.LUT(canvas[y1:y2, x1:x2], table, dst=o), field, (dx + x1, dy + y1))
     return out
 
 
