@@ -27,7 +27,6 @@ from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
-    box_blur,
     halo_falloff,
     halo_numbers,
     hidden_lamps,
@@ -162,17 +161,17 @@ class Renderer:
     def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, uv16: np.ndarray, colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
         ``uv`` (4, 2; ``uv16`` the same x 16 rounded) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added
-        to the image."""
+        to the image. The fill reaches 1 px beyond the quad's whole-pixel box and the blur 3 px further: the canvas is
+        that box (cut to the image and the blur's reach beyond it), blurred with zeros beyond it."""
         us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # four points: plain floats beat numpy's per-call cost
-        x1, y1, x2, y2 = math.floor(min(us)) - 6, math.floor(min(vs)) - 6, math.ceil(max(us)) + 7, math.ceil(max(vs)) + 7
+        x1, y1, x2, y2 = math.floor(min(us)) - 4, math.floor(min(vs)) - 4, math.ceil(max(us)) + 5, math.ceil(max(vs)) + 5
         ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
         if ox2 - ox1 < 2 or oy2 - oy1 < 2:
             return
-        # the canvas is the pool's box cut to the image and the blur's reach (3 px): the same pixels in the image
         x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, uv16 - (16 * x1, 16 * y1), colour, cv2.LINE_AA, 4)  # (whole pixels: the same points)
-        self._add_at(img, box_blur(pool, 7), x1, y1)
+        self._add_at(img, cv2.blur(pool, (7, 7), borderType=cv2.BORDER_CONSTANT), x1, y1)
 
     def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
                       ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:

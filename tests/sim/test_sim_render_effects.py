@@ -126,21 +126,16 @@ def test_an_ev_hidden_behind_a_bus_throws_no_halo(renderer):
     assert lamp_pixels([bus, ev]) == 0
 
 
-def test_box_blur_gives_cv2_blur_values_on_pools_and_noise():
-    """sim.render_effects.box_blur: cv2.blur's values from a 16-bit box sum and one scale (anti-aliased quads like
-    the headlight pools, and random images with every value)."""
-    from sim.render_effects import box_blur
+def test_inside_convex_hulls_agrees_with_the_hull_and_point_test():
+    """sim.render_effects.inside_convex_hulls: the same answers as cv2.convexHull then cv2.pointPolygonTest > 0 on
+    random boxes' projected corners and random points (inside, outside, near their edges)."""
+    from sim.render_effects import inside_convex_hulls
 
-    rng = np.random.default_rng(11)
-    for _ in range(60):
-        h, w = int(rng.integers(30, 140)), int(rng.integers(40, 220))
-        pool = np.zeros((h, w, 3), np.uint8)
-        c = np.array([w / 2, h / 2])
-        ang = np.sort(rng.uniform(0, 2 * np.pi, 4))
-        r = rng.uniform(5, min(h, w) / 2 - 7, 4)
-        quad = np.round((c + np.c_[np.cos(ang) * r, np.sin(ang) * r]) * 16).astype(np.int32)
-        cv2.fillConvexPoly(pool, quad, tuple(int(v) for v in rng.integers(10, 256, 3)), cv2.LINE_AA, 4)
-        np.testing.assert_array_equal(box_blur(pool, 7), cv2.blur(pool, (7, 7)))
-    for k in (3, 7, 15):
-        img = rng.integers(0, 256, (50, 70, 3), dtype=np.uint8)
-        np.testing.assert_array_equal(box_blur(img, k), cv2.blur(img, (k, k)))
+    rng = np.random.default_rng(5)
+    corners = rng.uniform(-40, 40, (400, 8, 2)) * rng.uniform(0.05, 1, (400, 1, 2)) + rng.uniform(0, 200, (400, 1, 2))
+    points = corners.mean(axis=1) + rng.normal(0, 8, (400, 2))
+    expected = [cv2.pointPolygonTest(cv2.convexHull(c.astype(np.float32)), (float(p[0]), float(p[1])), False) > 0
+                for c, p in zip(corners, points, strict=True)]
+    got = inside_convex_hulls(points, corners)
+    assert 80 < sum(expected) < 320  # both answers are well represented
+    assert got.tolist() == expected
