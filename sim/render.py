@@ -37,7 +37,16 @@ from sim.render_effects import (
     unlit_bgr,
 )
 from sim.render_labels import MIN_VISIBLE_FRACTION, Label, visible_labels
-from sim.render_pose import blur_vectors, pool_quads, pose_actors, shadow_outlines, visible_polygons
+from sim.render_pose import (
+    ActorBatch,
+    actor_batch,
+    blur_vectors,
+    painter_order,
+    pool_quads,
+    pose_frame,
+    shadow_outlines,
+    visible_polygons,
+)
 from sim.scenery import LIGHTING, render_scenery, scenery_geometry
 from sim.sensor import (
     GAMMA_SCALE,
@@ -78,6 +87,7 @@ class Renderer:
         self._banks: dict[str, list[np.ndarray]] = {}
         self._glow_cache: dict[tuple, np.ndarray] = {}
         self._models: dict[tuple, BodyModel] = {}
+        self._last_batch: tuple[tuple, ActorBatch] | None = None
         self._canvas: np.ndarray | None = None
         """What a frame is drawn on before its exposure (with exposure on), kept from frame to frame: the static scene
         of ``_canvas_lighting`` with the last frame's drawing (``_dirty``), which the next frame puts back."""
@@ -144,19 +154,9 @@ class Renderer:
         uv, depth = self.cam.project(corners.reshape(-1, 3))
         return parts, decals, corners, uv.reshape(len(parts), 8, 2), depth.reshape(len(parts), 8), rot
 
-    def _ordered(self, snapshot: WorldSnapshot) -> list[tuple[float, Actor]]:
-        """Actors in view, far to near (painter's order)."""
-        out = []
-        cx, cy, cz = self.cam.C.tolist()
-        fx, fy, fz = self.cam.R[2].tolist()
-        for a in snapshot.actors:
-            rx, ry = a.pos_x_m - cx, a.pos_y_m - cy
-            depth = rx * fx + ry * fy + (a.height_m / 2 - cz) * fz
-            if depth < NEAR_M + a.length_m or depth > 400.0:
-                continue
-            out.append((math.hypot(rx, ry), a))
-        out.sort(key=lambda t: -t[0])
-        return out
+    def _ordered(self, snapshot: WorldSnapshot) -> list[Actor]:
+        """Actors in view, far to near (painter's order: ``sim.render_pose.painter_order``)."""
+        return [snapshot.actors[k] for k in painter_order(snapshot.actors, self.cam)]
 
     def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, uv16: np.ndarray, colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
@@ -299,87 +299,103 @@ class Renderer:
         The cached static scene, then per actor its cast shadow and headlight pool (all actors, far to near), then
         per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the halos of
         the lamps no nearer vehicle hides (``sim.render_effects.hidden_lamps``), exposure and noise: issue 17's
-        drawing (``sim.render_reference``) with each actor's body model built once (``sim.bodies.body_model``) and
-        posed, culled and shaded with a few array operations."""
+        drawing (``sim.render_reference``) with each actor's body model built once (``sim.bodies.body_model``), the
+        snapshot's models concatenated once (``sim.render_pose.ActorBatch``) and posed, culled and shaded with a few
+        array operations for all actors (``sim.render_pose``)."""
         lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
-        C = self.cam.C
+        actors = snapshot.actors
         glows: list[tuple[np.ndarray, tuple, float]] = []
         glow_rank: list[int] = []  # per glow, its vehicle's place in ``drawn`` (far to near)
         lamp_pts: dict[tuple[str, str], list] = {}
-        drawn = []
+        order = painter_order(actors, self.cam)
+        if not order:
+            return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+        batch = self._batch([self._model(a) for a in actors])
+        pose = pose_frame(batch, actors, self.cam)
+        near, lo, hi = pose.near, pose.lo, pose.hi
+        w, h = self.w, self.h
+        drawn = [k for k in order if near[k] > NEAR_M and not (hi[k][0] < -200 or hi[k][1] < 0 or lo[k][0] >= w + 200
+                                                                or lo[k][1] >= h)]  # (shadows may reach the image)
         cast = L["sun"] > 0.05 and self.shadows
-        ordered = [a for _dist, a in self._ordered(snapshot)]
+        outlines = shadow_outlines(batch, pose, actors, drawn, sun, self._ground_m, self._ground_t) if cast else {}
         pools = L["running_lights"]
         if pools:
-            pool_uv, pool_uv16, pool_ok = pool_quads(ordered, self.cam)
+            pool_uv, pool_uv16, pool_ok = pool_quads(actors, self.cam)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
-        for i_a, (a, (model, pose, rot, uv, uv16, near, (x_lo, y_lo), (x_hi, y_hi), box)) in enumerate(
-                zip(ordered, pose_actors(ordered, [self._model(a) for a in ordered], self.cam), strict=True)):
-            if near <= NEAR_M:
-                continue
-            if x_hi < -200 or y_hi < 0 or x_lo >= self.w + 200 or y_lo >= self.h:
-                continue  # (shadows may reach into the image from a little outside)
-            drawn.append((a, model, pose, rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, i_a))
-        outlines = shadow_outlines([(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], sun, self._ground_m,
-                                   self._ground_t) if cast else ()
-        for k_a, d in enumerate(drawn):
-            if cast and outlines[k_a] is not None:
-                self._draw_shadow(img, outlines[k_a], 0.45 * L["sun"] / 0.55)
-            if pools and pool_ok[d[11]] and d[0].kind.value != "debris":
-                self._draw_headlight_pool(img, pool_uv[d[11]], pool_uv16[d[11]], pool_colour)
-        drawn = [d for d in drawn if d[6] >= 0 and d[5] < self.w]  # (in view, not only their shadows)
-        blurs = (blur_vectors([d[0] for d in drawn], [d[2] for d in drawn], L["exposure_s"])
-                 if self.blur_enabled else [None] * len(drawn))
-        vis_all, colours_all, first_part = shade_faces(
-            [(d[1], d[3], d[0].pos_x_m, d[0].pos_y_m) for d in drawn], C, L, sun) if drawn else (None, None, None)
-        polygons = visible_polygons([d[1] for d in drawn], [d[9] for d in drawn], vis_all, colours_all, first_part)
+        for k in drawn:
+            if k in outlines:
+                self._draw_shadow(img, outlines[k], 0.45 * L["sun"] / 0.55)
+            if pools and pool_ok[k] and actors[k].kind.value != "debris":
+                self._draw_headlight_pool(img, pool_uv[k], pool_uv16[k], pool_colour)
+        drawn = [k for k in drawn if hi[k][0] >= 0 and lo[k][0] < w]  # (in view, not only their shadows)
+        if not drawn:
+            return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+        blurs = blur_vectors(actors, pose, L["exposure_s"]) if self.blur_enabled else None
+        vis, colours = shade_faces(batch, pose.rots, np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]),
+                                   self.cam.C, L, sun)
+        polygons = visible_polygons(batch, pose, vis, colours)
+        faces, face_colours, face_start = polygons.faces, polygons.colours, polygons.face_start
+        seen, decal_quads, seen_start = polygons.decals, polygons.decal_quads, polygons.decal_seen_start
+        uv, uv16, point_start, decal_start = pose.uv, pose.uv16, batch.point_start, batch.decal_start.tolist()
         fill = cv2.fillConvexPoly
-        for k_a, (a, model, _pose, _rot, uv, x_lo, x_hi, y_lo, y_hi, uv16, box, _i) in enumerate(drawn):
-            faces, face_colours, decals_seen, decal_quads = polygons[k_a]
+        for place, k in enumerate(drawn):
+            a, model = actors[k], batch.models[k]
             parts, decals = model.parts, model.decals
+            box = pose.box[k]
             self._dirty.mark(box[0] - 2, box[1] - 2, box[2] + 3, box[3] + 3)  # (anti-aliased edges reach 1 px out)
-            n_corner = 8 * len(parts)
-            blur_px = blurs[k_a]
-            fill(img, uv16[-4:], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
-            for face16, colour in zip(faces, face_colours, strict=True):
-                fill(img, face16, colour, cv2.LINE_AA, 4)
+            end = point_start[k + 1]
+            fill(img, uv16[end - 4:end], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
+            for f in range(face_start[k], face_start[k + 1]):
+                fill(img, faces[f], face_colours[f], cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             off = self._off_colours(model, lighting)
             n_glows = len(glows)
-            for k_dc in decals_seen:
+            d0, q0 = decal_start[k], point_start[k] + 8 * len(parts)
+            for j in range(seen_start[k], seen_start[k + 1]):
+                k_dc = seen[j] - d0
                 dc = decals[k_dc]
                 if not dc.lamp:  # paint, glass, a plate: never lit
-                    fill(img, decal_quads[k_dc], off[k_dc], cv2.LINE_AA, 4)
+                    fill(img, decal_quads[j], off[k_dc], cv2.LINE_AA, 4)
                     continue
                 if dc.lamp == "turn" and not sig_on:
                     continue  # the tail light under it shows
                 colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
-                fill(img, decal_quads[k_dc], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
+                fill(img, decal_quads[j], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
                 if colour is not None:
-                    q = n_corner + 4 * k_dc
+                    q = q0 + 4 * k_dc
                     queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on,
                                     uv[q:q + 4], colour)
-            if blur_px is not None:
-                self._motion_blur(img, (x_lo, y_lo, x_hi, y_hi), blur_px)
-            glow_rank.extend([k_a] * (len(glows) - n_glows))
+            if blurs is not None and blurs[k] is not None:
+                self._motion_blur(img, (*lo[k], *hi[k]), blurs[k])
+            glow_rank.extend([place] * (len(glows) - n_glows))
         if glows or lamp_pts:
-            glows, lamp_pts = self._lamps_in_view(glows, glow_rank, lamp_pts, drawn)
+            glows, lamp_pts = self._lamps_in_view(glows, glow_rank, lamp_pts, [actors[k] for k in drawn],
+                                                  np.array([(*lo[k], *hi[k]) for k in drawn], float),
+                                                  [batch.silhouettes[k] for k in drawn], uv)
         return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
 
+    def _batch(self, models: list[BodyModel]) -> ActorBatch:
+        """The ``sim.render_pose.ActorBatch`` of a snapshot's body models, kept while its actors keep their looks
+        (the last one)."""
+        key = tuple(map(id, models))
+        if self._last_batch is None or self._last_batch[0] != key:
+            self._last_batch = (key, actor_batch(models))
+        return self._last_batch[1]
+
     @staticmethod
-    def _lamps_in_view(glows: list, glow_rank: list[int], bar_halos: dict, drawn: list) -> tuple[list, dict]:
+    def _lamps_in_view(glows: list, glow_rank: list[int], bar_halos: dict, drawn: list[Actor], bounds: np.ndarray,
+                       silhouettes: list[np.ndarray], uv: np.ndarray) -> tuple[list, dict]:
         """The lit lamps (``glows`` with their vehicles' places in ``drawn``, and the light bars' ``bar_halos``)
-        that no nearer vehicle hides (``sim.render_effects.hidden_lamps``)."""
-        rank = {d[0].actor_id: k for k, d in enumerate(drawn)}
+        that no nearer vehicle hides (``sim.render_effects.hidden_lamps``; per drawn vehicle its pixel ``bounds`` and
+        its silhouette parts' corners' indices into the frame's pixels ``uv``)."""
+        rank = {a.actor_id: k for k, a in enumerate(drawn)}
         keys = list(bar_halos)
         hidden = hidden_lamps([(g[0], r) for g, r in zip(glows, glow_rank, strict=True)]
-                              + [(bar_halos[key][0], rank[key[0]]) for key in keys],
-                              np.array([(d[5], d[7], d[6], d[8]) for d in drawn], float),
-                              lambda k: drawn[k][4][:8 * len(drawn[k][1].parts)].reshape(-1, 8, 2)[
-                                  [p.silhouette for p in drawn[k][1].parts]])
+                              + [(bar_halos[key][0], rank[key[0]]) for key in keys], bounds,
+                              lambda k: uv[silhouettes[k]])
         return ([g for g, h in zip(glows, hidden, strict=False) if not h],
                 {key: bar_halos[key] for key, h in zip(keys, hidden[len(glows):], strict=True) if not h})
 

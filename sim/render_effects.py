@@ -6,12 +6,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from functools import cache, lru_cache
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from sim.bodies import BLUE_LAMP_BGR, RED_LAMP_BGR, TAIL_OFF_BGR, TAIL_ON_BGR
 from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR
+
+if TYPE_CHECKING:
+    from sim.render_pose import ActorBatch
 
 
 def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -83,24 +87,19 @@ def halo_numbers(glows: list[tuple[np.ndarray, tuple, float]], scale: float) -> 
             zip(np.round(centres).astype(int).tolist(), radii, cols, (strengths >= 1.0).tolist(), cores, strict=True)]
 
 
-def shade_faces(posed: list[tuple], camera_centre: np.ndarray, lighting: dict, sun: np.ndarray
-                ) -> tuple[np.ndarray, list, list[int]]:
-    """The part faces of every posed actor ((body model, rotation 3x3, x m, y m) each), together: which face the
-    camera ((S, 5) bool over the S parts of all), their shaded colours ((S, 5, 3) BGR floats: base colour x (ambient +
-    sun max(0, n . sun)), glass 0.6 + 0.5 shade (x 1.3 on top), x the scene gain, clipped) and each actor's first
-    part index (S at the end)."""
-    models = [p[0] for p in posed]
-    counts = [len(md.parts) for md in models]
-    rots_t = np.repeat(np.stack([p[1] for p in posed]).transpose(0, 2, 1), counts, axis=0)  # (S, 3, 3)
-    pos = np.repeat(np.array([(p[2], p[3], 0.0) for p in posed]), counts, axis=0)
-    n_w = np.concatenate([md.normals for md in models]) @ rots_t
-    fc_w = np.concatenate([md.centres for md in models]) @ rots_t + pos[:, None, :]
-    vis = (np.sum(n_w * (camera_centre - fc_w), axis=-1) > 0) & np.concatenate([md.face_ok for md in models])
+def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, camera_centre: np.ndarray, lighting: dict,
+                sun: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The part faces of every actor of ``batch`` (a ``sim.render_pose.ActorBatch``; per actor its rotation 3x3 in
+    ``rots`` and its (x, y, 0) in ``positions``, m), together: which face the camera ((S, 5) bool over the S parts of
+    all) and their shaded colours ((S, 5, 3) BGR floats: base colour x (ambient + sun max(0, n . sun)), glass
+    0.6 + 0.5 shade (x 1.3 on top), x the scene gain, clipped)."""
+    rots_t = rots.transpose(0, 2, 1)[batch.part_owner]  # (S, 3, 3)
+    n_w = batch.normals @ rots_t
+    fc_w = batch.centres @ rots_t + positions[batch.part_owner][:, None, :]
+    vis = (np.sum(n_w * (camera_centre - fc_w), axis=-1) > 0) & batch.face_ok
     shade = lighting["ambient"] + lighting["sun"] * np.maximum(0.0, n_w @ sun)
-    shade = np.where(np.concatenate([md.glass for md in models]),
-                     0.6 + 0.5 * shade * np.where(np.concatenate([md.top for md in models]), 1.3, 1.0), shade)
-    colours = np.clip(np.concatenate([md.base_bgr for md in models]) * shade[..., None] * lighting["scene_gain"], 0, 255)
-    return vis, colours, [0, *np.cumsum(counts).tolist()]
+    shade = np.where(batch.glass, 0.6 + 0.5 * shade * np.where(batch.top, 1.3, 1.0), shade)
+    return vis, np.clip(batch.base_bgr * shade[..., None] * lighting["scene_gain"], 0, 255)
 
 
 def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_bar: bool, brake_on: bool,

@@ -37,7 +37,7 @@ def visible_labels(renderer, snapshot: WorldSnapshot, min_visible_fraction: floa
     and the visible fraction is kept pixels / full silhouette pixels (in or out of the image)."""
     ids = np.zeros((renderer.h, renderer.w), np.uint16)
     entries = []
-    for k, (_dist, a) in enumerate(renderer._ordered(snapshot), start=1):
+    for k, a in enumerate(renderer._ordered(snapshot), start=1):
         kind = a.kind.value if hasattr(a.kind, "value") else str(a.kind)
         parts, _decals, _corners, uv, depth, _rot = renderer._actor_geometry(a)
         if np.any(depth <= NEAR_M):

@@ -1,10 +1,14 @@
-"""Pure per-frame geometry of the renderer (``sim.render``): every actor in view posed and projected, its headlight
-pool, cast-shadow outline and motion-blur vector, each for all actors in one batched product (issue 19: a Python
-loop per actor cost more than the drawing). Camera matrices in, pixel arrays out; nothing here draws."""
+"""Pure per-frame geometry of the renderer (``sim.render``): every actor of a snapshot posed and projected, its
+painter's place, headlight pool, cast-shadow outline, motion-blur vector and visible faces and decals, each for all
+actors in a few array operations (issue 19: a Python loop per actor cost more than the drawing, and so did
+concatenating the actors' body models every frame). ``ActorBatch`` holds the snapshot's body models concatenated
+once (``Renderer`` keeps it while the snapshot's actors keep their looks); ``pose_frame`` poses them for one frame.
+Camera matrices in, pixel arrays out; nothing here draws."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -14,12 +18,134 @@ from sim.bodies import BodyModel
 from sim.camera import NEAR_M, PinholeCamera
 
 POOL_LOCAL_M = np.array([[0.5, -0.8], [0.5, 0.8], [18.0, 3.2], [18.0, -3.2]])  # headlight pool, ahead of the bumper
+FAR_M = 400.0
+"""Actors whose centre is farther ahead of the camera than this are not drawn."""
 
 
-def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class ActorBatch:
+    """The body models of a snapshot's actors (in its order), concatenated: per actor its block of ``points`` (part
+    corners, decal quads, contact footprint: ``BodyModel.points``), per part (all actors' parts in order) its faces'
+    shading arrays, per decal its quad and face, all indices global (into the concatenation)."""
+
+    models: tuple[BodyModel, ...]
+    points: np.ndarray  # (N, 3) every actor's points
+    owner: np.ndarray  # (N,) actor of each point
+    point_start: list[int]  # (A + 1) each actor's first point
+    corner_cuts: list[int]  # per actor, its first point and the end of its part corners (np.*.reduceat)
+    corner_idx: np.ndarray  # (Nc,) every part corner, actor by actor (shadows)
+    corner_owner: np.ndarray  # (Nc,)
+    corner_start: list[int]  # (A + 1) each actor's first part corner in corner_idx
+    part_start: list[int]  # (A + 1) each actor's first part
+    part_owner: np.ndarray  # (S,)
+    normals: np.ndarray  # (S, 5, 3), as BodyModel
+    centres: np.ndarray
+    face_ok: np.ndarray
+    glass: np.ndarray
+    top: np.ndarray
+    base_bgr: np.ndarray
+    face_points: np.ndarray  # (S, 5, 4) global point indices of each face's corners
+    decal_start: np.ndarray  # (A + 1,) each actor's first decal
+    decal_points: np.ndarray  # (D, 4) global point indices of each decal's quad
+    decal_part: np.ndarray  # (D,) global part index
+    decal_face: np.ndarray  # (D,)
+    silhouettes: list[np.ndarray]  # per actor, (P_sil, 8) global point indices of its silhouette parts' corners
+
+
+def actor_batch(models: list[BodyModel]) -> ActorBatch:
+    """The ``ActorBatch`` of these body models (one per actor, in the snapshot's order)."""
+    n_points = [len(md.points) for md in models]
+    n_parts = [len(md.parts) for md in models]
+    n_decals = [len(md.decals) for md in models]
+    point_start = np.concatenate([[0], np.cumsum(n_points)]).astype(int)
+    part_start = np.concatenate([[0], np.cumsum(n_parts)]).astype(int)
+    decal_start = np.concatenate([[0], np.cumsum(n_decals)]).astype(int)
+    corner_idx = np.concatenate([s + np.arange(8 * p) for s, p in zip(point_start[:-1], n_parts, strict=True)])
+    actors = np.arange(len(models))
+    return ActorBatch(
+        models=tuple(models),
+        points=np.concatenate([md.points for md in models]),
+        owner=np.repeat(actors, n_points),
+        point_start=point_start.tolist(),
+        corner_cuts=[i for s, p in zip(point_start[:-1].tolist(), n_parts, strict=True) for i in (s, s + 8 * p)],
+        corner_idx=corner_idx,
+        corner_owner=np.repeat(actors, [8 * p for p in n_parts]),
+        corner_start=np.concatenate([[0], np.cumsum([8 * p for p in n_parts])]).astype(int).tolist(),
+        part_start=part_start.tolist(),
+        part_owner=np.repeat(actors, n_parts),
+        normals=np.concatenate([md.normals for md in models]),
+        centres=np.concatenate([md.centres for md in models]),
+        face_ok=np.concatenate([md.face_ok for md in models]),
+        glass=np.concatenate([md.glass for md in models]),
+        top=np.concatenate([md.top for md in models]),
+        base_bgr=np.concatenate([md.base_bgr for md in models]),
+        face_points=np.concatenate([md.face_points + s for md, s in zip(models, point_start, strict=False)]),
+        decal_start=decal_start,
+        decal_points=np.concatenate([md.decal_points.reshape(-1, 4) + s
+                                     for md, s in zip(models, point_start, strict=False)]).astype(int),
+        decal_part=np.concatenate([md.decal_part.astype(int) + s for md, s in zip(models, part_start, strict=False)]),
+        decal_face=np.concatenate([md.decal_face.astype(int) for md in models]),
+        silhouettes=[s + 8 * np.flatnonzero([p.silhouette for p in md.parts])[:, None] + np.arange(8)
+                     for md, s in zip(models, point_start.tolist(), strict=False)],
+    )
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """One frame's pose of an ``ActorBatch``: per actor its rotation (A, 3, 3), m = K R rot (A, 3, 3) and
+    tvec = K R (position - C) (A, 3); per point its pixel (N, 2), the same x 16 rounded (int32, the drawing's fixed
+    point) and depth; per actor (lists) its part corners' nearest depth and pixel minimum and maximum (x, y), and
+    all its points' pixel box [x1, y1, x2, y2] (what its drawing may reach)."""
+
+    rots: np.ndarray
+    m: np.ndarray
+    tvec: np.ndarray
+    uv: np.ndarray
+    uv16: np.ndarray
+    depth: np.ndarray
+    near: list[float]
+    lo: list[list[float]]
+    hi: list[list[float]]
+    box: list[list[float]]
+
+
+def pose_frame(batch: ActorBatch, actors: list[Actor], cam: PinholeCamera) -> FramePose:
+    """Every actor's body model posed and projected (``FramePose``), every point in one product."""
+    cs = [(math.cos(a.heading_rad), math.sin(a.heading_rad)) for a in actors]
+    rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in cs])
+    m = cam.KR @ rots  # (A, 3, 3)
+    tvec = (np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]) - cam.C) @ cam.KR.T  # (A, 3)
+    h = np.einsum("nij,nj->ni", m[batch.owner], batch.points) + tvec[batch.owner]
+    depth = h[:, 2]
+    uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
+    cuts = batch.corner_cuts
+    near = np.minimum.reduceat(depth, cuts)[::2].tolist()
+    lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
+    # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
+    box = np.hstack([np.minimum(lo[::2], lo[1::2]), np.maximum(hi[::2], hi[1::2])]).tolist()
+    return FramePose(rots, m, tvec, uv, np.round(uv * 16).astype(np.int32), depth, near, lo[::2].tolist(),
+                     hi[::2].tolist(), box)
+
+
+def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
+    """Indices of the actors in view depth (their centre from NEAR_M + their length to ``FAR_M`` ahead of the
+    camera), far to near by ground distance from the camera (painter's order; ties keep the snapshot's order)."""
+    cx, cy, cz = cam.C.tolist()
+    fx, fy, fz = cam.R[2].tolist()
+    out = []
+    for k, a in enumerate(actors):
+        rx, ry = a.pos_x_m - cx, a.pos_y_m - cy
+        depth = rx * fx + ry * fy + (a.height_m / 2 - cz) * fz
+        if NEAR_M + a.length_m <= depth <= FAR_M:
+            out.append((-math.hypot(rx, ry), k))
+    out.sort(key=lambda t: t[0])
+    return [k for _d, k in out]
+
+
+def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.ndarray, list[bool]]:
     """Headlight pools of ``actors``: pixel quads (N, 4, 2), the same x 16 rounded (int32, the fixed point the
-    drawing takes) and whether each is in front of the camera (N,). The pool: a trapezoid on the road from 0.5 to
-    18 m ahead of the front bumper."""
+    drawing takes) and whether each is in front of the camera. The pool: a trapezoid on the road from 0.5 to 18 m
+    ahead of the front bumper."""
     cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
                    for a in actors]).reshape(-1, 5)
     c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
@@ -28,109 +154,71 @@ def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.
     pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
     uv, depth = cam.project(pts.reshape(-1, 3))
     uv = uv.reshape(-1, 4, 2)
-    return uv, np.round(uv * 16).astype(np.int32), (depth.reshape(-1, 4) > NEAR_M).all(axis=1)
+    return uv, np.round(uv * 16).astype(np.int32), (depth.reshape(-1, 4) > NEAR_M).all(axis=1).tolist()
 
 
-def pose_actors(actors: list[Actor], models: list[BodyModel], cam: PinholeCamera) -> list[tuple]:
-    """Per actor (model, (m, tvec), rot, uv (N, 2), uv x 16 rounded (N, 2) int32, nearest part-corner depth,
-    part corners' (x, y) pixel minimum and maximum, all its points' pixel box [x1, y1, x2, y2]): its body model
-    posed and projected, every actor's points in one product (m = K R rot, tvec = K R (position - C))."""
-    if not actors:
-        return []
-    rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in
-                     ((math.cos(a.heading_rad), math.sin(a.heading_rad)) for a in actors)])
-    m = cam.KR @ rots  # (A, 3, 3)
-    tvec = (np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]) - cam.C) @ cam.KR.T  # (A, 3)
-    counts = [len(md.points) for md in models]
-    idx = np.repeat(np.arange(len(actors)), counts)
-    h = np.einsum("nij,nj->ni", m[idx], np.concatenate([md.points for md in models])) + tvec[idx]
-    depth = h[:, 2]
-    uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
-    uv16 = np.round(uv * 16).astype(np.int32)
-    ends = np.cumsum(counts).tolist()
-    # per actor, over its part corners (the first 8 P points of its block): nearest depth, pixel bounds
-    cuts = [i for n, e, md in zip(counts, ends, models, strict=True) for i in (e - n, e - n + 8 * len(md.parts))]
-    near = np.minimum.reduceat(depth, cuts)[::2].tolist()
-    lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
-    # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
-    lo_all, hi_all = np.minimum(lo[::2], lo[1::2]).tolist(), np.maximum(hi[::2], hi[1::2]).tolist()
-    lo, hi = lo[::2].tolist(), hi[::2].tolist()
-    return [(md, (m[k], tvec[k]), rots[k], uv[e - n:e], uv16[e - n:e], near[k], lo[k], hi[k], lo_all[k] + hi_all[k])
-            for k, (md, n, e) in enumerate(zip(models, counts, ends, strict=True))]
-
-
-def shadow_outlines(posed: list[tuple], sun: np.ndarray, ground_m: np.ndarray, ground_t: np.ndarray
-                    ) -> list[tuple[np.ndarray, np.ndarray] | None]:
-    """Per actor (body model, rotation 3x3, x m, y m), its cast shadow's outline in pixels (K, 2) and the same x 16
-    rounded (int32, the drawing's fixed point), None when any
-    of it is behind the camera: the part corners projected along the unit vector ``sun`` onto z = 0
+def shadow_outlines(batch: ActorBatch, pose: FramePose, actors: list[Actor], which: list[int], sun: np.ndarray,
+                    ground_m: np.ndarray, ground_t: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per actor in ``which``, its cast shadow's outline in pixels (K, 2) and the same x 16 rounded (int32), left
+    out when any of it is behind the camera: the part corners projected along the unit vector ``sun`` onto z = 0
     (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull`` takes them), every actor's in
     one product, and into the image (a road point (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); each
     outline is its ground hull's points."""
-    if not posed:
-        return []
-    counts = [8 * len(p[0].parts) for p in posed]
-    local = np.concatenate([p[0].points[:n] for p, n in zip(posed, counts, strict=True)])  # (N, 3)
-    idx = np.repeat(np.arange(len(posed)), counts)
-    rot2 = np.stack([p[1][:2, :2] for p in posed])[idx]  # (N, 2, 2)
-    ground = (np.einsum("nij,nj->ni", rot2, local[:, :2]) + np.array([(p[2], p[3]) for p in posed])[idx]
+    local = batch.points[batch.corner_idx]  # (Nc, 3)
+    owner = batch.corner_owner
+    xy = np.array([(a.pos_x_m, a.pos_y_m) for a in actors])
+    ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + xy[owner]
               - local[:, 2:3] * (sun[:2] / max(sun[2], 0.25))).astype(np.float32)
     h = ground.astype(float) @ ground_m - ground_t
-    near = np.minimum.reduceat(h[:, 2], np.cumsum([0, *counts[:-1]])).tolist()
+    near = np.minimum.reduceat(h[:, 2], batch.corner_start[:-1]).tolist()
     uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
     uv16 = np.round(uv * 16).astype(np.int32)
-    out: list[tuple[np.ndarray, np.ndarray] | None] = []
-    start = 0
-    for n, z in zip(counts, near, strict=True):
-        hull = cv2.convexHull(ground[start:start + n], returnPoints=False).ravel() + start
-        out.append(None if z <= NEAR_M else (uv[hull], uv16[hull]))
-        start += n
+    out = {}
+    starts = batch.corner_start
+    for k in which:
+        if near[k] > NEAR_M:
+            s = starts[k]
+            hull = cv2.convexHull(ground[s:starts[k + 1]], returnPoints=False).ravel() + s
+            out[k] = (uv[hull], uv16[hull])
     return out
 
 
-def blur_vectors(actors: list[Actor], poses: list[tuple[np.ndarray, np.ndarray]], exposure_s: float
-                 ) -> list[np.ndarray | None]:
+def blur_vectors(actors: list[Actor], pose: FramePose, exposure_s: float) -> list[np.ndarray | None]:
     """Per actor, the image motion (px) of its centre during the exposure, from its pose (m, tvec), all in one
     product; None below 0.5 m/s, below 1.5 px, or behind the camera."""
-    if not actors:
-        return []
-    m = np.stack([p[0] for p in poses])  # (A, 3, 3)
-    tvec = np.stack([p[1] for p in poses])
-    hz = np.array([a.height_m / 2 for a in actors])
-    run = np.array([a.speed_mps * exposure_s for a in actors])
+    m, tvec = pose.m, pose.tvec
+    hz, speed = np.array([(a.height_m / 2, a.speed_mps) for a in actors]).T
+    run = speed * exposure_s
     h0 = m[:, :, 2] * hz[:, None] + tvec  # the centre (0, 0, h/2), and (run, 0, h/2)
     h1 = h0 + m[:, :, 0] * run[:, None]
     ok = (h0[:, 2] > NEAR_M) & (h1[:, 2] > NEAR_M)
     vec = (h1[:, :2] / np.where(ok, h1[:, 2], 1.0)[:, None] - h0[:, :2] / np.where(ok, h0[:, 2], 1.0)[:, None])
-    ok &= (np.array([a.speed_mps for a in actors]) >= 0.5) & (np.hypot(vec[:, 0], vec[:, 1]) >= 1.5)
+    ok &= (speed >= 0.5) & (np.hypot(vec[:, 0], vec[:, 1]) >= 1.5)
     return [v if k else None for v, k in zip(vec, ok.tolist(), strict=True)]
 
 
-def visible_polygons(models: list[BodyModel], uv16_blocks: list[np.ndarray], vis: np.ndarray, colours: np.ndarray,
-                     first_part: list[int]) -> list[tuple[list, list, list[int], list]]:
-    """Per actor (its body model and its points' pixels x 16, int32, from ``pose_actors``), what it draws: its
-    visible part faces' quads ((4, 2) int32 each, in drawing order) with their shaded colours (``vis``, ``colours``
-    and ``first_part`` from ``sim.render_effects.shade_faces``), the indices of its decals that lie on visible faces,
-    and every decal's quad; all actors' in a few array operations (issue 19: a handful of numpy calls per actor
-    cost more than drawing its faces)."""
-    if not models:
-        return []
-    starts = np.cumsum([0, *[len(b) for b in uv16_blocks[:-1]]])
-    all16 = np.concatenate(uv16_blocks)
-    n_parts = np.diff(first_part)
-    n_decals = [len(md.decals) for md in models]
-    face_idx = np.concatenate([md.face_points for md in models]) + np.repeat(starts, n_parts)[:, None, None]
-    quads = list(all16[face_idx[vis]])
-    cols = colours[vis].tolist()
-    face_ends = np.cumsum(np.add.reduceat(vis.sum(axis=1), first_part[:-1])).tolist()
-    decal_ends = np.cumsum(n_decals).tolist()
-    decal_quads = list(all16[np.concatenate([md.decal_points for md in models]).reshape(-1, 4)
-                             + np.repeat(starts, n_decals)[:, None]])
-    decal_vis = vis[np.concatenate([md.decal_part for md in models]).astype(int) + np.repeat(first_part[:-1], n_decals),
-                    np.concatenate([md.decal_face for md in models]).astype(int)]
-    out = []
-    f0 = d0 = 0
-    for f1, d1 in zip(face_ends, decal_ends, strict=True):
-        out.append((quads[f0:f1], cols[f0:f1], np.flatnonzero(decal_vis[d0:d1]).tolist(), decal_quads[d0:d1]))
-        f0, d0 = f1, d1
-    return out
+@dataclass(frozen=True)
+class VisiblePolygons:
+    """What every actor draws: its visible part faces' quads ((4, 2) int32 each, in drawing order, all actors') with
+    their shaded colours, actor k's being ``faces[face_start[k]:face_start[k + 1]]``; its decals that lie on
+    visible faces (global decal indices ``decals``, their quads ``decal_quads``; actor k's from
+    ``decal_seen_start[k]``)."""
+
+    faces: list[np.ndarray]
+    colours: list[list[float]]
+    face_start: list[int]
+    decals: list[int]
+    decal_quads: list[np.ndarray]
+    decal_seen_start: list[int]
+
+
+def visible_polygons(batch: ActorBatch, pose: FramePose, vis: np.ndarray, colours: np.ndarray) -> VisiblePolygons:
+    """The ``VisiblePolygons`` of every actor from its faces' visibility and shaded colours (``vis``, ``colours``:
+    ``sim.render_effects.shade_faces``), in a few array operations."""
+    all16 = pose.uv16
+    faces = list(all16[batch.face_points[vis]])
+    face_start = [0, *np.cumsum(np.add.reduceat(vis.sum(axis=1), batch.part_start[:-1])).tolist()]
+    seen = np.flatnonzero(vis[batch.decal_part, batch.decal_face])
+    return VisiblePolygons(faces, colours[vis].tolist(), face_start, seen.tolist(),
+                           list(all16[batch.decal_points[seen]]),
+                           [0, *np.searchsorted(seen, batch.decal_start[1:]).tolist()])

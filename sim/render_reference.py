@@ -73,7 +73,7 @@ class ReferenceRenderer(Renderer):
         glows: list[tuple[np.ndarray, tuple, float]] = []
         lamp_pts: dict[tuple[str, str], list] = {}
         drawn = []
-        for _dist, a in self._ordered(snapshot):
+        for a in self._ordered(snapshot):
             geo = self._actor_geometry(a)
             uv, depth = geo[3], geo[4]
             if np.any(depth <= NEAR_M):

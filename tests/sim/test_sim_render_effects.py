@@ -52,6 +52,7 @@ def test_shade_faces_of_several_actors_equal_each_actors_own():
     from protocol.messages import Actor, ActorKind
     from sim.bodies import body_model
     from sim.render_effects import shade_faces
+    from sim.render_pose import actor_batch
     from sim.scenery import LIGHTING
 
     actors = [Actor(actor_id=f"a{k}", kind=ActorKind(kind), pos_x_m=20.0 + 9 * k, pos_y_m=1.85 + 3.7 * (k % 2),
@@ -61,13 +62,15 @@ def test_shade_faces_of_several_actors_equal_each_actors_own():
                                                 ("van", (5.5, 2.0, 2.4))])]
     cam_c, L = np.array([0.0, -8.0, 7.0]), LIGHTING["dusk"]
     sun = np.array(L["sun_dir"], float) / np.linalg.norm(L["sun_dir"])
-    posed = []
-    for a in actors:
-        c, s = np.cos(a.heading_rad), np.sin(a.heading_rad)
-        posed.append((body_model(a), np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), a.pos_x_m, a.pos_y_m))
-    vis, colours, first = shade_faces(posed, cam_c, L, sun)
-    assert first[-1] == len(vis) == sum(len(p[0].parts) for p in posed)
-    for k, (model, rot, x, y) in enumerate(posed):  # one actor at a time, as issue 17's renderer shades
+    models = [body_model(a) for a in actors]
+    batch = actor_batch(models)
+    cs = [(np.cos(a.heading_rad), np.sin(a.heading_rad)) for a in actors]
+    rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in cs])
+    vis, colours = shade_faces(batch, rots, np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]), cam_c, L, sun)
+    first = batch.part_start
+    assert first[-1] == len(vis) == sum(len(md.parts) for md in models)
+    for k, (model, rot, a) in enumerate(zip(models, rots, actors, strict=True)):  # one at a time, as issue 17's
+        x, y = a.pos_x_m, a.pos_y_m
         n_w = model.normals @ rot.T
         fc_w = model.centres @ rot.T + (x, y, 0.0)
         own_vis = (np.sum(n_w * (cam_c - fc_w), axis=-1) > 0) & model.face_ok
