@@ -153,12 +153,12 @@ class DirtyBands:
 
     def __init__(self, height_px: int, width_px: int, band_px: int = 16) -> None:
         self.h, self.w, self.band_px = height_px, width_px, band_px
-        self._marks: list[tuple[float, float, float, float]] = []
+        self._marks: list[float] = []  # x1, y1, x2, y2 of each mark in turn
         self._spans: list[tuple[int, int, int, int]] | None = []
 
     def mark(self, x1: float, y1: float, x2: float, y2: float) -> None:
         """Mark the rectangle [x1, x2) x [y1, y2) (pixels; cut to the image by ``spans``)."""
-        self._marks.append((x1, y1, x2, y2))
+        self._marks.extend((x1, y1, x2, y2))
         self._spans = None
 
     def spans(self) -> list[tuple[int, int, int, int]]:
@@ -168,17 +168,14 @@ class DirtyBands:
             x1, y1 = np.maximum(m[:, :2], 0).astype(int).T
             x2, y2 = np.minimum(np.ceil(m[:, 2:]), (self.w, self.h)).astype(int).T
             keep = (x2 > x1) & (y2 > y1)
-            x1, y1, x2, y2 = x1[keep], y1[keep], x2[keep], y2[keep]
-            b1, b2 = y1 // self.band_px, (y2 - 1) // self.band_px + 1
-            n = -(-self.h // self.band_px)
-            lo, hi = np.full(n + 1, self.w), np.zeros(n + 1, int)
-            rows = np.repeat(np.arange(len(b1)), b2 - b1)  # one row per (mark, band it reaches)
-            bands = b1[rows] + np.arange(len(rows)) - np.repeat(np.cumsum(b2 - b1) - (b2 - b1), b2 - b1)
-            np.minimum.at(lo, bands, x1[rows])
-            np.maximum.at(hi, bands, x2[rows])
             bp = self.band_px
+            b1, b2 = y1[keep] // bp, (y2[keep] - 1) // bp
+            band = np.arange(-(-self.h // bp))
+            reach = (b1[:, None] <= band) & (band <= b2[:, None])  # (marks, bands): the mark reaches the band
+            lo = np.where(reach, x1[keep][:, None], self.w).min(axis=0, initial=self.w)
+            hi = np.where(reach, x2[keep][:, None], 0).max(axis=0, initial=0)
             self._spans = [(b * bp, min(self.h, (b + 1) * bp), int(lo[b]), int(hi[b]))
-                           for b in np.flatnonzero(hi[:n] > lo[:n]).tolist()]
+                           for b in np.flatnonzero(hi > lo).tolist()]
         return self._spans
 
     def clear(self) -> None:
