@@ -158,45 +158,24 @@ class Renderer:
         """Actors in view, far to near (painter's order: ``sim.render_pose.painter_order``)."""
         return [snapshot.actors[k] for k in painter_order(snapshot.actors, self.cam)]
 
-    def _draw_headlight_pool(self, img: np.ndarray, uv: np.ndarray, uv16: np.ndarray, colour: tuple) -> None:
+    def _draw_headlight_pool(self, img: np.ndarray, uv16: np.ndarray, box: tuple[int, int, int, int],
+                             colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
-        ``uv`` (4, 2; ``uv16`` the same x 16 rounded) filled anti-aliased in ``colour``, box-blurred 7 x 7 and added
-        to the image. The fill reaches 1 px beyond the quad's whole-pixel box and the blur 3 px further: the canvas is
-        that box (cut to the image and the blur's reach beyond it), blurred with zeros beyond it."""
-        us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # four points: plain floats beat numpy's per-call cost
-        x1, y1, x2, y2 = math.floor(min(us)) - 4, math.floor(min(vs)) - 4, math.ceil(max(us)) + 5, math.ceil(max(vs)) + 5
-        ox1, oy1, ox2, oy2 = max(0, x1), max(0, y1), min(self.w, x2), min(self.h, y2)
-        if ox2 - ox1 < 2 or oy2 - oy1 < 2:
-            return
-        x1, y1, x2, y2 = max(x1, ox1 - 3), max(y1, oy1 - 3), min(x2, ox2 + 3), min(y2, oy2 + 3)
+        (``uv16``: x 16 rounded) filled anti-aliased in ``colour`` on the canvas ``box`` (``sim.render_pose.pool_quads``:
+        the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond the box) and added to the image."""
+        x1, y1, x2, y2 = box
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, uv16 - (16 * x1, 16 * y1), colour, cv2.LINE_AA, 4)  # (whole pixels: the same points)
         self._add_at(img, cv2.blur(pool, (7, 7), borderType=cv2.BORDER_CONSTANT), x1, y1)
 
-    def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
-                      ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
-        """The polygon ``uv`` (K, 2 px; ``uv16`` the same x 16 rounded, made here when not given) filled
-        anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1, cut to the image); None when the box is
-        under 2 px either way."""
-        us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # a few points: plain floats beat numpy's per-call cost
-        x1, y1 = max(0, math.floor(min(us))), max(0, math.floor(min(vs)))
-        x2, y2 = min(self.w, math.ceil(max(us)) + 1), min(self.h, math.ceil(max(vs)) + 1)
-        if x2 - x1 < 2 or y2 - y1 < 2:
-            return None
+    def _draw_shadow(self, img: np.ndarray, box: tuple[int, int, int, int], outline16: np.ndarray,
+                     strength: float) -> None:
+        """Cast shadow on the road, its pixel outline x 16 (``outline16``; its ``box`` in the image:
+        ``sim.render_pose.shadow_outlines``) darkened: v * round(256 (1 - strength)) >> 8 (a saturating scale
+        rounded down) where the anti-aliased polygon covers more than half."""
+        x1, y1, x2, y2 = box
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        if uv16 is None:
-            uv16 = np.round(uv * 16).astype(np.int32)
-        cv2.fillConvexPoly(mask, uv16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
-        return (x1, y1, x2, y2), mask
-
-    def _draw_shadow(self, img: np.ndarray, outline: tuple[np.ndarray, np.ndarray], strength: float) -> None:
-        """Cast shadow on the road, its pixel ``outline`` (and x 16 rounded: ``sim.render_pose.shadow_outlines``) darkened:
-        v * round(256 (1 - strength)) >> 8 (a saturating scale rounded down) where the anti-aliased polygon covers
-        more than half."""
-        cut = self._polygon_mask(*outline)
-        if cut is None:
-            return
-        (x1, y1, x2, y2), mask = cut
+        cv2.fillConvexPoly(mask, outline16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
         self._dirty.mark(x1, y1, x2, y2)
         cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)
         roi = img[y1:y2, x1:x2]
@@ -318,16 +297,18 @@ class Renderer:
         drawn = [k for k in order if near[k] > NEAR_M and not (hi[k][0] < -200 or hi[k][1] < 0 or lo[k][0] >= w + 200
                                                                 or lo[k][1] >= h)]  # (shadows may reach the image)
         cast = L["sun"] > 0.05 and self.shadows
-        outlines = shadow_outlines(batch, pose, actors, drawn, sun, self._ground_m, self._ground_t) if cast else {}
+        outlines = (shadow_outlines(batch, pose, actors, drawn, sun, self.cam, self._ground_m, self._ground_t)
+                    if cast else {})
         pools = L["running_lights"]
         if pools:
-            pool_uv, pool_uv16, pool_ok = pool_quads(actors, self.cam)
+            pool_uv16, pool_boxes = pool_quads(actors, self.cam)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
+        strength = 0.45 * L["sun"] / 0.55
         for k in drawn:
             if k in outlines:
-                self._draw_shadow(img, outlines[k], 0.45 * L["sun"] / 0.55)
-            if pools and pool_ok[k] and actors[k].kind.value != "debris":
-                self._draw_headlight_pool(img, pool_uv[k], pool_uv16[k], pool_colour)
+                self._draw_shadow(img, *outlines[k], strength)
+            if pools and pool_boxes[k] is not None and actors[k].kind.value != "debris":
+                self._draw_headlight_pool(img, pool_uv16[k], pool_boxes[k], pool_colour)
         drawn = [k for k in drawn if hi[k][0] >= 0 and lo[k][0] < w]  # (in view, not only their shadows)
         if not drawn:
             return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)

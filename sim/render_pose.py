@@ -142,10 +142,12 @@ def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
     return [k for _d, k in out]
 
 
-def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.ndarray, list[bool]]:
-    """Headlight pools of ``actors``: pixel quads (N, 4, 2), the same x 16 rounded (int32, the fixed point the
-    drawing takes) and whether each is in front of the camera. The pool: a trapezoid on the road from 0.5 to 18 m
-    ahead of the front bumper."""
+def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, list[tuple[int, int, int, int] | None]]:
+    """Headlight pools of ``actors``: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing takes)
+    and per pool the box its blurred light may reach (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of
+    anti-aliasing and the 7 x 7 blur's 3 px beyond it, cut to the image and 3 px beyond it: what the blur reads),
+    None when the pool is behind the camera or its box in the image is under 2 px either way. The pool: a trapezoid
+    on the road from 0.5 to 18 m ahead of the front bumper."""
     cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
                    for a in actors]).reshape(-1, 5)
     c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
@@ -154,32 +156,45 @@ def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, np.
     pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
     uv, depth = cam.project(pts.reshape(-1, 3))
     uv = uv.reshape(-1, 4, 2)
-    return uv, np.round(uv * 16).astype(np.int32), (depth.reshape(-1, 4) > NEAR_M).all(axis=1).tolist()
+    w, h = cam.width_px, cam.height_px
+    lo, hi = np.floor(uv.min(axis=1)).astype(int) - 4, np.ceil(uv.max(axis=1)).astype(int) + 5
+    o_lo, o_hi = np.maximum(lo, 0), np.minimum(hi, (w, h))  # in the image
+    ok = (depth.reshape(-1, 4) > NEAR_M).all(axis=1) & (o_hi - o_lo >= 2).all(axis=1)
+    boxes = np.hstack([np.maximum(lo, o_lo - 3), np.minimum(hi, o_hi + 3)]).tolist()
+    return np.round(uv * 16).astype(np.int32), [tuple(b) if k else None for b, k in zip(boxes, ok.tolist(),
+                                                                                        strict=True)]
 
 
 def shadow_outlines(batch: ActorBatch, pose: FramePose, actors: list[Actor], which: list[int], sun: np.ndarray,
-                    ground_m: np.ndarray, ground_t: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per actor in ``which``, its cast shadow's outline in pixels (K, 2) and the same x 16 rounded (int32), left
-    out when any of it is behind the camera: the part corners projected along the unit vector ``sun`` onto z = 0
-    (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull`` takes them), every actor's in
-    one product, and into the image (a road point (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); each
-    outline is its ground hull's points."""
+                    cam: PinholeCamera, ground_m: np.ndarray, ground_t: np.ndarray
+                    ) -> dict[int, tuple[tuple[int, int, int, int], np.ndarray]]:
+    """Per actor in ``which``, its cast shadow's box in the image (x1, y1, x2, y2: floor to ceil + 1 of its pixels,
+    cut to the image) and outline in pixels x 16 rounded (K, 2 int32, the drawing's fixed point), left out when any
+    of it is behind the camera or its box is under 2 px either way: the part corners projected along the unit
+    vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull``
+    takes them), every actor's in one product, and into the image (a road point (x, y) -> homogeneous pixel
+    (x, y) @ ground_m - ground_t); the outline is its ground hull's points, the box every corner's (the same:
+    the image of a hull is the hull of the image, in front of the camera)."""
     local = batch.points[batch.corner_idx]  # (Nc, 3)
     owner = batch.corner_owner
     xy = np.array([(a.pos_x_m, a.pos_y_m) for a in actors])
     ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + xy[owner]
               - local[:, 2:3] * (sun[:2] / max(sun[2], 0.25))).astype(np.float32)
     h = ground.astype(float) @ ground_m - ground_t
-    near = np.minimum.reduceat(h[:, 2], batch.corner_start[:-1]).tolist()
+    starts = batch.corner_start
+    near = np.minimum.reduceat(h[:, 2], starts[:-1]).tolist()
     uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
     uv16 = np.round(uv * 16).astype(np.int32)
+    lo = np.maximum(np.floor(np.minimum.reduceat(uv, starts[:-1])), 0).astype(int)
+    hi = np.minimum(np.ceil(np.maximum.reduceat(uv, starts[:-1])) + 1, (cam.width_px, cam.height_px)).astype(int)
+    boxes = np.hstack([lo, hi]).tolist()
     out = {}
-    starts = batch.corner_start
     for k in which:
-        if near[k] > NEAR_M:
+        x1, y1, x2, y2 = boxes[k]
+        if near[k] > NEAR_M and x2 - x1 >= 2 and y2 - y1 >= 2:
             s = starts[k]
             hull = cv2.convexHull(ground[s:starts[k + 1]], returnPoints=False).ravel() + s
-            out[k] = (uv[hull], uv16[hull])
+            out[k] = ((x1, y1, x2, y2), uv16[hull])
     return out
 
 

@@ -41,6 +41,22 @@ class ReferenceRenderer(Renderer):
         vis = (np.sum(n * (C - fc), axis=-1) > 0) & (norm[..., 0] > 1e-9)
         return [{FACE_NAMES[f]: n[p, f] for f in np.flatnonzero(vis[p])} for p in range(len(parts))]
 
+    def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
+                      ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+        """The polygon ``uv`` (K, 2 px; ``uv16`` the same x 16 rounded, made here when not given) filled
+        anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1, cut to the image); None when the box is
+        under 2 px either way."""
+        us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # a few points: plain floats beat numpy's per-call cost
+        x1, y1 = max(0, math.floor(min(us))), max(0, math.floor(min(vs)))
+        x2, y2 = min(self.w, math.ceil(max(us)) + 1), min(self.h, math.ceil(max(vs)) + 1)
+        if x2 - x1 < 2 or y2 - y1 < 2:
+            return None
+        mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
+        if uv16 is None:
+            uv16 = np.round(uv * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, uv16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
+        return (x1, y1, x2, y2), mask
+
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
         """Cast shadow on the road: the vehicle's corners projected along the sun onto z = 0, darkened."""
         hull = shadow_hull(corners.reshape(-1, 3), sun)
