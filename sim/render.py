@@ -297,11 +297,11 @@ class Renderer:
         drawn = [k for k in order if near[k] > NEAR_M and not (hi[k][0] < -200 or hi[k][1] < 0 or lo[k][0] >= w + 200
                                                                 or lo[k][1] >= h)]  # (shadows may reach the image)
         cast = L["sun"] > 0.05 and self.shadows
-        outlines = (shadow_outlines(batch, pose, actors, drawn, sun, self.cam, self._ground_m, self._ground_t)
+        outlines = (shadow_outlines(batch, pose, drawn, sun, self.cam, self._ground_m, self._ground_t)
                     if cast else {})
         pools = L["running_lights"]
         if pools:
-            pool_uv16, pool_boxes = pool_quads(actors, self.cam)
+            pool_uv16, pool_boxes = pool_quads(pose, self.cam)
             pool_colour = tuple(int(v * (1.0 if lighting == "night" else 0.4)) for v in (70, 95, 110))
         strength = 0.45 * L["sun"] / 0.55
         for k in drawn:
@@ -312,9 +312,8 @@ class Renderer:
         drawn = [k for k in drawn if hi[k][0] >= 0 and lo[k][0] < w]  # (in view, not only their shadows)
         if not drawn:
             return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
-        blurs = blur_vectors(actors, pose, L["exposure_s"]) if self.blur_enabled else None
-        vis, colours = shade_faces(batch, pose.rots, np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]),
-                                   self.cam.C, L, sun)
+        blurs = blur_vectors(pose, L["exposure_s"]) if self.blur_enabled else None
+        vis, colours = shade_faces(batch, pose.rots, pose.positions, self.cam.C, L, sun)
         polygons = visible_polygons(batch, pose, vis, colours)
         faces, face_colours, face_start = polygons.faces, polygons.colours, polygons.face_start
         seen, decal_quads, seen_start = polygons.decals, polygons.decal_quads, polygons.decal_seen_start

@@ -92,11 +92,14 @@ def actor_batch(models: list[BodyModel]) -> ActorBatch:
 
 @dataclass(frozen=True)
 class FramePose:
-    """One frame's pose of an ``ActorBatch``: per actor its rotation (A, 3, 3), m = K R rot (A, 3, 3) and
+    """One frame's pose of an ``ActorBatch``: per actor its state (A, 7: cos and sin of its heading, x, y (m),
+    length, height (m), speed (m/s)), position (A, 3: x, y, 0), rotation (A, 3, 3), m = K R rot (A, 3, 3) and
     tvec = K R (position - C) (A, 3); per point its pixel (N, 2), the same x 16 rounded (int32, the drawing's fixed
     point) and depth; per actor (lists) its part corners' nearest depth and pixel minimum and maximum (x, y), and
     all its points' pixel box [x1, y1, x2, y2] (what its drawing may reach)."""
 
+    state: np.ndarray
+    positions: np.ndarray
     rots: np.ndarray
     m: np.ndarray
     tvec: np.ndarray
@@ -111,10 +114,15 @@ class FramePose:
 
 def pose_frame(batch: ActorBatch, actors: list[Actor], cam: PinholeCamera) -> FramePose:
     """Every actor's body model posed and projected (``FramePose``), every point in one product."""
-    cs = [(math.cos(a.heading_rad), math.sin(a.heading_rad)) for a in actors]
-    rots = np.array([[[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]] for c, s in cs])
+    state = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m,
+                       a.height_m, a.speed_mps) for a in actors])
+    c, s = state[:, 0], state[:, 1]
+    rots = np.zeros((len(actors), 3, 3))
+    rots[:, 0, 0], rots[:, 0, 1], rots[:, 1, 0], rots[:, 1, 1], rots[:, 2, 2] = c, -s, s, c, 1.0
     m = cam.KR @ rots  # (A, 3, 3)
-    tvec = (np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]) - cam.C) @ cam.KR.T  # (A, 3)
+    positions = np.zeros((len(actors), 3))
+    positions[:, :2] = state[:, 2:4]
+    tvec = (positions - cam.C) @ cam.KR.T  # (A, 3)
     h = np.einsum("nij,nj->ni", m[batch.owner], batch.points) + tvec[batch.owner]
     depth = h[:, 2]
     uv = h[:, :2] / np.where(depth > NEAR_M, depth, 1.0)[:, None]
@@ -123,8 +131,8 @@ def pose_frame(batch: ActorBatch, actors: list[Actor], cam: PinholeCamera) -> Fr
     lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
     # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
     box = np.hstack([np.minimum(lo[::2], lo[1::2]), np.maximum(hi[::2], hi[1::2])]).tolist()
-    return FramePose(rots, m, tvec, uv, np.round(uv * 16).astype(np.int32), depth, near, lo[::2].tolist(),
-                     hi[::2].tolist(), box)
+    return FramePose(state, positions, rots, m, tvec, uv, np.round(uv * 16).astype(np.int32), depth, near,
+                     lo[::2].tolist(), hi[::2].tolist(), box)
 
 
 def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
@@ -142,15 +150,13 @@ def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
     return [k for _d, k in out]
 
 
-def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, list[tuple[int, int, int, int] | None]]:
-    """Headlight pools of ``actors``: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing takes)
+def pool_quads(pose: FramePose, cam: PinholeCamera) -> tuple[np.ndarray, list[tuple[int, int, int, int] | None]]:
+    """Headlight pools of the posed actors: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing takes)
     and per pool the box its blurred light may reach (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of
     anti-aliasing and the 7 x 7 blur's 3 px beyond it, cut to the image and 3 px beyond it: what the blur reads),
     None when the pool is behind the camera or its box in the image is under 2 px either way. The pool: a trapezoid
     on the road from 0.5 to 18 m ahead of the front bumper."""
-    cs = np.array([(math.cos(a.heading_rad), math.sin(a.heading_rad), a.pos_x_m, a.pos_y_m, a.length_m)
-                   for a in actors]).reshape(-1, 5)
-    c, s_, px, py, length = (cs[:, i:i + 1] for i in range(5))
+    c, s_, px, py, length = (pose.state[:, i:i + 1] for i in range(5))
     fx, fy = px + c * length / 2, py + s_ * length / 2
     lx, ly = POOL_LOCAL_M[:, 0], POOL_LOCAL_M[:, 1]
     pts = np.stack([fx + lx * c - ly * s_, fy + lx * s_ + ly * c, np.zeros_like(fx + lx)], axis=-1)
@@ -165,7 +171,7 @@ def pool_quads(actors: list[Actor], cam: PinholeCamera) -> tuple[np.ndarray, lis
                                                                                         strict=True)]
 
 
-def shadow_outlines(batch: ActorBatch, pose: FramePose, actors: list[Actor], which: list[int], sun: np.ndarray,
+def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: np.ndarray,
                     cam: PinholeCamera, ground_m: np.ndarray, ground_t: np.ndarray
                     ) -> dict[int, tuple[tuple[int, int, int, int], np.ndarray]]:
     """Per actor in ``which``, its cast shadow's box in the image (x1, y1, x2, y2: floor to ceil + 1 of its pixels,
@@ -177,8 +183,7 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, actors: list[Actor], whi
     the image of a hull is the hull of the image, in front of the camera)."""
     local = batch.points[batch.corner_idx]  # (Nc, 3)
     owner = batch.corner_owner
-    xy = np.array([(a.pos_x_m, a.pos_y_m) for a in actors])
-    ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + xy[owner]
+    ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + pose.state[owner, 2:4]
               - local[:, 2:3] * (sun[:2] / max(sun[2], 0.25))).astype(np.float32)
     h = ground.astype(float) @ ground_m - ground_t
     starts = batch.corner_start
@@ -198,11 +203,11 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, actors: list[Actor], whi
     return out
 
 
-def blur_vectors(actors: list[Actor], pose: FramePose, exposure_s: float) -> list[np.ndarray | None]:
+def blur_vectors(pose: FramePose, exposure_s: float) -> list[np.ndarray | None]:
     """Per actor, the image motion (px) of its centre during the exposure, from its pose (m, tvec), all in one
     product; None below 0.5 m/s, below 1.5 px, or behind the camera."""
     m, tvec = pose.m, pose.tvec
-    hz, speed = np.array([(a.height_m / 2, a.speed_mps) for a in actors]).T
+    hz, speed = pose.state[:, 5] / 2, pose.state[:, 6]
     run = speed * exposure_s
     h0 = m[:, :, 2] * hz[:, None] + tvec  # the centre (0, 0, h/2), and (run, 0, h/2)
     h1 = h0 + m[:, :, 0] * run[:, None]
