@@ -30,9 +30,9 @@ from sim.render_effects import (
     halo_falloff,
     halo_numbers,
     hidden_lamps,
+    lamp_strength,
     line_kernel,
     lit_bgr,
-    queue_lamp_glow,
     shade_faces,
     unlit_bgr,
 )
@@ -227,12 +227,8 @@ class Renderer:
         self._dirty.clear()
         return self._canvas
 
-    def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
-                   frame_index: int) -> np.ndarray:
-        """The lamp halos (``glows`` and the light bars' ``bar_halos``), then exposure and sensor noise."""
-        glows.extend(tuple(v) for v in bar_halos.values())
-        if glows:
-            self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
+    def _expose_frame(self, img: np.ndarray, lighting: str, t_s: float, frame_index: int) -> np.ndarray:
+        """The drawn canvas through the sensor: exposure and noise (``sim.sensor``)."""
         if self.exposure_enabled and self.noise_enabled and self.keeps_noisy_scene:
             return self._expose_with_noise(img, lighting, t_s, frame_index)
         if self.exposure_enabled:
@@ -284,12 +280,9 @@ class Renderer:
         lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         actors = snapshot.actors
-        glows: list[tuple[np.ndarray, tuple, float]] = []
-        glow_rank: list[int] = []  # per glow, its vehicle's place in ``drawn`` (far to near)
-        lamp_pts: dict[tuple[str, str], list] = {}
         order = painter_order(actors, self.cam)
         if not order:
-            return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+            return self._expose_frame(img, lighting, t, frame_index)
         batch = self._batch([self._model(a) for a in actors])
         pose = pose_frame(batch, actors, self.cam)
         near, lo, hi = pose.near, pose.lo, pose.hi
@@ -311,13 +304,15 @@ class Renderer:
                 self._draw_headlight_pool(img, pool_uv16[k], pool_boxes[k], pool_colour)
         drawn = [k for k in drawn if hi[k][0] >= 0 and lo[k][0] < w]  # (in view, not only their shadows)
         if not drawn:
-            return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+            return self._expose_frame(img, lighting, t, frame_index)
         blurs = blur_vectors(pose, L["exposure_s"]) if self.blur_enabled else None
         vis, colours = shade_faces(batch, pose.rots, pose.positions, self.cam.C, L, sun)
         polygons = visible_polygons(batch, pose, vis, colours)
         faces, face_colours, face_start = polygons.faces, polygons.colours, polygons.face_start
         seen, decal_quads, seen_start = polygons.decals, polygons.decal_quads, polygons.decal_seen_start
         uv, uv16, point_start, decal_start = pose.uv, pose.uv16, batch.point_start, batch.decal_start.tolist()
+        lamps: list[tuple[int, tuple, float, int]] = []  # lit lamp faces: (first point, colour, strength, place)
+        bars: dict[tuple[int, str], list] = {}  # a light bar's colour: [its faces' first points, colour, strength]
         fill = cv2.fillConvexPoly
         for place, k in enumerate(drawn):
             a, model = actors[k], batch.models[k]
@@ -332,8 +327,7 @@ class Renderer:
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             off = self._off_colours(model, lighting)
-            n_glows = len(glows)
-            d0, q0 = decal_start[k], point_start[k] + 8 * len(parts)
+            d0, q0, bar_part = decal_start[k], point_start[k] + 8 * len(parts), len(parts) - 1
             for j in range(seen_start[k], seen_start[k + 1]):
                 k_dc = seen[j] - d0
                 dc = decals[k_dc]
@@ -344,18 +338,21 @@ class Renderer:
                     continue  # the tail light under it shows
                 colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
                 fill(img, decal_quads[j], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
-                if colour is not None:
-                    q = q0 + 4 * k_dc
-                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on,
-                                    uv[q:q + 4], colour)
+                if colour is not None:  # its halo (sim.render_effects.queue_lamp_glow's grouping)
+                    if dc.part == bar_part and dc.lamp.startswith("ev"):
+                        bar = bars.get((place, dc.lamp))
+                        if bar is None:
+                            bars[place, dc.lamp] = [[q0 + 4 * k_dc], colour, 1.0]
+                        else:
+                            bar[0].append(q0 + 4 * k_dc)
+                    else:
+                        lamps.append((q0 + 4 * k_dc, colour, lamp_strength(dc.lamp, a.brake_on), place))
             if blurs is not None and blurs[k] is not None:
                 self._motion_blur(img, (*lo[k], *hi[k]), blurs[k])
-            glow_rank.extend([place] * (len(glows) - n_glows))
-        if glows or lamp_pts:
-            glows, lamp_pts = self._lamps_in_view(glows, glow_rank, lamp_pts, [actors[k] for k in drawn],
-                                                  np.array([(*lo[k], *hi[k]) for k in drawn], float),
-                                                  [batch.silhouettes[k] for k in drawn], uv)
-        return self._frame_end(img, glows, lamp_pts, lighting, t, frame_index)
+        if lamps or bars:
+            self._draw_halos(img, self._lamp_halos(uv, lamps, bars, np.array([(*lo[k], *hi[k]) for k in drawn], float),
+                                                   [batch.silhouettes[k] for k in drawn], L["glow"]))
+        return self._expose_frame(img, lighting, t, frame_index)
 
     def _batch(self, models: list[BodyModel]) -> ActorBatch:
         """The ``sim.render_pose.ActorBatch`` of a snapshot's body models, kept while its actors keep their looks
@@ -366,18 +363,28 @@ class Renderer:
         return self._last_batch[1]
 
     @staticmethod
-    def _lamps_in_view(glows: list, glow_rank: list[int], bar_halos: dict, drawn: list[Actor], bounds: np.ndarray,
-                       silhouettes: list[np.ndarray], uv: np.ndarray) -> tuple[list, dict]:
-        """The lit lamps (``glows`` with their vehicles' places in ``drawn``, and the light bars' ``bar_halos``)
-        that no nearer vehicle hides (``sim.render_effects.hidden_lamps``; per drawn vehicle its pixel ``bounds`` and
-        its silhouette parts' corners' indices into the frame's pixels ``uv``)."""
-        rank = {a.actor_id: k for k, a in enumerate(drawn)}
-        keys = list(bar_halos)
-        hidden = hidden_lamps([(g[0], r) for g, r in zip(glows, glow_rank, strict=True)]
-                              + [(bar_halos[key][0], rank[key[0]]) for key in keys], bounds,
+    def _lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float, int]], bars: dict, bounds: np.ndarray,
+                    silhouettes: list[np.ndarray], scale: float) -> list[tuple]:
+        """The halos (``sim.render_effects.halo_numbers``) of the lit lamps no nearer vehicle hides
+        (``sim.render_effects.hidden_lamps``): ``lamps`` (each face's first point in the frame's pixels ``uv``, colour,
+        strength and its vehicle's place in the drawing order) and the light ``bars`` (per (place, lamp) its faces'
+        first points, colour and strength); per drawn vehicle its pixel ``bounds`` and its silhouette parts'
+        corners' indices into ``uv``."""
+        bar_list = list(bars.items())
+        firsts = [q for q, _c, _s, _p in lamps] + [q for _key, (qs, _c, _s) in bar_list for q in qs]
+        faces = uv[np.array(firsts)[:, None] + np.arange(4)]  # (F, 4, 2)
+        counts = [1] * len(lamps) + [len(qs) for _key, (qs, _c, _s) in bar_list]
+        hidden = hidden_lamps(faces, counts, [p for *_l, p in lamps] + [place for (place, _l), _v in bar_list], bounds,
                               lambda k: uv[silhouettes[k]])
-        return ([g for g, h in zip(glows, hidden, strict=False) if not h],
-                {key: bar_halos[key] for key, h in zip(keys, hidden[len(glows):], strict=True) if not h})
+        n = len(lamps)
+        seen = [i for i in range(n) if not hidden[i]]
+        visible_bars, start = [], n
+        for j, (_key, (qs, colour, strength)) in enumerate(bar_list):
+            if not hidden[n + j]:
+                visible_bars.append((faces[start:start + len(qs)].reshape(-1, 2), colour, strength))
+            start += len(qs)
+        return halo_numbers(faces[seen], [lamps[i][1] for i in seen], [lamps[i][2] for i in seen], visible_bars,
+                            scale)
 
     def _motion_blur(self, img: np.ndarray, bounds: tuple[float, float, float, float], vec: np.ndarray) -> None:
         """Blur a vehicle's ROI (``bounds``: x_lo, y_lo, x_hi, y_hi of its corners' pixels) along its image
@@ -422,10 +429,10 @@ class Renderer:
             self._glow_cache[key] = sprite
         return sprite
 
-    def _draw_glows(self, img: np.ndarray, glows, scale: float) -> None:
-        """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only (the halos'
-        numbers: ``sim.render_effects.halo_numbers``)."""
-        for cx, cy, r, col, hot, core in halo_numbers(glows, scale):
+    def _draw_halos(self, img: np.ndarray, halos: list[tuple]) -> None:
+        """Additive halos around lamps that are on (bloom: ``sim.render_effects.halo_numbers``), from cached sprites on
+        small ROIs only."""
+        for cx, cy, r, col, hot, core in halos:
             sprite = self._glow_cache.get((r, col, hot, core))
             if sprite is None:
                 sprite = self._glow_sprite(r, col, hot, core)

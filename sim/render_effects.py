@@ -59,28 +59,26 @@ def halo_falloff(r: int) -> np.ndarray:
     return fall
 
 
-def halo_numbers(glows: list[tuple[np.ndarray, tuple, float]], scale: float) -> list[tuple]:
-    """Per lamp that is on (its pixel points (N, 2), colour BGR, strength), its halo: (centre x, y in whole pixels,
-    radius r = clip(0.55 size scale, 3, 60) with size = max(2, the points' extent), colour times
-    min(1, strength (0.6 + 0.25 scale)) truncated, hot core when strength >= 1, core radius max(1, size / 12)).
-    The four-point lamps are computed together; a light bar's halo spans its faces' points. Saturated adds commute,
-    so the order of the halos returned is not the order given."""
-    quads = [g for g in glows if len(g[0]) == 4]
-    glows = quads + [g for g in glows if len(g[0]) != 4]
+def halo_numbers(quads: np.ndarray, quad_colours: list, quad_strengths: list[float], bars: list[tuple], scale: float
+                 ) -> list[tuple]:
+    """Per lamp that is on, its halo: (centre x, y in whole pixels, radius r = clip(0.55 size scale, 3, 60) with
+    size = max(2, the points' extent), colour times min(1, strength (0.6 + 0.25 scale)) truncated, hot core when
+    strength >= 1, core radius max(1, size / 12)). The lamps: four-point faces (``quads`` (G, 4, 2) px, each with
+    its colour BGR and strength), computed together, and light bars (``bars``: per bar its faces' points (4k, 2),
+    colour and strength), whose halo spans their faces. Saturated adds commute, so the halos come in any order."""
     centres, sizes = [], []
-    if quads:
-        pts = np.stack([g[0] for g in quads])  # (G, 4, 2)
-        centres.append(pts.mean(axis=1))
-        sizes.append(np.ptp(pts, axis=1).max(axis=1))
-    for pts, _c, _s in glows[len(quads):]:
+    if len(quads):
+        centres.append(quads.mean(axis=1))
+        sizes.append(np.ptp(quads, axis=1).max(axis=1))
+    for pts, _c, _s in bars:
         centres.append(pts.mean(axis=0)[None])
         sizes.append(np.ptp(pts, axis=0).max(keepdims=True))
-    if not glows:
+    if not centres:
         return []
     centres, sizes = np.concatenate(centres), np.maximum(2.0, np.concatenate(sizes))
     radii = np.clip(sizes * 0.55 * scale, 3, 60).astype(int).tolist()
-    strengths = np.array([st for _p, _c, st in glows])
-    cols = (np.array([c for _p, c, _s in glows], float)
+    strengths = np.array([*quad_strengths, *(st for _p, _c, st in bars)], float)
+    cols = (np.array([*quad_colours, *(c for _p, c, _s in bars)], float)
             * np.minimum(1.0, strengths * (0.6 + 0.25 * scale))[:, None]).astype(int).tolist()
     cores = np.maximum(1, (sizes / 12).astype(int)).tolist()
     return [(cx, cy, r, tuple(col), hot, core) for (cx, cy), r, col, hot, core in
@@ -102,12 +100,18 @@ def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, came
     return vis, np.clip(batch.base_bgr * shade[..., None] * lighting["scene_gain"], 0, 255)
 
 
+def lamp_strength(lamp: str, brake_on: bool) -> float:
+    """How strongly a lit lamp glows: 1 for an EV lamp, ``SIGNAL_GLOW`` for a flasher or turn signal, 0.55 / 0.3 for
+    a tail lamp braking / not."""
+    return 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
+
+
 def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_bar: bool, brake_on: bool,
                     puv: np.ndarray, colour) -> None:
-    """Queue the halo of a lit lamp face (its pixel points ``puv``): strength 1 for an EV lamp, ``SIGNAL_GLOW`` for
-    a flasher or turn signal, 0.55 / 0.3 for a tail lamp braking / not; the faces of one light-bar colour
+    """Queue the halo of a lit lamp face (its pixel points ``puv``) with its ``lamp_strength``; the faces of one
+    light-bar colour
     (``on_bar``: an EV lamp on the body's last part) share one halo, gathered in ``bar_halos``."""
-    strength = 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
+    strength = lamp_strength(lamp, brake_on)
     if lamp.startswith("ev") and on_bar:
         key = (actor_id, lamp)
         if key in bar_halos:
@@ -150,39 +154,38 @@ def unlit_bgr(colour, lamp: str | None, lighting: dict) -> list:
                    * (lighting["ambient"] + 0.5 * lighting["sun"]) * gain * 1.3, 0, 255).tolist()
 
 
-def hidden_lamps(lamps: list[tuple[np.ndarray, int]], bounds: np.ndarray,
+def hidden_lamps(faces: np.ndarray, counts: list[int], ranks: list[int], bounds: np.ndarray,
                  silhouettes: Callable[[int], np.ndarray]) -> list[bool]:
-    """Which lit lamps are hidden behind nearer vehicles, so that they throw no halo. Per lamp in ``lamps``: its k
-    face quads in pixels (4k, 2) and its vehicle's place in the painter's order (far to near); per vehicle in that
-    order, its pixel bounds (x_lo, y_lo, x_hi, y_hi) in ``bounds`` (A, 4) and its silhouette parts' projected
-    corners (P, 8, 2) from ``silhouettes(place)`` (asked only for the vehicles a test needs). A lamp is hidden when
-    the centre of every one of its faces lies inside a part of a vehicle drawn after it: one bounds test for all
-    lamps and vehicles, then ``inside_convex_hulls`` for every (face, part) pair that test leaves, together (issue
-    19: a hull and a point test per pair cost 0.2 ms a frame, these 0.16). A halo is the lens's image of a lamp it
-    sees: without this test a hidden EV's light bar glowed through the bus in front of it (simulator, ev_bench
-    tuning seed 80442, rsu4: a false alert on the bus)."""
-    if not lamps:
+    """Which lit lamps are hidden behind nearer vehicles, so that they throw no halo. The lamps' face quads in
+    pixels (F, 4, 2), lamp by lamp: ``counts[i]`` faces of lamp i, whose vehicle has place ``ranks[i]`` in the
+    painter's order (far to near); per vehicle in that order, its pixel bounds (x_lo, y_lo, x_hi, y_hi) in
+    ``bounds`` (A, 4) and its silhouette parts' projected corners (P, 8, 2) from ``silhouettes(place)`` (asked only
+    for the vehicles a test needs). A lamp is hidden when the centre of every one of its faces lies inside a part of
+    a vehicle drawn after it: one bounds test for all faces and vehicles, then ``inside_convex_hulls`` for every
+    (face, part) pair that test leaves, together (issue 19: a hull and a point test per pair cost 0.2 ms a frame,
+    these 0.16). A halo is the lens's image of a lamp it sees: without this test a hidden EV's light bar glowed
+    through the bus in front of it (simulator, ev_bench tuning seed 80442, rsu4: a false alert on the bus)."""
+    if not counts:
         return []
-    sizes = [len(pts) // 4 for pts, _r in lamps]
-    centres = np.concatenate([pts for pts, _r in lamps]).reshape(-1, 4, 2).mean(axis=1)  # (F, 2)
-    ranks = np.repeat([r for _p, r in lamps], sizes)
+    centres = faces.mean(axis=1)  # (F, 2)
+    face_ranks = np.repeat(ranks, counts)
     bounds = np.asarray(bounds, float).reshape(-1, 4)
     inside = ((centres[:, :1] >= bounds[:, 0]) & (centres[:, :1] <= bounds[:, 2]) & (centres[:, 1:] >= bounds[:, 1])
-              & (centres[:, 1:] <= bounds[:, 3]) & (np.arange(len(bounds)) > ranks[:, None]))  # (F, A)
-    faces, vehicles = np.nonzero(inside)
+              & (centres[:, 1:] <= bounds[:, 3]) & (np.arange(len(bounds)) > face_ranks[:, None]))  # (F, A)
+    pair_faces, vehicles = np.nonzero(inside)
     covered = np.zeros(len(centres), bool)
-    if len(faces):
+    if len(pair_faces):
         wanted = np.unique(vehicles).tolist()
         parts = [silhouettes(a) for a in wanted]
         count = np.zeros(len(bounds), int)
         count[wanted] = [len(p) for p in parts]
         first = np.cumsum(count) - count  # each wanted vehicle's first part in the concatenation
         n = count[vehicles]  # per (face, vehicle) pair, its vehicle's parts
-        pair = np.repeat(np.arange(len(faces)), n)
+        pair = np.repeat(np.arange(len(pair_faces)), n)
         part = first[vehicles][pair] + np.arange(len(pair)) - np.repeat(np.cumsum(n) - n, n)
-        hit = inside_convex_hulls(centres[faces[pair]], np.concatenate(parts)[part])
-        covered[faces[pair[hit]]] = True
-    return np.logical_and.reduceat(covered, np.cumsum([0, *sizes[:-1]])).tolist()  # (every lamp has a face)
+        hit = inside_convex_hulls(centres[pair_faces[pair]], np.concatenate(parts)[part])
+        covered[pair_faces[pair[hit]]] = True
+    return np.logical_and.reduceat(covered, np.cumsum([0, *counts[:-1]])).tolist()  # (every lamp has a face)
 
 
 def inside_convex_hulls(points: np.ndarray, corners: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from sim.camera import NEAR_M
 from sim.lamps import signal_on
 from sim.render import Renderer
 from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
+from sim.scenery import LIGHTING
 from sim.sensor import exposure_lut
 
 
@@ -197,6 +198,14 @@ class ReferenceRenderer(Renderer):
         col = tuple(int(v * strength) for v in (70, 95, 110))
         cv2.fillConvexPoly(pool, np.round((uv - (x1, y1)) * 16).astype(np.int32), col, cv2.LINE_AA, 4)
         self._add_at(img, cv2.blur(pool, (7, 7)), x1, y1)
+
+    def _frame_end(self, img: np.ndarray, glows: list, bar_halos: dict, lighting: str, t_s: float,
+                   frame_index: int) -> np.ndarray:
+        """The lamp halos (``glows`` and the light bars' ``bar_halos``), then exposure and sensor noise."""
+        glows.extend(tuple(v) for v in bar_halos.values())
+        if glows:
+            self._draw_glows(img, glows, LIGHTING[lighting]["glow"])
+        return self._expose_frame(img, lighting, t_s, frame_index)
 
     def _draw_glows(self, img: np.ndarray, glows, scale: float) -> None:
         """Additive halo around lamps that are on (bloom), from cached sprites on small ROIs only."""

@@ -44,8 +44,11 @@ def test_halo_numbers_match_the_per_lamp_loop():
         r = int(min(60, max(3, size * 0.55 * scale)))
         col = tuple(int(c * min(1.0, strength * (0.6 + 0.25 * scale))) for c in colour)
         expected.add((int(round(cx)), int(round(cy)), r, col, strength >= 1.0, max(1, int(size / 12))))
-    assert set(halo_numbers(glows, scale)) == expected
-    assert halo_numbers([], scale) == []
+    quads = [g for g in glows if len(g[0]) == 4]
+    bars = [g for g in glows if len(g[0]) != 4]
+    got = halo_numbers(np.array([q[0] for q in quads]), [q[1] for q in quads], [q[2] for q in quads], bars, scale)
+    assert set(got) == expected
+    assert halo_numbers(np.zeros((0, 4, 2)), [], [], [], scale) == []
 
 
 def test_shade_faces_of_several_actors_equal_each_actors_own():
@@ -91,10 +94,11 @@ def test_a_lamp_behind_a_nearer_vehicle_is_hidden_and_one_beside_it_is_not():
     parts = [np.array([_box_corners(*b)]) for b in bounds]
     behind = np.array([[118, 118], [122, 118], [122, 122], [118, 122]], float)  # inside the nearer box
     above = behind - (0, 14)  # above the nearer box's top: in view
-    lamps = [(behind, 0), (above, 0), (behind, 1), (np.vstack([behind, above]), 0)]
-    # the last: a light bar over two faces, in view while any face is; nothing is drawn after the nearest vehicle
-    assert hidden_lamps(lamps, bounds, parts.__getitem__) == [True, False, False, False]
-    assert hidden_lamps([], bounds, parts.__getitem__) == []
+    faces = np.array([behind, above, behind, behind, above])  # the last lamp: a light bar over two faces
+    counts, ranks = [1, 1, 1, 2], [0, 0, 1, 0]
+    # the bar is in view while any face is; nothing is drawn after the nearest vehicle
+    assert hidden_lamps(faces, counts, ranks, bounds, parts.__getitem__) == [True, False, False, False]
+    assert hidden_lamps(np.zeros((0, 4, 2)), [], [], bounds, parts.__getitem__) == []
 
 
 @pytest.mark.parametrize("renderer", ["cached", "reference"])
