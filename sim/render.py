@@ -161,21 +161,21 @@ class Renderer:
     def _draw_headlight_pool(self, img: np.ndarray, uv16: np.ndarray, box: tuple[int, int, int, int],
                              colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
-        (``uv16``: x 16 rounded) filled anti-aliased in ``colour`` on the canvas ``box`` (``sim.render_pose.pool_quads``:
+        (``uv16``: x 16 rounded, from the box's top-left corner) filled anti-aliased in ``colour`` on the canvas ``box`` (``sim.render_pose.pool_quads``:
         the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond the box) and added to the image."""
         x1, y1, x2, y2 = box
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
-        cv2.fillConvexPoly(pool, uv16 - (16 * x1, 16 * y1), colour, cv2.LINE_AA, 4)  # (whole pixels: the same points)
+        cv2.fillConvexPoly(pool, uv16, colour, cv2.LINE_AA, 4)
         self._add_at(img, cv2.blur(pool, (7, 7), borderType=cv2.BORDER_CONSTANT), x1, y1)
 
     def _draw_shadow(self, img: np.ndarray, box: tuple[int, int, int, int], outline16: np.ndarray,
                      strength: float) -> None:
-        """Cast shadow on the road, its pixel outline x 16 (``outline16``; its ``box`` in the image:
+        """Cast shadow on the road, its pixel outline x 16 (``outline16``, from its ``box``'s top-left corner:
         ``sim.render_pose.shadow_outlines``) darkened: v * round(256 (1 - strength)) >> 8 (a saturating scale
         rounded down) where the anti-aliased polygon covers more than half."""
         x1, y1, x2, y2 = box
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        cv2.fillConvexPoly(mask, outline16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
+        cv2.fillConvexPoly(mask, outline16, 255, cv2.LINE_AA, 4)
         self._dirty.mark(x1, y1, x2, y2)
         cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY, dst=mask)
         roi = img[y1:y2, x1:x2]

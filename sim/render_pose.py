@@ -151,8 +151,8 @@ def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
 
 
 def pool_quads(pose: FramePose, cam: PinholeCamera) -> tuple[np.ndarray, list[tuple[int, int, int, int] | None]]:
-    """Headlight pools of the posed actors: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing takes)
-    and per pool the box its blurred light may reach (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of
+    """Headlight pools of the posed actors: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing
+    takes) on each pool's canvas (from its box's top-left corner), and per pool the box its blurred light may reach (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of
     anti-aliasing and the 7 x 7 blur's 3 px beyond it, cut to the image and 3 px beyond it: what the blur reads),
     None when the pool is behind the camera or its box in the image is under 2 px either way. The pool: a trapezoid
     on the road from 0.5 to 18 m ahead of the front bumper."""
@@ -166,16 +166,17 @@ def pool_quads(pose: FramePose, cam: PinholeCamera) -> tuple[np.ndarray, list[tu
     lo, hi = np.floor(uv.min(axis=1)).astype(int) - 4, np.ceil(uv.max(axis=1)).astype(int) + 5
     o_lo, o_hi = np.maximum(lo, 0), np.minimum(hi, (w, h))  # in the image
     ok = (depth.reshape(-1, 4) > NEAR_M).all(axis=1) & (o_hi - o_lo >= 2).all(axis=1)
-    boxes = np.hstack([np.maximum(lo, o_lo - 3), np.minimum(hi, o_hi + 3)]).tolist()
-    return np.round(uv * 16).astype(np.int32), [tuple(b) if k else None for b, k in zip(boxes, ok.tolist(),
-                                                                                        strict=True)]
+    boxes = np.hstack([np.maximum(lo, o_lo - 3), np.minimum(hi, o_hi + 3)])
+    quads16 = np.round(uv * 16).astype(np.int32) - 16 * boxes[:, None, :2].astype(np.int32)  # on each canvas
+    return quads16, [tuple(b) if k else None for b, k in zip(boxes.tolist(), ok.tolist(), strict=True)]
 
 
 def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: np.ndarray,
                     cam: PinholeCamera, ground_m: np.ndarray, ground_t: np.ndarray
                     ) -> dict[int, tuple[tuple[int, int, int, int], np.ndarray]]:
     """Per actor in ``which``, its cast shadow's box in the image (x1, y1, x2, y2: floor to ceil + 1 of its pixels,
-    cut to the image) and outline in pixels x 16 rounded (K, 2 int32, the drawing's fixed point), left out when any
+    cut to the image) and outline in pixels x 16 rounded (K, 2 int32, the drawing's fixed point) from the box's
+    top-left corner, left out when any
     of it is behind the camera or its box is under 2 px either way: the part corners projected along the unit
     vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull``
     takes them), every actor's in one product, and into the image (a road point (x, y) -> homogeneous pixel
@@ -189,9 +190,9 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: n
     starts = batch.corner_start
     near = np.minimum.reduceat(h[:, 2], starts[:-1]).tolist()
     uv = h[:, :2] / np.where(h[:, 2:] > NEAR_M, h[:, 2:], 1.0)
-    uv16 = np.round(uv * 16).astype(np.int32)
     lo = np.maximum(np.floor(np.minimum.reduceat(uv, starts[:-1])), 0).astype(int)
     hi = np.minimum(np.ceil(np.maximum.reduceat(uv, starts[:-1])) + 1, (cam.width_px, cam.height_px)).astype(int)
+    uv16 = np.round(uv * 16).astype(np.int32) - 16 * lo[owner].astype(np.int32)  # on each shadow's mask
     boxes = np.hstack([lo, hi]).tolist()
     out = {}
     for k in which:
