@@ -28,8 +28,7 @@ from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
     halo_falloff,
-    halo_numbers,
-    hidden_lamps,
+    lamp_halos,
     lamp_strength,
     line_kernel,
     lit_bgr,
@@ -350,7 +349,7 @@ class Renderer:
             if blurs is not None and blurs[k] is not None:
                 self._motion_blur(img, (*lo[k], *hi[k]), blurs[k])
         if lamps or bars:
-            self._draw_halos(img, self._lamp_halos(uv, lamps, bars, np.array([(*lo[k], *hi[k]) for k in drawn], float),
+            self._draw_halos(img, lamp_halos(uv, lamps, bars, np.array([(*lo[k], *hi[k]) for k in drawn], float),
                                                    [batch.silhouettes[k] for k in drawn], L["glow"]))
         return self._expose_frame(img, lighting, t, frame_index)
 
@@ -361,30 +360,6 @@ class Renderer:
         if self._last_batch is None or self._last_batch[0] != key:
             self._last_batch = (key, actor_batch(models))
         return self._last_batch[1]
-
-    @staticmethod
-    def _lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float, int]], bars: dict, bounds: np.ndarray,
-                    silhouettes: list[np.ndarray], scale: float) -> list[tuple]:
-        """The halos (``sim.render_effects.halo_numbers``) of the lit lamps no nearer vehicle hides
-        (``sim.render_effects.hidden_lamps``): ``lamps`` (each face's first point in the frame's pixels ``uv``, colour,
-        strength and its vehicle's place in the drawing order) and the light ``bars`` (per (place, lamp) its faces'
-        first points, colour and strength); per drawn vehicle its pixel ``bounds`` and its silhouette parts'
-        corners' indices into ``uv``."""
-        bar_list = list(bars.items())
-        firsts = [q for q, _c, _s, _p in lamps] + [q for _key, (qs, _c, _s) in bar_list for q in qs]
-        faces = uv[np.array(firsts)[:, None] + np.arange(4)]  # (F, 4, 2)
-        counts = [1] * len(lamps) + [len(qs) for _key, (qs, _c, _s) in bar_list]
-        hidden = hidden_lamps(faces, counts, [p for *_l, p in lamps] + [place for (place, _l), _v in bar_list], bounds,
-                              lambda k: uv[silhouettes[k]])
-        n = len(lamps)
-        seen = [i for i in range(n) if not hidden[i]]
-        visible_bars, start = [], n
-        for j, (_key, (qs, colour, strength)) in enumerate(bar_list):
-            if not hidden[n + j]:
-                visible_bars.append((faces[start:start + len(qs)].reshape(-1, 2), colour, strength))
-            start += len(qs)
-        return halo_numbers(faces[seen], [lamps[i][1] for i in seen], [lamps[i][2] for i in seen], visible_bars,
-                            scale)
 
     def _motion_blur(self, img: np.ndarray, bounds: tuple[float, float, float, float], vec: np.ndarray) -> None:
         """Blur a vehicle's ROI (``bounds``: x_lo, y_lo, x_hi, y_hi of its corners' pixels) along its image

@@ -188,6 +188,30 @@ def hidden_lamps(faces: np.ndarray, counts: list[int], ranks: list[int], bounds:
     return np.logical_and.reduceat(covered, np.cumsum([0, *counts[:-1]])).tolist()  # (every lamp has a face)
 
 
+def lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float, int]], bars: dict, bounds: np.ndarray,
+                silhouettes: list[np.ndarray], scale: float) -> list[tuple]:
+    """The halos (``halo_numbers``) of a frame's lit lamps that no nearer vehicle hides (``hidden_lamps``), all
+    together: ``lamps`` (each face's first point in the frame's pixels ``uv``, colour,
+    strength and its vehicle's place in the drawing order) and the light ``bars`` (per (place, lamp) its faces'
+    first points, colour and strength); per drawn vehicle its pixel ``bounds`` and its silhouette parts'
+    corners' indices into ``uv``."""
+    bar_list = list(bars.items())
+    firsts = [q for q, _c, _s, _p in lamps] + [q for _key, (qs, _c, _s) in bar_list for q in qs]
+    faces = uv[np.array(firsts)[:, None] + np.arange(4)]  # (F, 4, 2)
+    counts = [1] * len(lamps) + [len(qs) for _key, (qs, _c, _s) in bar_list]
+    hidden = hidden_lamps(faces, counts, [p for *_l, p in lamps] + [place for (place, _l), _v in bar_list], bounds,
+                          lambda k: uv[silhouettes[k]])
+    n = len(lamps)
+    seen = [i for i in range(n) if not hidden[i]]
+    visible_bars, start = [], n
+    for j, (_key, (qs, colour, strength)) in enumerate(bar_list):
+        if not hidden[n + j]:
+            visible_bars.append((faces[start:start + len(qs)].reshape(-1, 2), colour, strength))
+        start += len(qs)
+    return halo_numbers(faces[seen], [lamps[i][1] for i in seen], [lamps[i][2] for i in seen], visible_bars,
+                        scale)
+
+
 def inside_convex_hulls(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """Per point (M, 2), whether it lies strictly inside the convex hull of its corners (M, K, 2), without making the
     hulls: a point is inside exactly when the directions from it to the corners leave no angular gap of pi or more
