@@ -29,9 +29,9 @@ from sim.lamps import signal_on
 from sim.render_effects import (
     halo_falloff,
     lamp_halos,
-    lamp_strength,
     line_kernel,
     lit_bgr,
+    queue_lamp_glow,
     shade_faces,
     unlit_bgr,
 )
@@ -160,8 +160,9 @@ class Renderer:
     def _draw_headlight_pool(self, img: np.ndarray, uv16: np.ndarray, box: tuple[int, int, int, int],
                              colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
-        (``uv16``: x 16 rounded, from the box's top-left corner) filled anti-aliased in ``colour`` on the canvas ``box`` (``sim.render_pose.pool_quads``:
-        the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond the box) and added to the image."""
+        (``uv16``: x 16 rounded, from the box's top-left corner) filled anti-aliased in ``colour`` on the canvas
+        ``box`` (``sim.render_pose.pool_quads``: the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond
+        the box) and added to the image."""
         x1, y1, x2, y2 = box
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, uv16, colour, cv2.LINE_AA, 4)
@@ -310,8 +311,9 @@ class Renderer:
         faces, face_colours, face_start = polygons.faces, polygons.colours, polygons.face_start
         seen, decal_quads, seen_start = polygons.decals, polygons.decal_quads, polygons.decal_seen_start
         uv, uv16, point_start, decal_start = pose.uv, pose.uv16, batch.point_start, batch.decal_start.tolist()
-        lamps: list[tuple[int, tuple, float, int]] = []  # lit lamp faces: (first point, colour, strength, place)
-        bars: dict[tuple[int, str], list] = {}  # a light bar's colour: [its faces' first points, colour, strength]
+        lamps: list[tuple[int, tuple, float]] = []  # lit lamp faces: (first point, colour, strength)
+        lamp_ranks: list[int] = []  # each one's vehicle's place in ``drawn``
+        bars: dict[tuple[int, str], list] = {}  # per (place, lamp): [first points, colour, strength]
         fill = cv2.fillConvexPoly
         for place, k in enumerate(drawn):
             a, model = actors[k], batch.models[k]
@@ -326,7 +328,7 @@ class Renderer:
             sig_on = signal_on(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             off = self._off_colours(model, lighting)
-            d0, q0, bar_part = decal_start[k], point_start[k] + 8 * len(parts), len(parts) - 1
+            d0, q0, bar_part, n_lamps = decal_start[k], point_start[k] + 8 * len(parts), len(parts) - 1, len(lamps)
             for j in range(seen_start[k], seen_start[k + 1]):
                 k_dc = seen[j] - d0
                 dc = decals[k_dc]
@@ -337,20 +339,16 @@ class Renderer:
                     continue  # the tail light under it shows
                 colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
                 fill(img, decal_quads[j], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
-                if colour is not None:  # its halo (sim.render_effects.queue_lamp_glow's grouping)
-                    if dc.part == bar_part and dc.lamp.startswith("ev"):
-                        bar = bars.get((place, dc.lamp))
-                        if bar is None:
-                            bars[place, dc.lamp] = [[q0 + 4 * k_dc], colour, 1.0]
-                        else:
-                            bar[0].append(q0 + 4 * k_dc)
-                    else:
-                        lamps.append((q0 + 4 * k_dc, colour, lamp_strength(dc.lamp, a.brake_on), place))
+                if colour is not None:
+                    queue_lamp_glow(lamps, bars, (place, dc.lamp), dc.lamp, dc.part == bar_part, a.brake_on,
+                                    q0 + 4 * k_dc, colour)
+            lamp_ranks.extend([place] * (len(lamps) - n_lamps))
             if blurs is not None and blurs[k] is not None:
                 self._motion_blur(img, (*lo[k], *hi[k]), blurs[k])
         if lamps or bars:
-            self._draw_halos(img, lamp_halos(uv, lamps, bars, np.array([(*lo[k], *hi[k]) for k in drawn], float),
-                                                   [batch.silhouettes[k] for k in drawn], L["glow"]))
+            self._draw_halos(img, lamp_halos(uv, lamps, lamp_ranks, bars,
+                                             np.array([(*lo[k], *hi[k]) for k in drawn], float),
+                                             [batch.silhouettes[k] for k in drawn], L["glow"]))
         return self._expose_frame(img, lighting, t, frame_index)
 
     def _batch(self, models: list[BodyModel]) -> ActorBatch:

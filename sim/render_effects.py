@@ -100,26 +100,22 @@ def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, came
     return vis, np.clip(batch.base_bgr * shade[..., None] * lighting["scene_gain"], 0, 255)
 
 
-def lamp_strength(lamp: str, brake_on: bool) -> float:
-    """How strongly a lit lamp glows: 1 for an EV lamp, ``SIGNAL_GLOW`` for a flasher or turn signal, 0.55 / 0.3 for
-    a tail lamp braking / not."""
-    return 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
-
-
-def queue_lamp_glow(glows: list, bar_halos: dict, actor_id: str, lamp: str, on_bar: bool, brake_on: bool,
-                    puv: np.ndarray, colour) -> None:
-    """Queue the halo of a lit lamp face (its pixel points ``puv``) with its ``lamp_strength``; the faces of one
-    light-bar colour
-    (``on_bar``: an EV lamp on the body's last part) share one halo, gathered in ``bar_halos``."""
-    strength = lamp_strength(lamp, brake_on)
+def queue_lamp_glow(glows: list, bar_halos: dict, key: tuple, lamp: str, on_bar: bool, brake_on: bool, face,
+                    colour) -> None:
+    """Queue the halo of a lit lamp face (``face``: its pixel points, or what stands for them: ``sim.render`` passes
+    its first point's index) with its strength (1 for an EV lamp, ``SIGNAL_GLOW`` for a flasher or turn signal,
+    0.55 / 0.3 for a tail lamp braking / not): in ``glows`` as (face, colour, strength), or, the faces of one
+    light-bar colour (``on_bar``: an EV lamp on the body's last part), gathered under ``key`` in ``bar_halos`` as
+    [faces, colour, strength]: they share one halo."""
+    strength = 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
     if lamp.startswith("ev") and on_bar:
-        key = (actor_id, lamp)
-        if key in bar_halos:
-            bar_halos[key][0] = np.vstack([bar_halos[key][0], puv])
+        bar = bar_halos.get(key)
+        if bar is None:
+            bar_halos[key] = [[face], colour, strength]
         else:
-            bar_halos[key] = [puv, colour, strength]
+            bar[0].append(face)
     else:
-        glows.append((puv, colour, strength))
+        glows.append((face, colour, strength))
 
 
 def shadow_hull(corners: np.ndarray, sun: np.ndarray) -> np.ndarray:
@@ -188,18 +184,18 @@ def hidden_lamps(faces: np.ndarray, counts: list[int], ranks: list[int], bounds:
     return np.logical_and.reduceat(covered, np.cumsum([0, *counts[:-1]])).tolist()  # (every lamp has a face)
 
 
-def lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float, int]], bars: dict, bounds: np.ndarray,
-                silhouettes: list[np.ndarray], scale: float) -> list[tuple]:
+def lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float]], ranks: list[int], bars: dict,
+               bounds: np.ndarray, silhouettes: list[np.ndarray], scale: float) -> list[tuple]:
     """The halos (``halo_numbers``) of a frame's lit lamps that no nearer vehicle hides (``hidden_lamps``), all
-    together: ``lamps`` (each face's first point in the frame's pixels ``uv``, colour,
-    strength and its vehicle's place in the drawing order) and the light ``bars`` (per (place, lamp) its faces'
-    first points, colour and strength); per drawn vehicle its pixel ``bounds`` and its silhouette parts'
-    corners' indices into ``uv``."""
+    together. The lamps as ``queue_lamp_glow`` gathers them, each face standing as its first point's index in the
+    frame's pixels ``uv``: ``lamps`` (face, colour, strength) with their vehicles' places in the drawing order
+    (``ranks``), and the light ``bars`` (per (place, lamp) its faces, colour and strength); per drawn vehicle its
+    pixel ``bounds`` and its silhouette parts' corners' indices into ``uv``."""
     bar_list = list(bars.items())
-    firsts = [q for q, _c, _s, _p in lamps] + [q for _key, (qs, _c, _s) in bar_list for q in qs]
+    firsts = [q for q, _c, _s in lamps] + [q for _key, (qs, _c, _s) in bar_list for q in qs]
     faces = uv[np.array(firsts)[:, None] + np.arange(4)]  # (F, 4, 2)
     counts = [1] * len(lamps) + [len(qs) for _key, (qs, _c, _s) in bar_list]
-    hidden = hidden_lamps(faces, counts, [p for *_l, p in lamps] + [place for (place, _l), _v in bar_list], bounds,
+    hidden = hidden_lamps(faces, counts, ranks + [place for (place, _l), _v in bar_list], bounds,
                           lambda k: uv[silhouettes[k]])
     n = len(lamps)
     seen = [i for i in range(n) if not hidden[i]]
@@ -208,8 +204,7 @@ def lamp_halos(uv: np.ndarray, lamps: list[tuple[int, tuple, float, int]], bars:
         if not hidden[n + j]:
             visible_bars.append((faces[start:start + len(qs)].reshape(-1, 2), colour, strength))
         start += len(qs)
-    return halo_numbers(faces[seen], [lamps[i][1] for i in seen], [lamps[i][2] for i in seen], visible_bars,
-                        scale)
+    return halo_numbers(faces[seen], [lamps[i][1] for i in seen], [lamps[i][2] for i in seen], visible_bars, scale)
 
 
 def inside_convex_hulls(points: np.ndarray, corners: np.ndarray) -> np.ndarray:

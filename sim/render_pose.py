@@ -152,10 +152,10 @@ def painter_order(actors: list[Actor], cam: PinholeCamera) -> list[int]:
 
 def pool_quads(pose: FramePose, cam: PinholeCamera) -> tuple[np.ndarray, list[tuple[int, int, int, int] | None]]:
     """Headlight pools of the posed actors: pixel quads x 16 rounded (N, 4, 2 int32, the fixed point the drawing
-    takes) on each pool's canvas (from its box's top-left corner), and per pool the box its blurred light may reach (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of
-    anti-aliasing and the 7 x 7 blur's 3 px beyond it, cut to the image and 3 px beyond it: what the blur reads),
-    None when the pool is behind the camera or its box in the image is under 2 px either way. The pool: a trapezoid
-    on the road from 0.5 to 18 m ahead of the front bumper."""
+    takes) on each pool's canvas (from its box's top-left corner), and per pool the box its blurred light may reach
+    (x1, y1, x2, y2: the quad's whole-pixel box, 1 px of anti-aliasing and the 7 x 7 blur's 3 px beyond it, cut to
+    the image and 3 px beyond it: what the blur reads), None when the pool is behind the camera or its box in the
+    image is under 2 px either way. The pool: a trapezoid on the road from 0.5 to 18 m ahead of the front bumper."""
     c, s_, px, py, length = (pose.state[:, i:i + 1] for i in range(5))
     fx, fy = px + c * length / 2, py + s_ * length / 2
     lx, ly = POOL_LOCAL_M[:, 0], POOL_LOCAL_M[:, 1]
@@ -176,12 +176,11 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: n
                     ) -> dict[int, tuple[tuple[int, int, int, int], np.ndarray]]:
     """Per actor in ``which``, its cast shadow's box in the image (x1, y1, x2, y2: floor to ceil + 1 of its pixels,
     cut to the image) and outline in pixels x 16 rounded (K, 2 int32, the drawing's fixed point) from the box's
-    top-left corner, left out when any
-    of it is behind the camera or its box is under 2 px either way: the part corners projected along the unit
-    vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in float32 as ``cv2.convexHull``
-    takes them), every actor's in one product, and into the image (a road point (x, y) -> homogeneous pixel
-    (x, y) @ ground_m - ground_t); the outline is its ground hull's points, the box every corner's (the same:
-    the image of a hull is the hull of the image, in front of the camera)."""
+    top-left corner, left out when any of it is behind the camera or its box is under 2 px either way: the part
+    corners projected along the unit vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in
+    float32 as ``cv2.convexHull`` takes them), every actor's in one product, and into the image (a road point
+    (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); the outline is its ground hull's points, the box every
+    corner's (the same: the image of a hull is the hull of the image, in front of the camera)."""
     local = batch.points[batch.corner_idx]  # (Nc, 3)
     owner = batch.corner_owner
     ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + pose.state[owner, 2:4]

@@ -42,20 +42,16 @@ class ReferenceRenderer(Renderer):
         vis = (np.sum(n * (C - fc), axis=-1) > 0) & (norm[..., 0] > 1e-9)
         return [{FACE_NAMES[f]: n[p, f] for f in np.flatnonzero(vis[p])} for p in range(len(parts))]
 
-    def _polygon_mask(self, uv: np.ndarray, uv16: np.ndarray | None = None
-                      ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
-        """The polygon ``uv`` (K, 2 px; ``uv16`` the same x 16 rounded, made here when not given) filled
-        anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1, cut to the image); None when the box is
-        under 2 px either way."""
+    def _polygon_mask(self, uv: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+        """The polygon ``uv`` (K, 2 px) filled anti-aliased (0-255) on its box (x1, y1, x2, y2: floor to ceil + 1,
+        cut to the image); None when the box is under 2 px either way."""
         us, vs = uv[:, 0].tolist(), uv[:, 1].tolist()  # a few points: plain floats beat numpy's per-call cost
         x1, y1 = max(0, math.floor(min(us))), max(0, math.floor(min(vs)))
         x2, y2 = min(self.w, math.ceil(max(us)) + 1), min(self.h, math.ceil(max(vs)) + 1)
         if x2 - x1 < 2 or y2 - y1 < 2:
             return None
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
-        if uv16 is None:
-            uv16 = np.round(uv * 16).astype(np.int32)
-        cv2.fillConvexPoly(mask, uv16 - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
+        cv2.fillConvexPoly(mask, np.round(uv * 16).astype(np.int32) - (16 * x1, 16 * y1), 255, cv2.LINE_AA, 4)
         return (x1, y1, x2, y2), mask
 
     def _draw_shadow(self, img: np.ndarray, corners: np.ndarray, sun: np.ndarray, strength: float) -> None:
@@ -150,11 +146,12 @@ class ReferenceRenderer(Renderer):
                     colour = unlit_bgr(dc.colour, dc.lamp, L)
                 cv2.fillConvexPoly(img, np.round(puv * 16).astype(np.int32), colour, cv2.LINE_AA, 4)
                 if lit:
-                    queue_lamp_glow(glows, lamp_pts, a.actor_id, dc.lamp, dc.part == len(parts) - 1, a.brake_on, puv,
-                                    colour)
+                    queue_lamp_glow(glows, lamp_pts, (a.actor_id, dc.lamp), dc.lamp, dc.part == len(parts) - 1,
+                                    a.brake_on, puv, colour)
             if blur_px is not None:
                 self._motion_blur(img, uv, blur_px)
             glow_rank.extend([rank] * (len(glows) - n_glows))
+        lamp_pts = {k: (np.vstack(faces), colour, strength) for k, (faces, colour, strength) in lamp_pts.items()}
         ranks = {a.actor_id: k for k, (a, _g) in enumerate(drawn)}
         keys = list(lamp_pts)
         hidden = [lamp_hidden(pts, r, drawn) for pts, r in
