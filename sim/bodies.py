@@ -266,7 +266,8 @@ class BodyModel:
     decal_face: np.ndarray  # (D,) face index (FACE_NAMES) of each decal
     face_points: np.ndarray  # (P, 5, 4) each part face's corners: indices into ``points``
     decal_points: np.ndarray  # (D, 4) each decal quad's corners: indices into ``points``
-    off_bgr: dict[str, list] = field(default_factory=dict)  # per lighting, each decal's unlit colour (renderer's)
+    paint: dict[tuple, tuple] = field(default_factory=dict)  # per lighting and lamp states, the decals' colours (renderer's)
+    shadow_hulls: dict[tuple, np.ndarray] = field(default_factory=dict)  # per heading and sun, shadow outline (renderer's)
 
 
 def body_model(actor: Actor) -> BodyModel:

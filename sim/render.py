@@ -27,13 +27,12 @@ from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
 from sim.render_effects import (
+    decal_paint,
     halo_falloff,
     lamp_halos,
     line_kernel,
-    lit_bgr,
     queue_lamp_glow,
     shade_faces,
-    unlit_bgr,
 )
 from sim.render_labels import MIN_VISIBLE_FRACTION, Label, visible_labels
 from sim.render_pose import (
@@ -194,12 +193,16 @@ class Renderer:
             model = self._models[key] = body_model(a)
         return model
 
-    def _off_colours(self, model: BodyModel, lighting: str) -> list:
-        """Per decal, its colour when not lit in ``lighting`` (BGR list), cached per model and lighting."""
-        cols = model.off_bgr.get(lighting)
-        if cols is None:
-            cols = model.off_bgr[lighting] = [unlit_bgr(dc.colour, dc.lamp, LIGHTING[lighting]) for dc in model.decals]
-        return cols
+    def _decal_paint(self, model: BodyModel, lighting: str, brake_on: bool, red_on: bool, blue_on: bool,
+                     sig_on: bool) -> tuple[list, list]:
+        """Per decal, its colour this frame and the lamp it lights (``sim.render_effects.decal_paint``), kept on the
+        body model per lighting and lamp states (at most 48 sets)."""
+        key = (lighting, brake_on, red_on, blue_on, sig_on)
+        paint = model.paint.get(key)
+        if paint is None:
+            paint = model.paint[key] = decal_paint(model.decals, LIGHTING[lighting], brake_on, red_on, blue_on,
+                                                   sig_on)
+        return paint
 
     def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
         """A frame's lighting name, its ``LIGHTING`` entry, the frame index (from the sim time when None), the static
@@ -324,23 +327,18 @@ class Renderer:
             fill(img, uv16[end - 4:end], (16, 16, 16), cv2.LINE_AA, 4)  # contact shadow
             for f in range(face_start[k], face_start[k + 1]):
                 fill(img, faces[f], face_colours[f], cv2.LINE_AA, 4)
-            red_on, blue_on = ev_lamps_on(a.light_bar, t)
-            sig_on = signal_on(a.style, t)
-            tail_bright = a.brake_on or L["running_lights"]
-            off = self._off_colours(model, lighting)
+            colours, lit = self._decal_paint(model, lighting, a.brake_on, *ev_lamps_on(a.light_bar, t),
+                                             signal_on(a.style, t))
             d0, q0, bar_part, n_lamps = decal_start[k], point_start[k] + 8 * len(parts), len(parts) - 1, len(lamps)
             for j in range(seen_start[k], seen_start[k + 1]):
                 k_dc = seen[j] - d0
-                dc = decals[k_dc]
-                if not dc.lamp:  # paint, glass, a plate: never lit
-                    fill(img, decal_quads[j], off[k_dc], cv2.LINE_AA, 4)
-                    continue
-                if dc.lamp == "turn" and not sig_on:
-                    continue  # the tail light under it shows
-                colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
-                fill(img, decal_quads[j], off[k_dc] if colour is None else colour, cv2.LINE_AA, 4)
-                if colour is not None:
-                    queue_lamp_glow(lamps, bars, (place, dc.lamp), dc.lamp, dc.part == bar_part, a.brake_on,
+                colour = colours[k_dc]
+                if colour is None:
+                    continue  # a turn signal that is off: the tail light under it shows
+                fill(img, decal_quads[j], colour, cv2.LINE_AA, 4)
+                lamp = lit[k_dc]
+                if lamp is not None:
+                    queue_lamp_glow(lamps, bars, (place, lamp), lamp, decals[k_dc].part == bar_part, a.brake_on,
                                     q0 + 4 * k_dc, colour)
             lamp_ranks.extend([place] * (len(lamps) - n_lamps))
             if blurs is not None and blurs[k] is not None:

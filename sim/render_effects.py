@@ -140,6 +140,27 @@ def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, b
     return None
 
 
+def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool
+                ) -> tuple[list, list]:
+    """Per decal of a body (``sim.bodies.BodyModel.decals``), the colour it is drawn in this frame (a BGR tuple:
+    ``lit_bgr`` when its lamp is lit, else ``unlit_bgr``; None for a turn signal that is off, which is not drawn: the
+    tail light under it shows) and the lamp it lights (its name, or None), given the ``lighting`` (a
+    ``sim.scenery.LIGHTING`` entry) and the actor's lamp states. A pure function of these: ``sim.render`` keeps it
+    per body model and states (issue 19: the per-decal tests cost ~0.15 ms a frame)."""
+    tail_bright = brake_on or bool(lighting["running_lights"])
+    colours: list[tuple | None] = []
+    lamps: list[str | None] = []
+    for dc in decals:
+        if dc.lamp == "turn" and not sig_on:
+            colours.append(None)
+            lamps.append(None)
+            continue
+        colour = lit_bgr(dc.lamp, tail_bright, brake_on, red_on, blue_on, sig_on) if dc.lamp else None
+        colours.append(tuple(unlit_bgr(dc.colour, dc.lamp, lighting)) if colour is None else colour)
+        lamps.append(None if colour is None else dc.lamp)
+    return colours, lamps
+
+
 def unlit_bgr(colour, lamp: str | None, lighting: dict) -> list:
     """A decal's colour when not lit, in ``lighting`` (a ``sim.scenery.LIGHTING`` entry), BGR list: a tail lamp's
     dark lens x gain x 1.1; any other decal's colour x (0.85 for a lamp) x (ambient + sun / 2) x gain x 1.3."""
