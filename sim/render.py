@@ -165,7 +165,7 @@ class Renderer:
         x1, y1, x2, y2 = box
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
         cv2.fillConvexPoly(pool, uv16, colour, cv2.LINE_AA, 4)
-        self._add_at(img, cv2.blur(pool, (7, 7), borderType=cv2.BORDER_CONSTANT), x1, y1)
+        self._add_at(img, cv2.blur(pool, (7, 7), dst=pool, borderType=cv2.BORDER_CONSTANT), x1, y1)  # (in place)
 
     def _draw_shadow(self, img: np.ndarray, box: tuple[int, int, int, int], outline16: np.ndarray,
                      strength: float) -> None:

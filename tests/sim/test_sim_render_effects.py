@@ -146,3 +146,34 @@ def test_inside_convex_hulls_agrees_with_the_hull_and_point_test():
     got = inside_convex_hulls(points, corners)
     assert 80 < sum(expected) < 320  # both answers are well represented
     assert got.tolist() == expected
+
+
+def test_decal_paint_is_the_per_decal_rule():
+    """sim.render_effects.decal_paint (kept per body model and lamp states by the renderer) gives each decal the
+    colour issue 17's per-decal loop drew it in: a lit lamp's colour, else its unlit colour, and no draw at all for
+    a turn signal that is off; and names the lamps it lights."""
+    from protocol.messages import Actor, ActorKind, LightBar
+    from sim.bodies import body_model
+    from sim.render_effects import decal_paint, lit_bgr, unlit_bgr
+    from sim.scenery import LIGHTING
+    from sim.vehicles import LIVERY_AMBULANCE, make_style
+
+    ev = Actor(actor_id="e", kind=ActorKind.EV, pos_x_m=30.0, pos_y_m=1.85, heading_rad=0.0, length_m=6.2,
+               width_m=2.1, height_m=2.6, speed_mps=10.0, colour_bgr=(240, 240, 240),
+               style=make_style(LIVERY_AMBULANCE, 3), light_bar=LightBar(on=True, pattern="alternating"))
+    decals = body_model(ev).decals
+    lamps = {dc.lamp for dc in decals}
+    assert {"tail", "ev_red", "ev_blue"} <= lamps
+    for lighting in ("day", "night"):
+        L = LIGHTING[lighting]
+        for brake, red, blue, sig in [(False, True, False, False), (True, False, True, True), (False, False, False, True)]:
+            colours, lit = decal_paint(decals, L, brake, red, blue, sig)
+            for dc, colour, lamp in zip(decals, colours, lit, strict=True):
+                if dc.lamp == "turn" and not sig:
+                    assert colour is None and lamp is None
+                    continue
+                on = lit_bgr(dc.lamp, brake or L["running_lights"], brake, red, blue, sig) if dc.lamp else None
+                assert colour == (tuple(unlit_bgr(dc.colour, dc.lamp, L)) if on is None else on)
+                assert lamp == (dc.lamp if on is not None else None)
+            assert any(lamp == "ev_red" for lamp in lit) == red
+            assert any(lamp == "tail" for lamp in lit) == (brake or bool(L["running_lights"]))
