@@ -267,7 +267,6 @@ class BodyModel:
     face_points: np.ndarray  # (P, 5, 4) each part face's corners: indices into ``points``
     decal_points: np.ndarray  # (D, 4) each decal quad's corners: indices into ``points``
     paint: dict[tuple, tuple] = field(default_factory=dict)  # per lighting and lamp states, the decals' colours (renderer's)
-    shadow_hulls: dict[tuple, np.ndarray] = field(default_factory=dict)  # per heading and sun, shadow outline (renderer's)
 
 
 def body_model(actor: Actor) -> BodyModel:

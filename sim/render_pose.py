@@ -171,24 +171,6 @@ def pool_quads(pose: FramePose, cam: PinholeCamera) -> tuple[np.ndarray, list[tu
     return quads16, [tuple(b) if k else None for b, k in zip(boxes.tolist(), ok.tolist(), strict=True)]
 
 
-def shadow_hull_order(model: BodyModel, cos_h: float, sin_h: float, sun: np.ndarray, sun_key: tuple) -> np.ndarray:
-    """The indices (into ``model``'s part corners) of its cast shadow's outline on the road, in hull order, for a
-    heading (``cos_h``, ``sin_h``) and the unit vector ``sun`` (``sun_key``: its components): ``cv2.convexHull`` of the
-    corners turned to the heading and projected along ``sun`` onto z = 0 (the sun's height taken as at least 0.25,
-    as ``sim.render_effects.shadow_hull``), in float32 as it takes them. A move along the road moves the hull, not its
-    corners' order, so it is kept on the model per heading and sun (a hull per actor cost ~0.07 ms a frame)."""
-    key = (cos_h, sin_h, sun_key)
-    hull = model.shadow_hulls.get(key)
-    if hull is None:
-        corners = model.points[:8 * len(model.parts)]
-        ground = (corners[:, :2] @ np.array([[cos_h, sin_h], [-sin_h, cos_h]])
-                  - corners[:, 2:3] * (sun[:2] / max(sun[2], 0.25)))
-        if len(model.shadow_hulls) >= 64:  # (a turning vehicle: a new heading every frame)
-            model.shadow_hulls.clear()
-        hull = model.shadow_hulls[key] = cv2.convexHull(ground.astype(np.float32), returnPoints=False).ravel()
-    return hull
-
-
 def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: np.ndarray,
                     cam: PinholeCamera, ground_m: np.ndarray, ground_t: np.ndarray
                     ) -> dict[int, tuple[tuple[int, int, int, int], np.ndarray]]:
@@ -197,9 +179,8 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: n
     top-left corner, left out when any of it is behind the camera or its box is under 2 px either way: the part
     corners projected along the unit vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in
     float32 as ``cv2.convexHull`` takes them), every actor's in one product, and into the image (a road point
-    (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); the outline is its ground hull's points
-    (``shadow_hull_order``), the box every corner's (the same: the image of a hull is the hull of the image, in front
-    of the camera)."""
+    (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); the outline is its ground hull's points, the box every
+    corner's (the same: the image of a hull is the hull of the image, in front of the camera)."""
     local = batch.points[batch.corner_idx]  # (Nc, 3)
     owner = batch.corner_owner
     ground = (np.einsum("nij,nj->ni", pose.rots[:, :2, :2][owner], local[:, :2]) + pose.state[owner, 2:4]
@@ -212,13 +193,13 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: n
     hi = np.minimum(np.ceil(np.maximum.reduceat(uv, starts[:-1])) + 1, (cam.width_px, cam.height_px)).astype(int)
     uv16 = np.round(uv * 16).astype(np.int32) - 16 * lo[owner].astype(np.int32)  # on each shadow's mask
     boxes = np.hstack([lo, hi]).tolist()
-    headings, sun_key = pose.state[:, :2].tolist(), tuple(sun.tolist())
     out = {}
     for k in which:
         x1, y1, x2, y2 = boxes[k]
         if near[k] > NEAR_M and x2 - x1 >= 2 and y2 - y1 >= 2:
-            out[k] = ((x1, y1, x2, y2), uv16[shadow_hull_order(batch.models[k], *headings[k], sun, sun_key)
-                                             + starts[k]])
+            s = starts[k]
+            hull = cv2.convexHull(ground[s:starts[k + 1]], returnPoints=False).ravel() + s
+            out[k] = ((x1, y1, x2, y2), uv16[hull])
     return out
 
 

@@ -2,7 +2,6 @@
 (``ActorBatch``) gives each actor's own projection, visible faces and decals."""
 
 import numpy as np
-import pytest
 
 from protocol.corridor import load_corridor
 from protocol.messages import Actor, ActorKind, LightBar
@@ -55,28 +54,3 @@ def test_a_batch_poses_and_culls_each_actor_as_alone():
         assert seen  # every actor shows some decal from this camera
         sil = np.flatnonzero([p.silhouette for p in md.parts])[:, None] * 8 + np.arange(8)  # its silhouette corners
         np.testing.assert_array_equal(pose.uv[block][sil], pose.uv[batch.silhouettes[k]])
-
-
-def test_shadow_hull_order_is_the_hull_wherever_the_actor_stands():
-    """sim.render_pose.shadow_hull_order (kept per heading and sun on the body model): the corners it names, placed
-    anywhere on the road, are the convex hull of the shadow's ground points there (the hull ``shadow_hull`` makes)."""
-    import cv2
-
-    from sim.render_effects import shadow_hull
-    from sim.render_pose import shadow_hull_order
-
-    sun = np.array([0.4, -0.5, 0.45]) / np.linalg.norm([0.4, -0.5, 0.45])
-    for actor in _actors():
-        model = body_model(actor)
-        c, s = np.cos(actor.heading_rad), np.sin(actor.heading_rad)
-        order = shadow_hull_order(model, float(c), float(s), sun, tuple(sun.tolist()))
-        assert shadow_hull_order(model, float(c), float(s), sun, tuple(sun.tolist())) is order  # kept
-        corners = model.points[:8 * len(model.parts)]
-        for x, y in [(0.0, 0.0), (37.3, 1.85), (118.9, -5.55)]:
-            world = corners @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) + (x, y, 0.0)
-            expected = shadow_hull(world, sun)
-            ground = world[order, :2] - world[order, 2:3] * (sun[:2] / max(sun[2], 0.25))
-            assert len(ground) == len(expected)
-            assert cv2.contourArea(ground.astype(np.float32)) == pytest.approx(cv2.contourArea(expected), rel=1e-5)
-            gap = np.linalg.norm(ground[:, None, :] - expected[None, :, :], axis=-1)  # the same points, any start
-            assert gap.min(axis=0).max() < 1e-3 and gap.min(axis=1).max() < 1e-3
