@@ -266,10 +266,7 @@ class Renderer:
         drew (``_dirty``) the canvas through this frame's ``sim.sensor.exposure_table`` (the same values)."""
         scale = exposure_scale(t_s, self.seed, lighting)
         out = expose(self.gamma_background(lighting), scale)
-        table = exposure_table(lighting, scale)
-        for y1, y2, x1, x2 in self._dirty.spans():
-            cv2.LUT(canvas[y1:y2, x1:x2], table, dst=out[y1:y2, x1:x2])
-        return out
+        return expose_spans(out, canvas, self._dirty.spans(), exposure_table(lighting, scale))
 
     def render(self, snapshot: WorldSnapshot, frame_index: int | None = None) -> np.ndarray:
         """BGR image (h, w, 3) of the snapshot; deterministic for (snapshot, frame_index).

@@ -71,8 +71,8 @@ def halo_numbers(quads: np.ndarray, quad_colours: list, quad_strengths: list[flo
         centres.append(quads.sum(axis=1) * 0.25)  # (the mean's values; np.mean and np.ptp cost more per call)
         sizes.append((quads.max(axis=1) - quads.min(axis=1)).max(axis=1))
     for pts, _c, _s in bars:
-        centres.append(pts.mean(axis=0)[None])
-        sizes.append(np.ptp(pts, axis=0).max(keepdims=True))
+        centres.append(pts.sum(axis=0, keepdims=True) / len(pts))
+        sizes.append((pts.max(axis=0) - pts.min(axis=0)).max(keepdims=True))
     if not centres:
         return []
     centres, sizes = np.concatenate(centres), np.maximum(2.0, np.concatenate(sizes))

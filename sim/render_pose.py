@@ -94,8 +94,8 @@ def actor_batch(models: list[BodyModel]) -> ActorBatch:
 class FramePose:
     """One frame's pose of an ``ActorBatch``: per actor its state (A, 7: cos and sin of its heading, x, y (m),
     length, height (m), speed (m/s)), position (A, 3: x, y, 0), rotation (A, 3, 3), m = K R rot (A, 3, 3) and
-    tvec = K R (position - C) (A, 3); per point its pixel (N, 2), the same x 16 rounded (int32, the drawing's fixed
-    point) and depth; per actor (lists) its part corners' nearest depth and pixel minimum and maximum (x, y), and
+    tvec = K R (position - C) (A, 3); per point its pixel (N, 2) and the same x 16 rounded (int32, the drawing's fixed
+    point); per actor (lists) its part corners' nearest depth and pixel minimum and maximum (x, y), and
     all its points' pixel box [x1, y1, x2, y2] (what its drawing may reach)."""
 
     state: np.ndarray
@@ -105,7 +105,6 @@ class FramePose:
     tvec: np.ndarray
     uv: np.ndarray
     uv16: np.ndarray
-    depth: np.ndarray
     near: list[float]
     lo: list[list[float]]
     hi: list[list[float]]
@@ -131,7 +130,7 @@ def pose_frame(batch: ActorBatch, actors: list[Actor], cam: PinholeCamera) -> Fr
     lo, hi = np.minimum.reduceat(uv, cuts), np.maximum.reduceat(uv, cuts)
     # the whole block's (the decals' and contact shadow's points too): what its drawing may reach
     box = np.hstack([np.minimum(lo[::2], lo[1::2]), np.maximum(hi[::2], hi[1::2])]).tolist()
-    return FramePose(state, positions, rots, m, tvec, uv, np.round(uv * 16).astype(np.int32), depth, near,
+    return FramePose(state, positions, rots, m, tvec, uv, np.round(uv * 16).astype(np.int32), near,
                      lo[::2].tolist(), hi[::2].tolist(), box)
 
 

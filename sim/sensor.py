@@ -76,13 +76,15 @@ def exposure_table(lighting: str, scale: float) -> np.ndarray:
 
 
 def expose_spans(out: np.ndarray, canvas: np.ndarray, spans: list[tuple[int, int, int, int]], table: np.ndarray,
-                 field: tuple[np.ndarray, np.ndarray], offset: tuple[int, int]) -> np.ndarray:
+                 field: tuple[np.ndarray, np.ndarray] | None = None, offset: tuple[int, int] = (0, 0)) -> np.ndarray:
     """``out`` (changed in place and returned) with each span (y1, y2, x1, x2: ``DirtyBands.spans``) of ``canvas``
-    through the frame's ``exposure_table`` and the noise field cut at ``offset`` added (saturating)."""
+    through the frame's ``exposure_table`` and, when a noise ``field`` is given, the field cut at ``offset`` added
+    (saturating)."""
     dx, dy = offset
     for y1, y2, x1, x2 in spans:
-        o = out[y1:y2, x1:x2]
-        add_noise(cv2.LUT(canvas[y1:y2, x1:x2], table, dst=o), field, (dx + x1, dy + y1))
+        o = cv2.LUT(canvas[y1:y2, x1:x2], table, dst=out[y1:y2, x1:x2])
+        if field is not None:
+            add_noise(o, field, (dx + x1, dy + y1))
     return out
 
 
