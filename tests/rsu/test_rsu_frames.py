@@ -77,8 +77,12 @@ class _FakeCapture:
 
 def test_stalled_stream_is_reported_not_hung_on():
     cap = _FakeCapture(n_ok=3)
-    src = VideoSource("rtsp://camera.invalid/stream", read_timeout_s=0.3, capture_factory=lambda _: cap)
+    # room for all three frames: a live source drops the oldest queued frame when full, so with
+    # fewer slots which frames survive would depend on how the threads happen to be scheduled
+    src = VideoSource("rtsp://camera.invalid/stream", read_timeout_s=0.3, queue_size=3,
+                      capture_factory=lambda _: cap)
     assert src.live
+    time.sleep(0.2)  # the reader thread has queued all three before the first read, as on a loaded host
     # the frames that do come get a generous wait (a loaded CI host may be slow to run the reader
     # thread); only the read after them is held to the source's own 0.3 s
     got = [src.read(timeout_s=10.0) for _ in range(3)]
