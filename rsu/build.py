@@ -31,7 +31,7 @@ from rsu.localize import INTERPOLATIONS, METHODS, Localizer
 from rsu.pipeline import RsuPipeline
 from rsu.service import RsuService
 from rsu.sim_source import SimSource
-from rsu.track import FrameworkTracker
+from rsu.track_frameworks import FrameworkTracker
 
 log = logging.getLogger(__name__)
 

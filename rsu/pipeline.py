@@ -32,7 +32,8 @@ from rsu.detect import EV, Detector, MotionDetector
 from rsu.frames import Frame
 from rsu.hazard import HazardDetector, HazardEvent
 from rsu.localize import LocalizedObject, Localizer
-from rsu.track import FrameworkTracker, TrackSet
+from rsu.track import TrackSet
+from rsu.track_frameworks import FrameworkTracker
 
 Classifier = Callable[[Frame, TrackSet], dict[int, EvVerdict]]
 STAGES = ("detect", "track", "classify", "localize", "hazard", "publish")

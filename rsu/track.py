@@ -27,9 +27,7 @@ Kalman predict/update runs as batched numpy over all tracks instead of one filte
 - ids count from 1 in the output (the reference reports ``id + 1``), per tracker instance (the
   reference shares a class-level counter between instances and wraps it at 10000; this does not).
 
-``frameworks``: ``"B"`` (thesis 2.3, deployed) tracks every vehicle in one tracker whatever its
-class; ``"A"`` (thesis 2.2) runs one tracker per detector class with a shared id counter, so a
-detection whose class flips starts a new track, as in the thesis.
+The thesis's two ways of running it over classes are ``rsu.track_frameworks.FrameworkTracker``.
 
 Pure core: no I/O, no clock, deterministic.
 """
@@ -199,6 +197,15 @@ sees, where numpy's per-call cost dominates); above it, on the table with array 
 ~375 and ~205 us."""
 
 
+def _rows_trackset(r: np.ndarray) -> TrackSet:
+    """``TrackSet`` of table rows (K, _NCOL), in their order: the filtered state's box and velocity, the row's
+    bookkeeping."""
+    ints = r[:, _AGE:_DET + 1].astype(np.int64)
+    # (track_ids, boxes, class_ids, scores, det_indices, hits, age_frames, velocity_px)
+    return TrackSet(ints[:, _ID - _AGE], x_to_boxes(r), ints[:, _CLASS - _AGE], r[:, _SCORE], ints[:, _DET - _AGE],
+                    ints[:, _HITS - _AGE], ints[:, 0], r[:, 4:6])
+
+
 def _scalar_trackset(out: list[tuple]) -> TrackSet:
     """``TrackSet`` of ``rsu.track_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
     detection, hits, age)."""
@@ -366,15 +373,26 @@ class SortTracker:
             report = t[:, _TSU] < 1.0
             if self.frame_count > self.min_hits:
                 report &= t[:, _STREAK] >= self.min_hits
-            r = t.take(np.flatnonzero(report)[::-1], axis=0)  # the reference walks its track list backwards
-            ints = r[:, _AGE:_DET + 1].astype(np.int64)
-            # (track_ids, boxes, class_ids, scores, det_indices, hits, age_frames, velocity_px)
-            out = TrackSet(ints[:, _ID - _AGE], x_to_boxes(r), ints[:, _CLASS - _AGE], r[:, _SCORE],
-                           ints[:, _DET - _AGE], ints[:, _HITS - _AGE], ints[:, 0], r[:, 4:6])
+            # (the reference walks its track list backwards)
+            out = _rows_trackset(t.take(np.flatnonzero(report)[::-1], axis=0))
             alive = t[:, _TSU] <= self.max_age
             if not alive.all():
                 self._t = t.compress(alive, axis=0)
         return out
+
+    def tentative(self) -> TrackSet:
+        """The tracks matched to a detection on the last ``update`` that it did not report: born or re-found
+        less than ``min_hits`` frames ago (SORT holds them back as possible false positives). Their boxes are
+        measured like any track's, so what reads a vehicle's look over frames (the EV classifier) can start on
+        its first frame instead of its ``min_hits``-th. Same fields as ``update``'s result, oldest track first."""
+        if self.frame_count <= self.min_hits:  # every matched track was reported
+            return TrackSet.empty()
+        rows = self._rows if self._rows is not None else self._t
+        held = [r for r in rows if r[_TSU] < 1.0 and r[_STREAK] < self.min_hits]
+        if not held:
+            return TrackSet.empty()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return _rows_trackset(np.array(held, dtype=np.float64).reshape(-1, _NCOL))
 
     def update_mot(self, dets: np.ndarray) -> np.ndarray:
         """Reference-compatible call: dets (N, >=4) [x1, y1, x2, y2, (score)] -> (M, 5) [box, id]."""
@@ -382,45 +400,3 @@ class SortTracker:
         dets = dets.reshape(0, 5) if dets.size == 0 else dets
         scores = dets[:, 4] if dets.shape[1] > 4 else None
         return self.update(dets[:, :4], scores).as_mot()
-
-
-FRAMEWORKS = ("A", "B")
-
-
-class FrameworkTracker:
-    """Tracking per thesis framework: ``"B"`` one class-agnostic SORT; ``"A"`` one SORT per class.
-
-    Ids are unique across the per-class trackers of framework A (one shared counter).
-    """
-
-    def __init__(self, framework: str = "B", max_age: int = 1, min_hits: int = 3,
-                 iou_threshold: float = 0.3) -> None:
-        if framework not in FRAMEWORKS:
-            raise ValueError(f"framework must be one of {FRAMEWORKS}, got {framework!r}")
-        self.framework = framework
-        self._params = (max_age, min_hits, iou_threshold)
-        self._ids = itertools.count(1)
-        self.trackers: dict[int, SortTracker] = {}
-        if framework == "B":
-            self.trackers[-1] = SortTracker(*self._params, id_source=self._ids)
-
-    def update(self, boxes: np.ndarray, scores: np.ndarray | None = None,
-               class_ids: np.ndarray | None = None) -> TrackSet:
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-        n = len(boxes)
-        scores = np.ones(n) if scores is None else np.asarray(scores, dtype=np.float64).reshape(n)
-        class_ids = (np.zeros(n, dtype=np.int64) if class_ids is None
-                     else np.asarray(class_ids, dtype=np.int64).reshape(n))
-        if self.framework == "B":
-            return self.trackers[-1].update(boxes, scores, class_ids)
-        for c in np.unique(class_ids):
-            if int(c) not in self.trackers:
-                self.trackers[int(c)] = SortTracker(*self._params, id_source=self._ids)
-        parts = []
-        for c, trk in sorted(self.trackers.items()):
-            sel = np.flatnonzero(class_ids == c)
-            ts = trk.update(boxes[sel], scores[sel], class_ids[sel])
-            parts.append(TrackSet(ts.track_ids, ts.boxes, ts.class_ids, ts.scores,
-                                  sel[ts.det_indices] if len(ts) else ts.det_indices,
-                                  ts.hits, ts.age_frames, ts.velocity_px))
-        return TrackSet.concatenate(parts)

@@ -10,7 +10,8 @@ from scipy.optimize import linear_sum_assignment
 
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort, _associate
 from rsu.evaluate import mot_result_lines, read_mot_detections, synthetic_scene
-from rsu.track import FrameworkTracker, SortTracker, associate, iou_matrix
+from rsu.track import SortTracker, associate, iou_matrix
+from rsu.track_frameworks import FrameworkTracker
 
 
 def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
@@ -256,3 +257,47 @@ def test_framework_a_ids_unique_across_classes():
     out = trk.update(np.array([_box(100, 100), _box(300, 100), _box(500, 100)]), None, np.array([0, 1, 0]))
     assert sorted(out.track_ids.tolist()) == [1, 2, 3]
     assert sorted(out.det_indices.tolist()) == [0, 1, 2]
+
+
+def _tentative_run(frames, min_hits):
+    trk = SortTracker(1, min_hits, 0.3)
+    out = []
+    for k, f in enumerate(frames):
+        reported = trk.update(f.det_boxes, f.det_scores)
+        held = trk.tentative()
+        matched = set(trk.track_ids[trk.time_since_update == 0].tolist())
+        r_ids, h_ids = set(reported.track_ids.tolist()), set(held.track_ids.tolist())
+        assert not r_ids & h_ids, f"frame {k}: a track both reported and held back"
+        assert r_ids | h_ids == matched, f"frame {k}: every track matched on the frame is one or the other"
+        if k < min_hits:
+            assert not h_ids  # the reference reports every matched track in its first min_hits frames
+        born = held.hits == 0
+        np.testing.assert_allclose(held.boxes[born], f.det_boxes[held.det_indices[born]], atol=1e-6)
+        out.append((held.track_ids.tolist(), np.round(held.boxes, 6).tolist(), held.det_indices.tolist()))
+    return out
+
+
+@pytest.mark.parametrize("min_hits", [3, 1])
+def test_tentative_tracks_are_the_matched_ones_sort_holds_back(monkeypatch, min_hits):
+    """``SortTracker.tentative``: after a frame, the tracks it matched but did not report (born or re-found under
+    min_hits frames ago), with their filtered boxes (a newborn's: its detection); the same on the array step."""
+    import rsu.track as track
+
+    frames = synthetic_scene(n_frames=120, n_targets=10, seed=5, miss_prob=0.15, false_pos_per_frame=1.0,
+                             mean_life_frames=30.0)
+    scalar = _tentative_run(frames, min_hits)
+    assert sum(len(ids) for ids, _b, _d in scalar) > 50  # births, false positives and re-found tracks
+    monkeypatch.setattr(track, "SCALAR_MAX_ROWS", 0)
+    assert _tentative_run(frames, min_hits) == scalar
+
+
+def test_framework_a_tentative_tracks_index_the_whole_input():
+    trk = FrameworkTracker("A", min_hits=3)
+    for k in range(4):  # a car (class 0) and an EV (class 1), each tracker past its first min_hits frames
+        trk.update(np.array([_box(100 + 2 * k, 100), _box(400, 300)]), np.ones(2), np.array([0, 1]))
+    boxes = np.array([_box(108, 100), _box(400, 300), _box(700, 300)])  # a new car, third in the input
+    reported = trk.update(boxes, np.ones(3), np.array([0, 1, 0]))
+    held = trk.tentative()
+    assert sorted(reported.det_indices.tolist()) == [0, 1]
+    assert held.det_indices.tolist() == [2]  # class 0's second detection, the input's third
+    np.testing.assert_allclose(held.boxes, boxes[2:])
