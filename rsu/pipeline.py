@@ -5,7 +5,9 @@ detector -> SORT -> classifier hook -> localiser -> EV alert life cycle, and the
 and ``iea-rsu scan`` reports.
 
 Classifier hook: any callable ``(frame, tracks) -> {track_id: EvVerdict}`` (:class:`rsu.classify.ev.EvVerdict`;
-:class:`rsu.classify.ev.TrackEvClassifier` plugs in here). With an ``ev_state`` an object is published as
+:class:`rsu.classify.ev.TrackEvClassifier` plugs in here), handed the frame's reported tracks and, after them, the
+tracks SORT matched but holds back until ``min_hits`` (``FrameworkTracker.tentative``); only reported tracks are
+published. With an ``ev_state`` an object is published as
 ``obj_type = ev`` while its state is ``confirmed``; without one, when ``ev_score >= ev_threshold``. With a
 classifier the pipeline runs an :class:`rsu.classify.alerts.EvAlertManager` on the frame times: ``active`` when a
 track is confirmed, refreshed at 2 Hz, ``cleared`` when its lights go off or it has left the view.
@@ -95,7 +97,10 @@ class RsuPipeline:
         lap()
         tracks = self.tracker.update(det.boxes, det.scores, det.classes)
         lap()
-        verdicts = self.classifier(frame, tracks) if self.classifier is not None else {}
+        # the classifier also reads the tracks SORT holds back until min_hits (``FrameworkTracker.tentative``): a
+        # broken track's successor keeps gathering its lamps' evidence in those frames (``rsu.classify.ev``)
+        verdicts = (self.classifier(frame, TrackSet.concatenate([tracks, self.tracker.tentative()]))
+                    if self.classifier is not None else {})
         lap()
         localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
         objects = [self._to_message(o, verdicts.get(o.track_id)) for o in localized]
