@@ -383,8 +383,9 @@ class SortTracker:
     def tentative(self) -> TrackSet:
         """The tracks matched to a detection on the last ``update`` that it did not report: born or re-found
         less than ``min_hits`` frames ago (SORT holds them back as possible false positives). Their boxes are
-        measured like any track's, so what reads a vehicle's look over frames (the EV classifier) can start on
-        its first frame instead of its ``min_hits``-th. Same fields as ``update``'s result, oldest track first."""
+        measured like any track's, so what reads a vehicle's look over frames (the EV classifier) can start at
+        the track's birth instead of when it is first reported. Same fields as ``update``'s result, oldest track
+        first."""
         if self.frame_count <= self.min_hits:  # every matched track was reported
             return TrackSet.empty()
         rows = self._rows if self._rows is not None else self._t

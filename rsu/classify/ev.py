@@ -27,9 +27,10 @@ threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`matc
 that holds most of a nearer vehicle's box takes over nothing: it is two vehicles merged by the detector
 (:func:`rsu.classify.ownership.holds_nearer_vehicle`). The pipeline hands this classifier SORT's held-back tracks
 as well as its reported ones (``rsu.track.SortTracker.tentative``), so the successor takes over, and goes on
-gathering, from its first frame, not its third: an EV whose box SORT's filter lost just as its lights came on
-(e2e_bench seed 10, rsu1: the area velocity learned while the EV came into view from under the camera shrank the
-box faster than the EV) lost the first flash's frames to those two and alerted one flash period (0.5 s) later.
+gathering, from its birth, not from the frame SORT first reports it (three matches later): an EV whose track
+SORT's filter lost just as its lights came on (e2e_bench seed 10, rsu1: the area velocity learned while the EV
+came into view from under the camera shrank the box faster than the EV) lost the first flash to those frames and
+alerted one flash period (0.5 s) later.
 
 The EvAlert life cycle built on its verdicts is :class:`rsu.classify.alerts.EvAlertManager`.
 """
