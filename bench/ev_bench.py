@@ -380,7 +380,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="override EvidenceConfig fields (tuning only), e.g. --set lamp_on_fraction=0.02")
     ap.add_argument("--box-gate", action="store_true",
-                    help="skip lamp measurements on boxes wider than one vehicle (rsu.classify.ev.SingleVehicleGate)")
+                    help="skip lamp measurements on boxes wider than one vehicle (rsu.classify.box_gate.SingleVehicleGate)")
     ap.add_argument("--ev-body", default="default",
                     help="EV-body classifier fused with the lamps, as the RSU runs it: default (models/ev_body.onnx), "
                          "none or PATH.onnx")

@@ -21,8 +21,9 @@ from protocol.corridor import Corridor, load_corridor
 from protocol.security import TrustList, load_signer
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from rsu.classify.body import load_body_classifier
+from rsu.classify.box_gate import SingleVehicleGate
 from rsu.classify.classifiers import load_classifier
-from rsu.classify.ev import SingleVehicleGate, TrackEvClassifier
+from rsu.classify.ev import TrackEvClassifier
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, vehicle_detector
 from rsu.detect_roi import ROI_MARGIN_M, detection_roi, zone_box_px
 from rsu.frames import FrameSource, ImageFolderSource, VideoSource

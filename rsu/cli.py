@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "lies (max_range_m + 15 m of road, from the corridor file's calibration; rsu.detect_roi)")
     ap.add_argument("--ev-box-gate", action="store_true",
                     help="no lamp measurement on boxes wider than one vehicle at their range (needs a calibrated "
-                         "camera in the corridor file; rsu.classify.ev.SingleVehicleGate)")
+                         "camera in the corridor file; rsu.classify.box_gate.SingleVehicleGate)")
     ap.add_argument("--annotate", metavar="OUT.mp4", default=None,
                     help="write the video with boxes, ids and labels over the corridor drawn through the camera "
                          "(lanes, road edges, coverage limit, 10 m grid: lines off the painted lanes mean the "

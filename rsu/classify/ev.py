@@ -10,7 +10,7 @@ lamp activity and at most once per ``body_period_s``, never on every box of ever
 per-crop EV probability from any ``crop_score(crop) -> float``
 callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
 bar: far vehicles and merged blobs of distant traffic flicker like lamps) and, with a ``box_gate`` (e.g.
-:class:`SingleVehicleGate`, from the camera's calibration), boxes too wide for one vehicle at their
+:class:`rsu.classify.box_gate.SingleVehicleGate`, from the camera's calibration), boxes too wide for one vehicle at their
 range (several vehicles merged into one blob), and forgets tracks unseen for
 ``forget_after_s`` (and never holds more than ``max_tracks``), so memory stays bounded.
 
@@ -52,6 +52,7 @@ from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined
     band_exclusions,
     blank_rects,
     farther_boxes,
+    hidden_behind_nearer,
     holds_nearer_vehicle,
     rect_mask,
 )
@@ -81,72 +82,6 @@ def crop_above(box: Iterable[float], width: int, height: int, above_fraction: fl
     of a vehicle (a light bar sits on the roof, often outside a COCO "car" box)."""
     x1, y1, x2, y2 = (float(v) for v in box)
     return clip_box((x1, y1 - above_fraction * (y2 - y1), x2, y2), width, height)
-
-
-class SingleVehicleGate:
-    """Is a box small enough to hold *one* vehicle where it stands on the road? (camera geometry)
-
-    A fixed camera looking along the road sees vehicles one behind the other; a motion or weak
-    detector then returns one box around several of them, and a flashing EV inside such a blob would
-    put the EV alert (and its position) on the wrong vehicle. The bottom-centre of the box is
-    back-projected to the road (thesis App. B.1, :class:`rsu.localize.GroundProjector`); a cuboid of
-    the largest vehicle (``max_length_m`` x ``max_width_m`` x ``max_height_m``, aligned with the road,
-    its near edge on that point, extending away from the camera) is projected with K[R|t]; the box
-    passes when it is no wider (and, with ``check_height``, no taller) than ``slack`` times that
-    cuboid's image box. Height is not judged by default: at night and dusk the detector's boxes grow
-    upwards and forwards with the glow of the lamps and the headlight pools (measured on the simulator:
-    a height check rejected most lit EVs at night), while several vehicles in one blob make it wider
-    than any one vehicle. Sides the image border cuts are not judged; a box whose ground point is not
-    on the road in front passes.
-    """
-
-    def __init__(self, camera, road=None, *, max_length_m: float = 13.0, max_width_m: float = 2.6,
-                 max_height_m: float = 4.2, slack: float = 1.35, check_height: bool = False) -> None:
-        from rsu.localize import GroundProjector
-
-        self.projector = GroundProjector(camera)
-        self.projection = camera.projection_matrix
-        self.size = (int(camera.width_px), int(camera.height_px)) if hasattr(camera, "width_px") else None
-        self.road = road
-        self.dims = (max_length_m, max_width_m, max_height_m)
-        self.slack = slack
-        self.check_height = check_height
-
-    def max_box_px(self, u: float, v: float) -> tuple[float, float] | None:
-        """(width, height) in pixels of the largest vehicle whose near bottom edge is at pixel (u, v)."""
-        xy, ok = self.projector.to_ground(np.array([[u, v]], float))
-        if not ok[0]:
-            return None
-        x, y = xy[0]
-        away = np.array([x, y]) - self.projector.centre[:2]
-        if self.road is not None:
-            s_m, d_m = self.road.to_frenet(x, y)
-            heading = float(np.atleast_1d(self.road.pose_at(s_m, d_m)[2])[0])
-            along = np.array([np.cos(heading), np.sin(heading)])
-            along = along if along @ away >= 0 else -along
-        else:
-            along = away / max(np.linalg.norm(away), 1e-9)
-        side = np.array([-along[1], along[0]])
-        length, width, height = self.dims
-        pts = [np.array([x, y]) + a * along + b * side for a in (0.0, length) for b in (-width / 2, width / 2)]
-        xyz1 = np.array([[p[0], p[1], z, 1.0] for p in pts for z in (0.0, height)])
-        uvw = xyz1 @ self.projection.T
-        if np.any(uvw[:, 2] <= 0):
-            return None
-        uv = uvw[:, :2] / uvw[:, 2:3]
-        return float(np.ptp(uv[:, 0])), float(np.ptp(uv[:, 1]))
-
-    def __call__(self, box, image_w: int, image_h: int) -> bool:
-        x1, y1, x2, y2 = (float(b) for b in box)
-        if y2 >= image_h - 2:
-            return True  # the near edge is cut off: no ground point to judge from
-        size = self.max_box_px((x1 + x2) / 2, y2)
-        if size is None:
-            return True
-        w_max, h_max = size
-        wide = x1 > 1 and x2 < image_w - 2 and (x2 - x1) > self.slack * w_max
-        tall = self.check_height and y1 > 1 and (y2 - y1) > self.slack * h_max
-        return not (wide or tall)
 
 
 @dataclass
@@ -217,7 +152,8 @@ class TrackEvClassifier:
                  colours: LampColours = LAMP_BRIGHT, bar_colours: LampColours = BAR_COLOURED, above_fraction: float | None = None, min_box_px: float = 40.0,
                  forget_after_s: float = 2.0, max_tracks: int = 512,
                  box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
-                 handover_after_s: float = 0.5, handover_iou: float = 0.3, bright_above_fraction: float = 0.1) -> None:
+                 handover_after_s: float = 0.5, handover_iou: float = 0.3, bright_above_fraction: float = 0.1,
+                 occluded_hold_s: float = 2.0) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
         if handover_after_s < 0 or not 0.0 < handover_iou <= 1.0:
@@ -226,6 +162,11 @@ class TrackEvClassifier:
         """A new id takes over a lost track's evidence only if that track was seen this recently (0.5 s:
         SORT's 1 missed frame plus 3 hits before a new id is reported is 4-5 frames at 15 fps)."""
         self.handover_iou = float(handover_iou)
+        if occluded_hold_s < 0:
+            raise ValueError(f"occluded_hold_s must be >= 0, got {occluded_hold_s}")
+        self.occluded_hold_s = float(occluded_hold_s)
+        """How long a lost flashing track, its moved-on box's bottom edge hidden behind a nearer vehicle, still owns
+        the flashes around it (``_lost_evs``)."""
         self.config = config or EvidenceConfig()
         confident = getattr(body, "confident_threshold", None)
         if confident is not None and config is None:  # the body model's own confident operating point
@@ -360,7 +301,7 @@ class TrackEvClassifier:
                 farther = farther_boxes(k, boxes)
                 lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds), farther)
                 if lost_evs is None:
-                    lost_evs = self._lost_evs(now, ids)
+                    lost_evs = self._lost_evs(now, ids, boxes)
                 ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs)
                 # with a flashing vehicle just ahead, this crop (grown above the box) holds part of that
                 # vehicle too, and its body score says as much about it as about this one: none taken now
@@ -371,16 +312,25 @@ class TrackEvClassifier:
         self._forget(now)
         return out
 
-    def _lost_evs(self, now_s: float, ids: list[int]) -> np.ndarray:
-        """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids``, lost within
-        ``handover_after_s``, that were confirmed EVs or flashing themselves (``_may_own_flashes``): SORT drops a
-        track after one missed detection, and an EV just ahead is still there (simulator tuning seed 44077: the
-        EV's track lost for one frame, the bus behind it, its roof lit by the EV's strobe, confirmed in that
-        frame)."""
+    def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
+        """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids`` that were
+        confirmed EVs or flashing themselves (``_may_own_flashes``), lost within ``handover_after_s``, or within
+        ``occluded_hold_s`` while the moved-on box's bottom edge is hidden behind a nearer vehicle's box of this
+        frame (``boxes``; ``hidden_behind_nearer``): SORT drops a track after one missed detection, and an EV just ahead is
+        still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof lit
+        by the EV's strobe, confirmed in that frame); an EV that drives on hidden behind a truck nearer the camera
+        is there for longer, its light bar above the truck's roof (tuning seed 52609, ``ev_two_lanes_dense``,
+        rsu4: the truck confirmed on the EV's flashes 0.67 s after the EV's track was lost)."""
         current = set(ids)
-        out = [extrapolate_box(i.box, i.centre_velocity_pxps, now_s - i.last_seen_s)
-               for tid, i in self.tracks.items() if tid not in current and i.box is not None
-               and _may_own_flashes(i) and 0.0 < now_s - i.last_seen_s <= self.handover_after_s]
+        hold_s = max(self.handover_after_s, self.occluded_hold_s)
+        out = []
+        for tid, i in self.tracks.items():
+            age_s = now_s - i.last_seen_s
+            if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i):
+                continue
+            moved = extrapolate_box(i.box, i.centre_velocity_pxps, age_s)
+            if age_s <= self.handover_after_s or (boxes is not None and hidden_behind_nearer(moved, boxes)):
+                out.append(moved)
         return np.asarray(out, float).reshape(-1, 4)
 
     def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,

@@ -114,6 +114,19 @@ def holds_nearer_vehicle(k: int, boxes: np.ndarray, fraction: float = 0.5) -> bo
     return False
 
 
+def hidden_behind_nearer(box, boxes: np.ndarray, fraction: float = 0.5) -> bool:
+    """Is the bottom edge of ``box`` (a lost track's box, moved on), where its vehicle meets the road, behind one of
+    ``boxes`` whose bottom edge is lower in the image, over at least ``fraction`` of its width: a vehicle nearer the
+    camera hides the lost one's lower body, so the detector sees at most its roof, and it may still be there?"""
+    width = box[2] - box[0]
+    for other in boxes:
+        if other[3] <= box[3] or other[1] >= box[3]:
+            continue
+        if width > 0 and min(box[2], other[2]) - max(box[0], other[0]) >= fraction * width:
+            return True
+    return False
+
+
 def above_top(rects: list[tuple[int, int, int, int]], box) -> list[tuple[int, int, int, int]]:
     """The parts of ``rects`` (farther vehicles' boxes, :func:`farther_boxes`) above ``box``'s top edge: within its
     own box a vehicle hides the farther ones, so only there, in the band its crop grows above the box for the roof

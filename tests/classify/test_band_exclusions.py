@@ -100,6 +100,30 @@ def test_a_confirmed_ev_lost_for_a_frame_still_counts_as_just_ahead():
     assert not clf._ev_ahead(0, [1], bus, bounds, clf._lost_evs(1.2, [1]))
 
 
+def test_a_flashing_ev_lost_behind_the_nearer_truck_owns_its_flashes_while_hidden():
+    """An EV that drives on behind a truck nearer the camera, its lower body hidden (the detector loses it) and its
+    light bar above the truck's roof, still owns those flashes for ``occluded_hold_s`` while its moved-on box's
+    bottom edge is behind the truck's box; the truck's band does not confirm on them alone (tuning seed 52609,
+    ``ev_two_lanes_dense``, rsu4: a false alert on the truck 0.67 s after the EV's track was lost). Out from behind
+    the truck, the claim ends with the hand-over time as before."""
+    from protocol.messages import EvState
+    from rsu.classify.ev import TrackInfo
+
+    clf, boxes, _ = _bus_behind_ev()
+    ev = TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=boxes[1].copy(), centre_velocity_pxps=np.zeros(2))
+    assert ev.evidence.state != EvState.CONFIRMED and ev.evidence.flashed_recently
+    clf.tracks = {7: ev}
+    truck = boxes[:1]
+    bounds = [clf.crop_bounds(truck[0], 400, 300)]
+    late_s = 1.0 + clf.handover_after_s + 0.3
+    assert late_s - 1.0 < clf.occluded_hold_s
+    assert clf._ev_ahead(0, [1], truck, bounds, clf._lost_evs(late_s, [1], truck))
+    assert not clf._ev_ahead(0, [1], truck, bounds, clf._lost_evs(1.0 + clf.occluded_hold_s + 0.1, [1], truck))
+    beside = np.array([[260.0, 120.0, 360.0, 260.0]])  # the truck in the next lane: the EV's bottom edge in sight
+    assert clf._lost_evs(late_s, [1], beside).shape == (0, 4)
+    assert clf._lost_evs(1.2, [1], beside).shape == (1, 4)  # within the hand-over time, wherever it is
+
+
 def _flashing_evidence(until_s: float):
     """Evidence of a track whose own band flashed red and blue (an EV's bar) until ``until_s``: not confirmed yet."""
     from rsu.classify.temporal import LampMeasurement, TrackEvidence
