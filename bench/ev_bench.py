@@ -198,7 +198,13 @@ SORT holds back (``rsu.pipeline``; ``python bench/ev_bench.py --json``, 127 s): 
 **0 false alerts**, median lights-on -> alert **0.40 s** (max 0.87 s: ``night_ev`` 38696), 11 flasher/turn-signal
 cars seen with 0 false alerts on them: issue 17's simulator figures met on this pair. Before that run the change
 gave the same figures as the code before it on the tuning pairs 52609/82241 and 93492/82788, run by run. Tuning
-seeds now; the next held-out pair is 90535/51550, drawn at random.
+seeds now; the next held-out pair is 90535/51550, drawn at random. Then the false alert of 52609 (rsu4: the truck
+behind the EV, confirmed on the EV's bar while the EV drove on hidden behind it) was traced and removed
+(``TrackEvClassifier.occluded_hold_s``), the other tuning pairs unchanged run by run. Held-out 90535/51550, run
+once on that code (125 s): track recall **0.958** (23/24: rsu1 missed ev1 of ``ev_two_lanes_dense`` 51550, first
+alert of that run 4.13 s after lights on), **0 false alerts**, median **0.27 s**, 14 flasher/turn-signal cars with
+0 false alerts on them: recall short of issue 17's 0.99 on this pair; the code at this session's start (5dc91d3)
+misses the same EV. Not traced; tuning seeds now. The next held-out pair is 29407/89771, drawn at random.
 """
 
 from __future__ import annotations
@@ -232,11 +238,11 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (90535, 51550)
+HELD_OUT_SEEDS = (29407, 89771)
 """Drawn at random once (2026-12-01, twenty-sixth session), not run yet; 1-4, 101/102, 301/302, 1142/1527, 5441/6538,
 31372/91468, 50857/21674, 80442/44077, 90289/76285, 30023/41751, 30788/36737, 65805/97823, 51100/68157,
-36545/16790, 57097/72786, 21376/45884, 93492/82788, 52609/82241 and 47390/38696 are tuning seeds (module
-docstring)."""
+36545/16790, 57097/72786, 21376/45884, 93492/82788, 52609/82241, 47390/38696 and 90535/51550 are tuning seeds
+(module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
 
@@ -369,7 +375,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="held-out seeds (default: HELD_OUT_SEEDS, 90535 51550; the module docstring lists the tuning seeds)")
+                    help="held-out seeds (default: HELD_OUT_SEEDS, 29407 89771; the module docstring lists the tuning seeds)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
