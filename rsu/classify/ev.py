@@ -329,7 +329,8 @@ class TrackEvClassifier:
             if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i):
                 continue
             moved = extrapolate_box(i.box, i.centre_velocity_pxps, age_s)
-            if age_s <= self.handover_after_s or (boxes is not None and hidden_behind_nearer(moved, boxes)):
+            if age_s <= self.handover_after_s or (boxes is not None and hidden_behind_nearer(moved, boxes,
+                                                                                           max_iou=self.handover_iou)):
                 out.append(moved)
         return np.asarray(out, float).reshape(-1, 4)
 

@@ -114,15 +114,22 @@ def holds_nearer_vehicle(k: int, boxes: np.ndarray, fraction: float = 0.5) -> bo
     return False
 
 
-def hidden_behind_nearer(box, boxes: np.ndarray, fraction: float = 0.5) -> bool:
+def hidden_behind_nearer(box, boxes: np.ndarray, fraction: float = 0.5, max_iou: float = 0.3) -> bool:
     """Is the bottom edge of ``box`` (a lost track's box, moved on), where its vehicle meets the road, behind one of
     ``boxes`` whose bottom edge is lower in the image, over at least ``fraction`` of its width: a vehicle nearer the
-    camera hides the lost one's lower body, so the detector sees at most its roof, and it may still be there?"""
+    camera hides the lost one's lower body, so the detector sees at most its roof, and it may still be there? A box
+    that overlaps ``box`` by IoU ``max_iou`` or more may be the lost vehicle itself, seen again: it hides nothing."""
     width = box[2] - box[0]
+    area = width * (box[3] - box[1])
     for other in boxes:
-        if other[3] <= box[3] or other[1] >= box[3]:
+        if other[3] <= box[3] or other[1] >= box[3] or width <= 0:
             continue
-        if width > 0 and min(box[2], other[2]) - max(box[0], other[0]) >= fraction * width:
+        iw = min(box[2], other[2]) - max(box[0], other[0])
+        if iw < fraction * width:
+            continue
+        inter = iw * (min(box[3], other[3]) - max(box[1], other[1]))
+        union = area + (other[2] - other[0]) * (other[3] - other[1]) - inter
+        if union > 0 and inter / union < max_iou:
             return True
     return False
 

@@ -122,6 +122,8 @@ def test_a_flashing_ev_lost_behind_the_nearer_truck_owns_its_flashes_while_hidde
     beside = np.array([[260.0, 120.0, 360.0, 260.0]])  # the truck in the next lane: the EV's bottom edge in sight
     assert clf._lost_evs(late_s, [1], beside).shape == (0, 4)
     assert clf._lost_evs(1.2, [1], beside).shape == (1, 4)  # within the hand-over time, wherever it is
+    itself = np.array([[128.0, 88.0, 178.0, 130.0]])  # a box over the lost one, lower: the EV seen again, hiding nothing
+    assert clf._lost_evs(late_s, [1], itself).shape == (0, 4)
 
 
 def _flashing_evidence(until_s: float):
