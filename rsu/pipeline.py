@@ -99,8 +99,10 @@ class RsuPipeline:
         lap()
         # the classifier also reads the tracks SORT holds back until min_hits (``FrameworkTracker.tentative``): a
         # broken track's successor keeps gathering its lamps' evidence in those frames (``rsu.classify.ev``)
-        verdicts = (self.classifier(frame, TrackSet.concatenate([tracks, self.tracker.tentative()]))
-                    if self.classifier is not None else {})
+        verdicts = {}
+        if self.classifier is not None:
+            held = self.tracker.tentative()
+            verdicts = self.classifier(frame, TrackSet.concatenate([tracks, held]) if len(held) else tracks)
         lap()
         localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
         objects = [self._to_message(o, verdicts.get(o.track_id)) for o in localized]

@@ -10,6 +10,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from rsu.track_assoc import iou_matrix
+
 
 def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int, int] | None]
                     ) -> list[tuple[int, int, int, int]]:
@@ -119,19 +121,14 @@ def hidden_behind_nearer(box, boxes: np.ndarray, fraction: float = 0.5, max_iou:
     ``boxes`` whose bottom edge is lower in the image, over at least ``fraction`` of its width: a vehicle nearer the
     camera hides the lost one's lower body, so the detector sees at most its roof, and it may still be there? A box
     that overlaps ``box`` by IoU ``max_iou`` or more may be the lost vehicle itself, seen again: it hides nothing."""
+    box = np.asarray(box, float)
+    boxes = np.asarray(boxes, float).reshape(-1, 4)
     width = box[2] - box[0]
-    area = width * (box[3] - box[1])
-    for other in boxes:
-        if other[3] <= box[3] or other[1] >= box[3] or width <= 0:
-            continue
-        iw = min(box[2], other[2]) - max(box[0], other[0])
-        if iw < fraction * width:
-            continue
-        inter = iw * (min(box[3], other[3]) - max(box[1], other[1]))
-        union = area + (other[2] - other[0]) * (other[3] - other[1]) - inter
-        if union > 0 and inter / union < max_iou:
-            return True
-    return False
+    if width <= 0 or not len(boxes):
+        return False
+    covered_w = np.minimum(box[2], boxes[:, 2]) - np.maximum(box[0], boxes[:, 0])
+    hiding = (boxes[:, 3] > box[3]) & (boxes[:, 1] < box[3]) & (covered_w >= fraction * width)
+    return bool(np.any(hiding & (iou_matrix(box[None], boxes)[0] < max_iou)))
 
 
 def above_top(rects: list[tuple[int, int, int, int]], box) -> list[tuple[int, int, int, int]]:
