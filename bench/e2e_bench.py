@@ -75,11 +75,14 @@ from deploy.up import Up  # noqa: E402
 from scenario.corridor_faults import corridor_faults  # noqa: E402
 from scenario.fault_judges import FaultOutcome  # noqa: E402
 from scenario.faults import MEASURED_ALERT_DELAY_S, dropout_faults, latency_faults  # noqa: E402
+from sim.scenario import load_scenario  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
 RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed)")
 """A decision that responds to the EV: a command, or keeping speed past a slower car to pull over after it."""
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
+SCENARIO = "rellis_ev_yield"
+"""The scenario every process run plays (seeds 1..N)."""
 RETIME_EXTRA_S = 10.0
 """A process run whose EV never reached the AV (traffic held it back) runs again this much longer."""
 TARGET_MEDIAN_S = 0.5
@@ -96,10 +99,12 @@ HOPS = (("lights_on_to_alert_s", "lights on -> first EvAlert"),
         ("response_to_manoeuvre_s", "response decided -> manoeuvre start"))
 
 
-def one_run(seed: int, run_root: Path, duration_s: float, peer: bool) -> dict[str, Any]:
-    """One scenario run as processes; returns the RunMonitor metrics plus the EvAlert -> ack hop."""
-    up = Up(port=0, run_dir=run_root / f"e2e-seed{seed}", duration_s=duration_s, seed=seed, restart="no",
-            peer=peer, record=True)  # iea up records by default: the RSUs' Health and ObjectLists (issue 19)
+def one_run(seed: int, run_root: Path, duration_s: float, peer: bool, lighting: str | None = None) -> dict[str, Any]:
+    """One scenario run as processes (``lighting``: instead of the scenario's); returns the RunMonitor metrics plus
+    the EvAlert -> ack hop."""
+    up = Up(scenario=SCENARIO, port=0, run_dir=run_root / f"e2e-seed{seed}", duration_s=duration_s, seed=seed,
+            restart="no", peer=peer, record=True,  # iea up records by default: the RSUs' Health and ObjectLists
+            lighting=lighting)
     try:
         up.start()
         deadline = time.monotonic() + duration_s + 25
@@ -239,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also N lockstep seeds with the DDM marking EVs from object lists alone (the rule before "
                          "issue 18): the cost of acting on signed EvAlerts only, as lights on -> manoeuvre")
     ap.add_argument("--peer", action="store_true", help="peer mode on loopback (the demo) instead of a router")
+    ap.add_argument("--lighting", choices=["day", "dusk", "night"], default=None,
+                    help="the process runs in this lighting instead of the scenario's (day): every RSU renders its "
+                         "camera in it (dusk and night add headlight pools, halos and motion blur)")
     ap.add_argument("--no-process-faults", action="store_true", help="skip the process-level faults (~60 s)")
     ap.add_argument("--quick", action="store_true", help="1 process run, 1 lockstep run, no process faults")
     ap.add_argument("--runs-dir", default=None, help="keep the run folders here (default: a temporary folder)")
@@ -254,20 +262,21 @@ def main(argv: list[str] | None = None) -> int:
         tmp = tempfile.TemporaryDirectory(prefix="e2e-")
         root = Path(tmp.name)
     mode = "peer mode, no router (iea demo)" if args.peer else "client mode via one router (iea up)"
-    print(f"e2e: rellis_ev_yield x {args.runs} seeds as processes over Zenoh on loopback, {mode}")
+    print(f"e2e: {SCENARIO} x {args.runs} seeds as processes over Zenoh on loopback, {mode}"
+          + (f", lighting {args.lighting}" if args.lighting else ""))
     speed_before = detector_reference_ms()  # the machine's speed at the detector's fixed work, before and after
     runs = []
     alert_samples: list[float] = []  # every lights on -> EvAlert measured, re-timed runs' first tries too
     for seed in range(1, args.runs + 1):
         t = time.monotonic()
-        m = one_run(seed, root, args.duration_s, args.peer)
+        m = one_run(seed, root, args.duration_s, args.peer, args.lighting)
         if (m.get("yield") or {}).get("status") == "not_reached":
             if m["latency_s"].get("lights_on_to_alert_s") is not None:
                 alert_samples.append(m["latency_s"]["lights_on_to_alert_s"])
             # the EV never came within its following distance of the AV: the run tested nothing; re-time it
             print(run_line(seed, m, time.monotonic() - t) + f"\n      re-timed: {RETIME_EXTRA_S:.0f} s longer", flush=True)
             t = time.monotonic()
-            m = one_run(seed, root / "retimed", args.duration_s + RETIME_EXTRA_S, args.peer)
+            m = one_run(seed, root / "retimed", args.duration_s + RETIME_EXTRA_S, args.peer, args.lighting)
             m["retimed_duration_s"] = args.duration_s + RETIME_EXTRA_S
         if m["latency_s"].get("lights_on_to_alert_s") is not None:
             alert_samples.append(m["latency_s"]["lights_on_to_alert_s"])
@@ -366,7 +375,8 @@ def main(argv: list[str] | None = None) -> int:
             return None if v is None else round(v, 3)
 
         figures = {
-            "runner": mode, "runs": args.runs, "runs_with_manoeuvre": tot["n"],
+            "runner": mode, "lighting": args.lighting or load_scenario(SCENARIO).lighting,
+            "runs": args.runs, "runs_with_manoeuvre": tot["n"],
             "lights_on_to_manoeuvre_median_s": q("lights_on_to_manoeuvre_s", "median"),
             "lights_on_to_manoeuvre_p99_s": q("lights_on_to_manoeuvre_s", "p99"),
             "lights_on_to_manoeuvre_max_s": q("lights_on_to_manoeuvre_s", "max"),

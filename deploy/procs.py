@@ -242,12 +242,14 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
                       detector: str = "project", zenoh_args: list[str] | None = None,
                       rsu_ids: list[str] | None = None, annotate: bool = True,
                       vehicle_extra: list[str] | None = None, seed: int | None = None,
-                      keys: dict[str, list[str]] | None = None) -> list[ServiceSpec]:
+                      keys: dict[str, list[str]] | None = None, lighting: str | None = None) -> list[ServiceSpec]:
     """The corridor topology in start order: DDM, RSUs, then the vehicle and the simulator (start these two
     together, last: the AV is where the scenario puts it when the world starts).
 
     ``duration_s`` bounds the simulator (and the vehicle, 4 s later); None: they run until stopped.
     ``seed`` overrides the scenario's seed and seeds the vehicle's sensors and the cameras' noise.
+    ``lighting`` (day, dusk, night) overrides the scenario's: the simulator's world snapshots carry it, so every RSU
+    renders its camera in it.
     ``keys``: per service extra arguments (signing keys: ``--key PATH``).
     """
     keys = keys or {}
@@ -287,5 +289,7 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         sim += ["--duration", str(duration_s)]
     if seed is not None:
         sim += ["--seed", str(seed)]
+    if lighting is not None:
+        sim += ["--lighting", lighting]
     out.append(ServiceSpec("sim", [*sim, *z]))
     return out

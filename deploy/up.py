@@ -62,8 +62,10 @@ class Up:
                  run_dir: Path | None = None, detector: str = "project", rsu_ids: list[str] | None = None,
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
-                 signed: bool = True, keys_dir: str | None = None, record: bool = False) -> None:
-        """``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
+                 signed: bool = True, keys_dir: str | None = None, record: bool = False,
+                 lighting: str | None = None) -> None:
+        """``lighting``: day, dusk or night instead of the scenario's (the simulator's override).
+        ``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
         of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
         from deploy.signing import key_args, load_key_bundle, write_key_bundle
         from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
@@ -94,7 +96,8 @@ class Up:
             zenoh = ["--corridor", corridor_file, *zenoh]
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
-                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys)
+                                       annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys,
+                                       lighting=lighting)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         for s in self.specs:
@@ -202,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
     ap.add_argument("--corridor-id", default=None, help="corridor id in the keys (default: the file's id + a suffix)")
     ap.add_argument("--scenario", default="rellis_ev_yield", help="scenario the simulator runs (iea-sim list)")
+    ap.add_argument("--lighting", choices=["day", "dusk", "night"], default=None,
+                    help="the simulator's lighting instead of the scenario's (every camera renders in it)")
     ap.add_argument("--no-sim", action="store_true", help="do not start the simulator (RSUs then wait for frames)")
     ap.add_argument("--rsus", type=int, default=None, metavar="N", help="start only the first N RSUs of the corridor")
     ap.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1 (0: any free port; default 7447)")
@@ -246,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
-                signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record)
+                signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2

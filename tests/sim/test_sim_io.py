@@ -335,3 +335,28 @@ def test_the_corridors_cameras_run_out_of_step(corridor):
     assert {len(v) for k, v in starts.items() if k > 0} == {3}  # three on every one
     with pytest.raises(ValueError, match="phase_s"):
         SimCamera(corridor, "rsu1", phase_s=0.1)
+
+
+def test_iea_up_lighting_reaches_the_simulator_and_its_snapshots(tmp_path):
+    """iea up --lighting / the e2e bench's --lighting: the simulator's arguments carry the override, its CLI takes
+    them, and the scenario it then plays (whose snapshots every RSU renders) is in that lighting."""
+    from deploy.procs import corridor_services
+    from deploy.up import build_parser as up_parser
+    from protocol.corridor import load_corridor
+    from sim.cli import build_parser as sim_parser
+    from sim.scenario import load_scenario
+
+    corridor = load_corridor("deploy/corridors/rellis.toml")
+    specs = corridor_services(corridor, "tw", scenario="rellis_ev_yield", duration_s=5.0, run_dir=tmp_path,
+                              detector="project", zenoh_args=[], lighting="dusk")
+    sim_args = next(s for s in specs if s.name == "sim").args
+    parsed = sim_parser().parse_args(sim_args[2:])  # after "-m sim"
+    assert parsed.lighting == "dusk"
+    assert load_scenario(parsed.scenario, corridor).with_overrides(lighting=parsed.lighting).lighting == "dusk"
+    assert load_scenario("rellis_ev_yield", corridor).lighting == "day"  # the override, not the file, made it dusk
+    plain = corridor_services(corridor, "tw", scenario="rellis_ev_yield", duration_s=5.0, run_dir=tmp_path,
+                              detector="project", zenoh_args=[])
+    assert "--lighting" not in next(s for s in plain if s.name == "sim").args
+    assert up_parser().parse_args(["--lighting", "night"]).lighting == "night"
+    with pytest.raises(SystemExit):
+        up_parser().parse_args(["--lighting", "noon"])
