@@ -252,13 +252,15 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     renders its camera in it.
     ``keys``: per service extra arguments (signing keys: ``--key PATH``).
     """
+    from sim.scenario import LIGHTINGS, load_scenario
+
+    if lighting is not None and lighting not in LIGHTINGS:
+        raise ValueError(f"lighting must be one of {', '.join(LIGHTINGS)}, got {lighting!r}")
     keys = keys or {}
     z = list(zenoh_args or [])
     common = ["--corridor-id", corridor_id]
     rsus = [r.rsu_id for r in corridor.rsus] if rsu_ids is None else list(rsu_ids)
     vehicle = ["-m", "vehicle", "run", *common, "--record", str(Path(run_dir) / "vehicle")]
-    from sim.scenario import load_scenario
-
     av = load_scenario(scenario, corridor).av
     if av is not None:  # the vehicle process starts where the scenario puts the AV (as the lockstep runner does)
         vehicle += ["--vehicle", av.vehicle_id, "--start-s", str(av.start_s_m), "--start-lane", str(av.lane),

@@ -360,3 +360,6 @@ def test_iea_up_lighting_reaches_the_simulator_and_its_snapshots(tmp_path):
     assert up_parser().parse_args(["--lighting", "night"]).lighting == "night"
     with pytest.raises(SystemExit):
         up_parser().parse_args(["--lighting", "noon"])
+    with pytest.raises(ValueError, match="lighting must be one of"):
+        corridor_services(corridor, "tw", scenario="rellis_ev_yield", duration_s=5.0, run_dir=tmp_path,
+                          detector="project", zenoh_args=[], lighting="noon")
