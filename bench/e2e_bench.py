@@ -75,7 +75,7 @@ from deploy.up import Up  # noqa: E402
 from scenario.corridor_faults import corridor_faults  # noqa: E402
 from scenario.fault_judges import FaultOutcome  # noqa: E402
 from scenario.faults import MEASURED_ALERT_DELAY_S, dropout_faults, latency_faults  # noqa: E402
-from sim.scenario import load_scenario  # noqa: E402
+from sim.scenario import LIGHTINGS, load_scenario  # noqa: E402
 
 DECISION_LINE = re.compile(r" ddm INFO (\S+: (?:none|pull_over|slow_in_lane|lane_change) \(.*)")
 RESPONSE = re.compile(r"^\S+: (?:pull_over|slow_in_lane|lane_change|none \(.*keep speed)")
@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="also N lockstep seeds with the DDM marking EVs from object lists alone (the rule before "
                          "issue 18): the cost of acting on signed EvAlerts only, as lights on -> manoeuvre")
     ap.add_argument("--peer", action="store_true", help="peer mode on loopback (the demo) instead of a router")
-    ap.add_argument("--lighting", choices=["day", "dusk", "night"], default=None,
+    ap.add_argument("--lighting", choices=LIGHTINGS, default=None,
                     help="the process runs in this lighting instead of the scenario's (day): every RSU renders its "
                          "camera in it (dusk and night add headlight pools, halos and motion blur)")
     ap.add_argument("--no-process-faults", action="store_true", help="skip the process-level faults (~60 s)")
