@@ -3,14 +3,14 @@
 The simulator's rsu1 camera (deploy/corridors/rellis.toml) is the truth. Per seed: 8 ground points spread
 over its view (two per image row at about 22, 35, 62 and 95 m, left and right: the layout the `iea calibrate`
 help asks a surveyor for), their pixels perturbed by N(0, 1 px) per axis and their world positions by the RTK
-error N(0, 2 cm); the camera is solved with the corridor's intrinsics given (``rsu.calibration.solve_camera``,
+error N(0, 2 cm); the camera is solved with the corridor's intrinsics given (``rsu.calibration.solve.solve_camera``,
 solve_focal="no"). Figures, over the seeds (named in the JSON):
 - pose_position_error_m: the largest |C_solved - C_true| (m); pose_angle_error_deg: the largest of
   |yaw|, |pitch|, |roll| errors (deg); the medians beside them;
 - ground_error_60m_median_m: median horizontal error of lane-centre points 55-65 m from the mast, their exact
   pixels back-projected through the solved camera (the calibration's share of the localisation error);
   ..._with_1px_detection_m: the same with N(0, 1 px) on the detection pixel;
-- predicted_ground_error_60m_median_m: what the error table (rsu.calibration_error) predicted for the 50-70 m band;
+- predicted_ground_error_60m_median_m: what the error table (rsu.calibration.error) predicted for the 50-70 m band;
 - the same pose figures with the focal length solved too, and for 8 points on the road edges only.
 The error table of the first seed is printed. ``--out DIR`` writes the render and its check image.
 
@@ -31,9 +31,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from protocol.corridor import load_corridor  # noqa: E402
-from rsu.calibration import SurveyPoint, solve_camera  # noqa: E402
-from rsu.calibration_error import error_table, format_error_table  # noqa: E402
-from rsu.camera_geometry import ground_points, project  # noqa: E402
+from rsu.calibration.camera_geometry import ground_points, project  # noqa: E402
+from rsu.calibration.error import error_table, format_error_table  # noqa: E402
+from rsu.calibration.solve import SurveyPoint, solve_camera  # noqa: E402
 
 SPREAD_PX = [(100, 660), (1180, 660), (250, 450), (1030, 450), (400, 300), (880, 300), (560, 230), (720, 230)]
 """Pixels of the 8 surveyed points on the 1280x720 rsu1 view (their ground points are the truth)."""
@@ -142,8 +142,8 @@ def main(argv: list[str] | None = None) -> int:
 def write_check(out: str, corridor, cam, sol) -> None:
     import cv2
 
-    from rsu.overlay import OverlayPoint, check_image
-    from sim.render import Renderer
+    from rsu.calibration.overlay import OverlayPoint, check_image
+    from sim.render.renderer import Renderer
 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)

@@ -43,17 +43,12 @@ from ddm.build import DdmOptions, build_ddm  # noqa: E402
 from ddm.config import DdmConfig  # noqa: E402
 from protocol.clock import SimClock  # noqa: E402
 from protocol.codec import encode  # noqa: E402
-from protocol.corridor import CameraConfig, Corridor, Road, RsuConfig, Segment, VehicleConfig  # noqa: E402
+from protocol.corridor import CameraConfig, Corridor, RsuConfig, VehicleConfig
+from protocol.enums import AlertState, VehicleMode
 from protocol.keys import rsu_key, vehicle_key  # noqa: E402
-from protocol.messages import (  # noqa: E402
-    AlertState,
-    DetectedObject,
-    EvAlert,
-    ObjectList,
-    VehicleMode,
-    VehicleState,
-)
-from protocol.transport import LocalBus  # noqa: E402
+from protocol.local_bus import LocalBus
+from protocol.messages import DetectedObject, EvAlert, ObjectList, VehicleState
+from protocol.road import Road, Segment
 
 TARGET_UPDATES_PER_S = 20_000
 BENCH_DDM = DdmOptions(config=DdmConfig(startup_listen_s=0.0, let_faster_pass=False))

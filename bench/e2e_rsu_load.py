@@ -199,7 +199,7 @@ def detector_reference_ms(frames: int = 20, repeats: int = 3) -> dict[str, float
 
     from protocol.corridor import load_corridor
     from rsu.build import PipelineConfig, build_detector
-    from sim.render import Renderer
+    from sim.render.renderer import Renderer
     from sim.scenario import load_scenario
     from sim.world import World
 

@@ -44,7 +44,7 @@ held-out seeds 90289/76285 were drawn at random once (2026-11-27, seventh sessio
 flasher/turn-signal cars seen, 0 false alerts on them; not traced: they are tuning seeds from now on. Ninth session,
 on tuning seeds 80442/44077 (all four scenarios): false alerts 4 -> 2, recall 1.0 (24/24), median 0.37 s. Traced:
 (1) a hidden EV's light bar glowed through the bus in front of it (rsu4, 80442): a renderer artefact, mended (a
-lamp hidden behind a nearer vehicle throws no halo, ``sim.render_effects.hidden_lamps``); (2) the EV's strobe on
+lamp hidden behind a nearer vehicle throws no halo, ``sim.render.effects.hidden_lamps``); (2) the EV's strobe on
 the roof of the bus just behind it (rsu2, 44077), confirmed in the one frame where SORT had dropped the EV's
 confirmed track: a confirmed EV lost within the hand-over time, or a vehicle just ahead too small to measure,
 now holds back a flash-alone confirmation (``TrackEvClassifier._ev_ahead``). Left: (3) a car whose box, 2x
@@ -223,12 +223,12 @@ from collections import Counter, defaultdict  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from protocol.messages import AlertState  # noqa: E402
+from protocol.enums import AlertState
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
 from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
-from rsu.track import iou_matrix  # noqa: E402
+from rsu.track.assoc import iou_matrix  # noqa: E402
 from sim.camera_source import SimCamera  # noqa: E402
 from sim.lamps import signal_on, style_signal  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402

@@ -21,20 +21,11 @@ from bench.fuzz_mutator import Mutator
 from protocol import keys
 from protocol.clock import SimClock
 from protocol.codec import MAX_PAYLOAD_BYTES, ProtocolError, decode, encode
+from protocol.enums import AckStatus, AlertState, Role, VehicleMode
 from protocol.examples import example_messages, object_list
 from protocol.keys import KeyError_
-from protocol.messages import (
-    AckStatus,
-    AlertState,
-    CommandAck,
-    EvAlert,
-    Health,
-    PathSwitchCommand,
-    Role,
-    VehicleMode,
-    VehicleState,
-)
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import CommandAck, EvAlert, Health, PathSwitchCommand, VehicleState
 
 C = "fuzz"
 

@@ -16,14 +16,10 @@ from bench.fuzz_targets import C, _BusTarget, _corridor, mutated_payload
 from protocol import keys
 from protocol.clock import SimClock
 from protocol.codec import ProtocolError, decode, encode
+from protocol.enums import Manoeuvre, Role
 from protocol.examples import example_messages, object_list
-from protocol.messages import (
-    Health,
-    Manoeuvre,
-    PathSwitchCommand,
-    Role,
-)
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import Health, PathSwitchCommand
 
 
 class VehicleTarget(_BusTarget):

@@ -5,8 +5,8 @@ vehicles in view) per lighting, split by stage, and the frame without its per-fr
 
 Per lighting:
 - ``render_ms_<lighting>``: CPU per full frame (process time, best of the rounds), as the sim bench measures it.
-- ``stage_ms_<lighting>``: wall time per frame in each stage of ``sim.render.Renderer.render`` (the pure geometry
-  functions of ``sim.render_pose`` and ``sim.render_effects`` and the renderer's drawing methods, each timed around
+- ``stage_ms_<lighting>``: wall time per frame in each stage of ``sim.render.renderer.Renderer.render`` (the pure geometry
+  functions of ``sim.render.pose`` and ``sim.render.effects`` and the renderer's drawing methods, each timed around
   its call; ``rest``: the per-actor drawing loop with its polygon fills, and the glue), from the quickest round.
 - ``without_geometry_ms_<lighting>``: the same frames with every pure geometry function's answer recorded once and
   handed back instantly (the drawing unchanged): what a frame would cost if the geometry were free, the bound for any
@@ -29,13 +29,13 @@ from collections import Counter  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-import sim.render as render_module  # noqa: E402
+import sim.render.renderer as render_module  # noqa: E402
 from bench.sim_bench import scene  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
 
 GEOMETRY = ("painter_order", "pose_frame", "shadow_outlines", "pool_quads", "blur_vectors", "shade_faces",
             "visible_polygons", "lamp_halos")
-"""The pure per-frame functions ``sim.render`` calls (its module-level names)."""
+"""The pure per-frame functions ``sim.render.renderer`` calls (its module-level names)."""
 DRAWING = ("_frame_start", "_draw_shadow", "_draw_headlight_pool", "_motion_blur", "_draw_halos", "_expose_frame")
 """The renderer's drawing methods timed as stages."""
 

@@ -65,7 +65,7 @@ from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import Frame as RsuFrame  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.pipeline import RsuPipeline  # noqa: E402
-from rsu.track import SortTracker  # noqa: E402
+from rsu.track.sort import SortTracker  # noqa: E402
 
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO = REAL / "traffic_videos" / "ambdet_video_3.mp4"

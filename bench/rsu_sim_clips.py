@@ -15,9 +15,9 @@ from rsu.build import MOTION, PROJECT, PipelineConfig, build_detector, build_tra
 from rsu.detect import PROJECT_MODEL
 from rsu.evaluate import MotEvaluator
 from rsu.localize import GroundProjector, Localizer
-from rsu.track import iou_matrix
+from rsu.track.assoc import iou_matrix
 from sim.camera_source import Frame, SimCamera
-from sim.render_labels import MIN_VISIBLE_FRACTION
+from sim.render.labels import MIN_VISIBLE_FRACTION
 from sim.scenario import load_scenario
 from sim.world import World
 

@@ -39,8 +39,9 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey 
 from deploy.procs import stop_process  # noqa: E402
 from protocol import keys  # noqa: E402
 from protocol.codec import decode, encode  # noqa: E402
+from protocol.enums import Manoeuvre  # noqa: E402
 from protocol.examples import example_messages  # noqa: E402
-from protocol.messages import EvAlert, Manoeuvre, PathSwitchCommand  # noqa: E402
+from protocol.messages import EvAlert, PathSwitchCommand  # noqa: E402
 from protocol.security import Signer, TrustList, Verifier, public_key_b64  # noqa: E402
 
 

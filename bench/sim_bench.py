@@ -9,7 +9,7 @@ pipeline (vehicles, lamps with glow, motion blur, exposure, sensor noise) per li
 without the per-frame effects as the in-run baseline. render_ms (issue 19, target <= 5): CPU time (process time,
 so other processes on a shared machine do not count) per full-pipeline day frame, best of three runs, and the same
 for dusk and night (``render_ms_max``: the most of the three) and for issue 17's straightforward renderer
-(``sim.render_reference``) in the same run. World
+(``bench.render_reference``) in the same run. World
 steps: the ev_two_lanes_dense scenario.
 """
 
@@ -27,10 +27,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.render_reference import ReferenceRenderer  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
-from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot  # noqa: E402
-from sim.render import Renderer  # noqa: E402
-from sim.render_reference import ReferenceRenderer  # noqa: E402
+from protocol.enums import ActorKind, Lighting
+from protocol.messages import Actor, LightBar, WorldSnapshot
+from sim.render.renderer import Renderer  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
 from sim.scenery import render_scenery  # noqa: E402
 from sim.vehicles import LIVERY_AMBULANCE, make_style, random_colour  # noqa: E402

@@ -30,20 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from protocol import presence  # noqa: E402
 from protocol.codec import encode  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
+from protocol.enums import AlertState, EvState, HealthStatus, ObjectType, Role, VehicleMode
 from protocol.keys import rsu_key, vehicle_key  # noqa: E402
-from protocol.messages import (  # noqa: E402
-    AlertState,
-    DetectedObject,
-    EvAlert,
-    EvState,
-    Health,
-    HealthStatus,
-    ObjectList,
-    ObjectType,
-    Role,
-    VehicleMode,
-    VehicleState,
-)
+from protocol.messages import DetectedObject, EvAlert, Health, ObjectList, VehicleState
 from protocol.transport import Transport  # noqa: E402
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport  # noqa: E402
 

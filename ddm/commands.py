@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from ddm.config import DdmConfig
-from protocol.messages import AckStatus, CommandAck, Manoeuvre, PathSwitchCommand
+from protocol.enums import AckStatus, Manoeuvre
+from protocol.messages import CommandAck, PathSwitchCommand
 
 
 class CommandState(StrEnum):

@@ -40,7 +40,8 @@ from ddm.policy import decide, plan
 from ddm.tracks import Track
 from ddm.world import CorridorWorld
 from protocol.corridor import Corridor
-from protocol.messages import CommandAck, PathSwitchCommand, VehicleMode, VehicleState
+from protocol.enums import VehicleMode
+from protocol.messages import CommandAck, PathSwitchCommand, VehicleState
 
 log = logging.getLogger("ddm")
 

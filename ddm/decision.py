@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
-from protocol.messages import Manoeuvre, VehicleMode
+from protocol.enums import Manoeuvre, VehicleMode
 
 if TYPE_CHECKING:
     from ddm.paths import PlannedPath

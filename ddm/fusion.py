@@ -28,7 +28,8 @@ from scipy.spatial import cKDTree
 
 from ddm.config import DdmConfig
 from ddm.tracks import EV_CODE, TYPE_CODES, TrackColumns, TrackStore
-from protocol.messages import DetectedObject, EvState
+from protocol.enums import EvState
+from protocol.messages import DetectedObject
 
 CANDIDATE_MARGIN_M = 15.0
 """Tracks within the list's bounding box grown by this are association candidates."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from protocol.corridor import Road
+from protocol.road import Road
 
 
 class RoadFrame:

@@ -48,7 +48,8 @@ from ddm.paths import (
 from ddm.policy import gap_check
 from ddm.threat import LX_MAX_M, av_hazard_distances, threat_value
 from ddm.tracks import Track
-from protocol.messages import HazardAlert, HazardState, Manoeuvre
+from protocol.enums import HazardState, Manoeuvre
+from protocol.messages import HazardAlert
 
 
 @dataclass(frozen=True)

@@ -60,7 +60,7 @@ from ddm.paths import (
     stop_offset_m,
 )
 from ddm.tracks import Track
-from protocol.messages import Manoeuvre
+from protocol.enums import Manoeuvre
 
 SELF_RADIUS_M = 2.0
 """A track whose centre is this close to the AV's is the AV itself (two cars' centres never are)."""

@@ -53,6 +53,7 @@ from ddm.world import CorridorWorld
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
 from protocol.corridor import Corridor
+from protocol.enums import HealthStatus, Role
 from protocol.keys import (
     RSU_TOPICS,
     KeyError_,
@@ -63,16 +64,7 @@ from protocol.keys import (
     rsu_topic_expr,
     vehicle_key,
 )
-from protocol.messages import (
-    CommandAck,
-    EvAlert,
-    HazardAlert,
-    Health,
-    HealthStatus,
-    ObjectList,
-    Role,
-    VehicleState,
-)
+from protocol.messages import CommandAck, EvAlert, HazardAlert, Health, ObjectList, VehicleState
 from protocol.ranges import MAX_RATE_HZ
 from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer, TrustList, Verifier

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from protocol.messages import ObjectType
+from protocol.enums import ObjectType
 
 TYPES = list(ObjectType)
 TYPE_CODES = {t: i for i, t in enumerate(TYPES)}

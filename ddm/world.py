@@ -30,7 +30,8 @@ import numpy as np
 from ddm import fusion
 from ddm.config import DdmConfig
 from ddm.tracks import EV_CODE, Track, TrackStore
-from protocol.messages import AlertState, ClearReason, EvAlert, ObjectList, VehicleState
+from protocol.enums import AlertState, ClearReason
+from protocol.messages import EvAlert, ObjectList, VehicleState
 
 __all__ = ["AlertRecord", "CorridorWorld", "IngestStats", "Track", "VehicleRecord"]
 

@@ -1,10 +1,10 @@
 """`iea calibrate RSU --image FRAME --points PAIRS.csv [--corridor FILE] [--write]`: commission a camera (issue 27).
 
 Reads the surveyed pairs (CSV: ``name,u_px,v_px,x_m,y_m[,z_m]`` in the corridor frame, or
-``name,u_px,v_px,lat_deg,lon_deg[,height_m]``), solves the camera (``rsu.calibration``), prints the pose,
+``name,u_px,v_px,lat_deg,lon_deg[,height_m]``), solves the camera (``rsu.calibration.solve``), prints the pose,
 the reprojection error per point and overall, the points left out, and the expected ground error per
-distance band beside the location-reference method's (``rsu.calibration_error``); writes the check image
-(``rsu.overlay``). ``--write`` puts the pose, the intrinsics and the road-plane pairs into the corridor file,
+distance band beside the location-reference method's (``rsu.calibration.error``); writes the check image
+(``rsu.calibration.overlay``). ``--write`` puts the pose, the intrinsics and the road-plane pairs into the corridor file,
 printing the unified diff first. Exit codes: 0 ok, 1 the pairs give no camera, 2 bad input.
 """
 
@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 
 from protocol.corridor import DEFAULT_CORRIDOR, CameraConfig, CorridorError, load_corridor, parse_corridor
-from rsu.calibration import CalibrationError, CameraSolution, SurveyPoint, read_points_csv, solve_camera
-from rsu.calibration_error import GROUND_TOLERANCE_M, error_table, format_error_table
-from rsu.overlay import OverlayPoint, check_image
+from rsu.calibration.error import GROUND_TOLERANCE_M, error_table, format_error_table
+from rsu.calibration.overlay import OverlayPoint, check_image
+from rsu.calibration.solve import CalibrationError, CameraSolution, SurveyPoint, read_points_csv, solve_camera
 
 _TABLE = re.compile(r"^\s*\[{1,2}\s*[A-Za-z_\"']")
 """A table header line ([x] or [[x]]), not a row of an array of numbers."""

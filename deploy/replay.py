@@ -138,7 +138,7 @@ def replay_into_ddm(path: str | Path, corridor: Any, config: Any = None, *, dura
     from ddm.service import DdmService
     from protocol.clock import SimClock
     from protocol.keys import all_vehicles_expr
-    from protocol.transport import LocalBus
+    from protocol.local_bus import LocalBus
 
     class ReplayClock(SimClock):
         def set(self, t_s: float) -> None:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from rsu.detect import OnnxDetector
-from rsu.track import iou_matrix
+from rsu.track.assoc import iou_matrix
 
 HELD_OUT_SEEDS = (900_001, 900_002)
 ZONE_M = 100.0
@@ -106,8 +106,8 @@ def render_held_out(scenario: str = "rellis_ev_yield", seeds=HELD_OUT_SEEDS, str
                     lighting: str | None = None, min_box_px: float = 0.0, max_frames: int | None = None,
                     t_min_s: float = 0.0) -> HeldOutSet:
     """Render the held-out frames and their ground truth (see the module docstring)."""
-    from sim.render import Renderer
-    from sim.render_labels import MIN_VISIBLE_FRACTION
+    from sim.render.labels import MIN_VISIBLE_FRACTION
+    from sim.render.renderer import Renderer
     from sim.scenario import load_scenario
     from sim.world import World
 

@@ -32,7 +32,7 @@ from pydantic import (
 )
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
-from protocol.enums import (  # re-exported: the enums are part of the message API
+from protocol.enums import (
     AckStatus,
     ActorKind,
     AlertState,

@@ -32,7 +32,7 @@ from rsu.localize import INTERPOLATIONS, METHODS, Localizer
 from rsu.pipeline import RsuPipeline
 from rsu.service import RsuService
 from rsu.sim_source import SimSource
-from rsu.track_frameworks import FrameworkTracker
+from rsu.track.frameworks import FrameworkTracker
 
 log = logging.getLogger(__name__)
 

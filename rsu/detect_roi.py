@@ -20,8 +20,9 @@ import math
 
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
-from rsu.camera_geometry import project
+from protocol.corridor import CameraConfig
+from protocol.road import Road
+from rsu.calibration.camera_geometry import project
 
 ROI_MARGIN_M = 15.0
 """The detector looks this far beyond the zone of responsibility, so that a vehicle entering the zone is already

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from rsu.track import iou_matrix
+from rsu.track.assoc import iou_matrix
 
 
 @dataclass

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.interpolate import CloughTocher2DInterpolator, LinearNDInterpolator, RBFInterpolator
 
 from protocol.corridor import CameraConfig, Corridor, RsuConfig
-from rsu.track import TrackSet
+from rsu.track.sort import TrackSet
 
 METHODS = ("transform", "reference")
 INTERPOLATIONS = ("linear", "cubic", "rbf", "homography", "homography+rbf")

@@ -27,15 +27,16 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from protocol.messages import DetectedObject, EvState, LightState, ObjectType
+from protocol.enums import EvState, LightState, ObjectType
+from protocol.messages import DetectedObject
 from rsu.classify.alerts import AlertEvent, EvAlertManager
 from rsu.classify.ev import EvVerdict
 from rsu.detect import EV, Detector, MotionDetector
 from rsu.frames import Frame
 from rsu.hazard import HazardDetector, HazardEvent
 from rsu.localize import LocalizedObject, Localizer
-from rsu.track import TrackSet
-from rsu.track_frameworks import FrameworkTracker
+from rsu.track.frameworks import FrameworkTracker
+from rsu.track.sort import TrackSet
 
 Classifier = Callable[[Frame, TrackSet], dict[int, EvVerdict]]
 STAGES = ("detect", "track", "classify", "localize", "hazard", "publish")

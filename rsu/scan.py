@@ -31,13 +31,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from protocol.messages import AlertState, EvState, LightState
+from protocol.enums import AlertState, EvState, LightState
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.classify.ev import TrackEvClassifier
 from rsu.frames import VideoSource
 from rsu.localize import LocalizedObject
 from rsu.pipeline import FrameResult
-from rsu.track import TrackSet
+from rsu.track.sort import TrackSet
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 DEFAULT_DETECTOR = REAL_DATA / "yolox_nano" / "yolox_nano.onnx"

@@ -4,7 +4,7 @@ when due and ``Health`` at 1 Hz over a ``Transport``.
 
 :class:`RsuService` is the imperative shell: it pulls frames, times every stage, publishes, writes the optional annotated
 video (boxes over the corridor's lanes, road edges, coverage limit and 10 m grid drawn through the
-camera: ``rsu.overlay.CalibrationOverlay``) and reports health. Frames never queue without bound: live
+camera: ``rsu.calibration.overlay.CalibrationOverlay``) and reports health. Frames never queue without bound: live
 sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
@@ -42,28 +42,17 @@ from protocol import metrics, presence
 from protocol.clock import Clock, WallClock
 from protocol.codec import encode
 from protocol.corridor import Corridor
+from protocol.enums import AlertState, EvState, HazardState, HealthStatus, LightState, Role
 from protocol.keys import rsu_key, rsu_state_key
-from protocol.messages import (
-    AlertState,
-    EvAlert,
-    EvEvidence,
-    EvState,
-    HazardAlert,
-    HazardState,
-    Health,
-    HealthStatus,
-    LightState,
-    ObjectList,
-    Role,
-)
+from protocol.messages import EvAlert, EvEvidence, HazardAlert, Health, ObjectList
 from protocol.ranges import MAX_LATENCY_MS
 from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
+from rsu.calibration.overlay import CalibrationOverlay
 from rsu.classify.alerts import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardEvent
-from rsu.overlay import CalibrationOverlay
 from rsu.pipeline import STAGES, FrameResult, RsuPipeline, annotate
 
 log = logging.getLogger(__name__)

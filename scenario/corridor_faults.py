@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from protocol.channel import ChannelModel
+from protocol.radio import ChannelModel
 from scenario.fault_judges import (
     DdmRestartSeen,
     DeliverySeen,

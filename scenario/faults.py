@@ -39,22 +39,15 @@ from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.corridor import Corridor, load_corridor
+from protocol.enums import AlertState, EvState, ObjectType, VehicleMode
 from protocol.keys import all_vehicles_expr, rsu_key
-from protocol.messages import (
-    AlertState,
-    DetectedObject,
-    EvAlert,
-    EvState,
-    ObjectList,
-    ObjectType,
-    PathSwitchCommand,
-    VehicleMode,
-)
+from protocol.local_bus import LocalBus
+from protocol.messages import DetectedObject, EvAlert, ObjectList, PathSwitchCommand
+from protocol.radio import ChannelModel, DsrcLink
 from protocol.security import Signer, public_key_b64
-from protocol.transport import DsrcLink, LocalBus, Subscription, Transport
+from protocol.transport import Subscription, Transport
 from scenario.fault_judges import DeliverySeen, FaultOutcome, judge_dropout, judge_latency, lost_commands
 from scenario.outcome import Body, YieldTrace, out_of_strip
 

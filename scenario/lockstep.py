@@ -38,11 +38,12 @@ from ddm.build import DdmOptions, build_ddm
 from ddm.config import DdmConfig
 from ddm.service import DdmService
 from protocol import keys
-from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.corridor import Corridor
+from protocol.local_bus import LocalBus
 from protocol.messages import VehicleState
-from protocol.transport import DsrcLink, LocalBus, Transport
+from protocol.radio import ChannelModel, DsrcLink
+from protocol.transport import Transport
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.frames import Frame
 from rsu.service import RsuService

@@ -1,4 +1,4 @@
-"""Vehicle bodies for the renderer (``sim.render``): each actor as shaded 3-D part boxes in its own frame (lower
+"""Vehicle bodies for the renderer (``sim.render.renderer``): each actor as shaded 3-D part boxes in its own frame (lower
 body, glass cabin, cargo box, light bar; debris shapes) with decals (windows, tail and brake lights, liveries, EV
 lamps, hazard flashers and turn signals: ``sim.lamps``), derived from the ``Actor`` fields (kind, size,
 colour_bgr, brake_on, light_bar and ``style``: ``sim.vehicles``)."""

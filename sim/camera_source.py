@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.corridor import Corridor
+from protocol.enums import Lighting
 from protocol.keys import sim_world_key
-from protocol.messages import Lighting, WorldSnapshot
+from protocol.messages import WorldSnapshot
 from protocol.transport import Subscription, Transport
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 
 
 def camera_phase_s(index: int, fps: float, snapshot_hz: float = 20.0) -> float:

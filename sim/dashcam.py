@@ -2,7 +2,7 @@
 
 A front camera at the centre of the windscreen, and for training data a left and a right camera offset
 sideways by ``SIDE_CAMERA_OFFSET_M`` (the report's three cameras, DAVE-2's recovery views), all rendered
-by the project's renderer (``sim.render.Renderer``) at DAVE-2's input size, 66 x 200 px (the report used
+by the project's renderer (``sim.render.renderer.Renderer``) at DAVE-2's input size, 66 x 200 px (the report used
 400 x 600 and cropped its top 200 rows; here the horizon sits near the top row, so nothing is cropped).
 
 The renderer draws its static scene once per camera; a camera that moves with the car would redraw the
@@ -22,10 +22,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road, Segment
-from protocol.messages import Actor, ActorKind, Lighting, WorldSnapshot
+from protocol.corridor import CameraConfig
+from protocol.enums import ActorKind, Lighting
+from protocol.messages import Actor, WorldSnapshot
+from protocol.road import Road, Segment
 from sim.camera import PinholeCamera, box_corners
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 from sim.scenario import DEBRIS_KINDS
 from sim.traffic import DEBRIS_COLOURS
 from sim.vehicles import make_style

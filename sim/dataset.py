@@ -30,8 +30,8 @@ from pathlib import Path
 
 import cv2
 
-from sim.render import Renderer
-from sim.render_labels import CLASS_EV, CLASS_NAMES, MIN_VISIBLE_FRACTION, Label
+from sim.render.labels import CLASS_EV, CLASS_NAMES, MIN_VISIBLE_FRACTION, Label
+from sim.render.renderer import Renderer
 from sim.scenario import Scenario, load_scenario
 from sim.world import World
 

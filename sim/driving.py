@@ -35,8 +35,9 @@ from ddm.config import DdmConfig
 from ddm.geometry import RoadFrame
 from ddm.paths import plan_lane_change
 from ddm.threat import LX_MAX_M, av_hazard_distances, threat_value
-from protocol.corridor import Road, Segment
-from protocol.messages import Actor, Manoeuvre, PathSwitchCommand
+from protocol.enums import Manoeuvre
+from protocol.messages import Actor, PathSwitchCommand
+from protocol.road import Road, Segment
 from sim.dashcam import debris_actor
 from sim.scenario import DEBRIS_KINDS
 from vehicle.plant import VehicleParams

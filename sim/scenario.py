@@ -27,7 +27,7 @@ DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_
 EV_BODIES = ("ambulance", "police")
 DEBRIS_KINDS = ("box", "rock", "barrel", "pallet", "pipe", "tyre")
 """Debris of the hazard report's simulation (rocks, wooden boxes, oil barrels, wooden pallets, sections of
-pipe) and a lost tyre; the index is the debris' livery (``sim.render`` draws each kind)."""
+pipe) and a lost tyre; the index is the debris' livery (``sim.render.renderer`` draws each kind)."""
 
 
 class ScenarioError(ValueError):

@@ -1,4 +1,4 @@
-"""The static scene of an RSU camera's view for the renderer (``sim.render``): sky, tree line, grass, asphalt with a
+"""The static scene of an RSU camera's view for the renderer (``sim.render.renderer``): sky, tree line, grass, asphalt with a
 world-anchored texture, shoulder, lane markings, haze, street-light pools at night and vignetting, per lighting
 (``LIGHTING``); rendered once per camera and lighting."""
 
@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
+from protocol.corridor import CameraConfig
+from protocol.road import Road
 from sim.camera import NEAR_M, PinholeCamera
 
 # per lighting: ambient, sun strength, sun direction (towards the sun), sky top/bottom (BGR), grass, asphalt,
@@ -58,7 +59,7 @@ class SceneryGeometry:
 
 def scenery_geometry(camera: CameraConfig, cam: PinholeCamera, road: Road, seed: int) -> SceneryGeometry:
     """The lighting-independent part of ``camera``'s static scene (``SceneryGeometry``): made once for all the
-    lightings of a camera (``sim.render.Renderer.prepare``), it is most of a lighting's cost."""
+    lightings of a camera (``sim.render.renderer.Renderer.prepare``), it is most of a lighting's cost."""
     h, w = camera.height_px, camera.width_px
     rng = np.random.default_rng(seed + 1000)
     vv, uu = np.mgrid[0:h, 0:w].astype(np.float32)

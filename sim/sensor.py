@@ -5,10 +5,10 @@ channel value x. Since ``(x g / 255) ** gamma = g ** gamma (x / 255) ** gamma``,
 followed by one scale per frame, clipped at 255: a saturating scale of a kept image costs 4.1 M instructions for
 a 1280x720 frame against 16.7 M for a 256-entry LUT pass (callgrind). Only the pixels a frame drew on
 (``DirtyBands``) go through a table, this frame's ``exposure_table``. ``exposure_lut`` is the direct form, kept for
-``sim.render_reference``; a renderer without noise scales the static scene's gamma image (``expose``).
+``bench.render_reference``; a renderer without noise scales the static scene's gamma image (``expose``).
 
 Noise: a Gaussian field a little larger than the image, generated once per lighting, added (saturating) at an
-offset: one of ``NOISE_SLOTS`` offsets, drawn per frame (``noise_slot``). With noise on, ``sim.render.Renderer``
+offset: one of ``NOISE_SLOTS`` offsets, drawn per frame (``noise_slot``). With noise on, ``sim.render.renderer.Renderer``
 keeps the static scene exposed at unit gain with each slot's noise added (``noise_bank``) and scales it by the
 frame's gain (``expose_bank``: one pass over the frame instead of a scale and the noise's add and subtract); the
 pixels a frame drew on take the exposure table and then the slot's noise. ``ReferenceRenderer`` exposes and then adds

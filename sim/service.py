@@ -17,11 +17,12 @@ import cv2
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer, WallClock
 from protocol.codec import encode
+from protocol.enums import HealthStatus, Role
 from protocol.keys import all_vehicles_expr, sim_health_key, sim_world_key
-from protocol.messages import Health, HealthStatus, Role, VehicleState, WorldSnapshot
+from protocol.messages import Health, VehicleState, WorldSnapshot
 from protocol.runtime import freeze_startup_heap
 from protocol.transport import Transport
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 from sim.scenario import Scenario
 from sim.world import World
 

@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from protocol.corridor import Road
+from protocol.road import Road
 from sim.lamps import assign_signal_lamps
 from sim.scenario import DEBRIS_KINDS, Scenario
 from sim.vehicles import (

@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from protocol.messages import Actor, ActorKind, LightBar, Lighting, VehicleState, WorldSnapshot
+from protocol.enums import ActorKind, Lighting
+from protocol.messages import Actor, LightBar, VehicleState, WorldSnapshot
 from sim.scenario import Scenario
 from sim.traffic import IdmTraffic, TrafficModel, build_population
 from sim.vehicles import SimVehicle

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand
+from protocol.enums import AckStatus, Manoeuvre
+from protocol.messages import PathSwitchCommand
 from protocol.security import ReplayGuard, TrustList, Verifier
 from vehicle.geometry import wrap_angle
 from vehicle.reference import ReferencePath

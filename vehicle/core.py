@@ -24,7 +24,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
+from protocol.enums import AckStatus, Manoeuvre, VehicleMode
+from protocol.messages import PathSwitchCommand
 from vehicle.commands import CommandBook, CommandLimits, Decision
 from vehicle.failsafe import FailsafeConfig, Watchdog
 from vehicle.forward_guard import OWN_RADIUS_M, braking_for_lead, guarded_accel, lead_vehicle

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ddm.threat import LX_MAX_M, LY_MAX_M, fuse_image, image_threat, threat_value
-from protocol.messages import VehicleMode
+from protocol.enums import VehicleMode
 from vehicle.core import ControlOutput
 from vehicle.simulated import SimulatedVehicle
 
@@ -176,7 +176,7 @@ class CameraLoop:
 
     def tick(self, now_s: float) -> float | None:
         """One camera frame: the learned angle set (rad), or None when the world is stale."""
-        from protocol.messages import ActorKind
+        from protocol.enums import ActorKind
         from sim.driving import simulated_radar
 
         snap = self.snapshot

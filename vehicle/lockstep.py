@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from protocol.corridor import Road, Segment
-from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand, VehicleMode
+from protocol.enums import AckStatus, Manoeuvre, VehicleMode
+from protocol.messages import PathSwitchCommand
+from protocol.road import Road, Segment
 from vehicle.core import CoreConfig
 from vehicle.localisation import GNSS, FixSourceConfig
 from vehicle.record import RunRecord, record_step

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from protocol.messages import VehicleMode
+from protocol.enums import VehicleMode
 
 if TYPE_CHECKING:
     from vehicle.simulated import SimulatedVehicle

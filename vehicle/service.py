@@ -37,21 +37,9 @@ from dataclasses import dataclass
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
 from protocol.codec import encode
+from protocol.enums import AckStatus, AlertState, HealthStatus, ObjectType, Role, VehicleMode
 from protocol.keys import ddm_health_key, parse_key, rsu_topic_expr, vehicle_key
-from protocol.messages import (
-    AckStatus,
-    AlertState,
-    CommandAck,
-    EvAlert,
-    Health,
-    HealthStatus,
-    ObjectList,
-    ObjectType,
-    PathSwitchCommand,
-    Role,
-    VehicleMode,
-    VehicleState,
-)
+from protocol.messages import CommandAck, EvAlert, Health, ObjectList, PathSwitchCommand, VehicleState
 from protocol.runtime import freeze_startup_heap
 from protocol.security import AuthError, TrustList, Verifier
 from protocol.transport import Transport

@@ -10,7 +10,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
-from protocol.messages import AlertState, ClearReason, DetectedObject, EvCue, EvState
+from protocol.enums import AlertState, ClearReason, EvCue, EvState
+from protocol.messages import DetectedObject
 from rsu.classify.ev import EvVerdict
 
 

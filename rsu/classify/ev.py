@@ -26,7 +26,7 @@ velocity (:func:`extrapolate_box`), overlaps it by IoU >= ``handover_iou`` (SORT
 threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`match_lost_tracks`). A new box
 that holds most of a nearer vehicle's box takes over nothing: it is two vehicles merged by the detector
 (:func:`rsu.classify.ownership.holds_nearer_vehicle`). The pipeline hands this classifier SORT's held-back tracks
-as well as its reported ones (``rsu.track.SortTracker.tentative``), so the successor takes over, and goes on
+as well as its reported ones (``rsu.track.sort.SortTracker.tentative``), so the successor takes over, and goes on
 gathering, from its birth, not from the frame SORT first reports it (three matches later): an EV whose track
 SORT's filter lost just as its lights came on (e2e_bench seed 10, rsu1: the area velocity learned while the EV
 came into view from under the camera shrank the box faster than the EV) lost the first flash to those frames and
@@ -44,10 +44,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.messages import EvState, LightState
+from protocol.enums import EvState, LightState
 from rsu.classify.evidence_config import EvidenceConfig, lamp_activity
-from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, measure_band
-from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined here before)
+from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, LampMeasurement, measure_band
+from rsu.classify.ownership import (
     above_top,
     band_exclusions,
     blank_rects,
@@ -56,8 +56,8 @@ from rsu.classify.ownership import (  # noqa: F401  (band_exclusions was defined
     holds_nearer_vehicle,
     rect_mask,
 )
-from rsu.classify.temporal import LampMeasurement, TrackEvidence
-from rsu.track import associate
+from rsu.classify.temporal import TrackEvidence
+from rsu.track.assoc import associate
 
 CropScore = Callable[[np.ndarray], float]
 DEFAULT_ABOVE_FRACTION = 0.25
@@ -137,7 +137,7 @@ def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt
 
 def match_lost_tracks(new_boxes: np.ndarray, lost_boxes: np.ndarray, min_iou: float) -> list[tuple[int, int]]:
     """Pairs (new index, lost index) with IoU >= ``min_iou``, each box used once: SORT's own association
-    (:func:`rsu.track.associate`, the reference's shortcut or Hungarian on IoU), with lost boxes as tracks."""
+    (:func:`rsu.track.sort.associate`, the reference's shortcut or Hungarian on IoU), with lost boxes as tracks."""
     new_boxes = np.asarray(new_boxes, float).reshape(-1, 4)
     lost_boxes = np.asarray(lost_boxes, float).reshape(-1, 4)
     rows, cols, _ = associate(new_boxes, lost_boxes, min_iou)

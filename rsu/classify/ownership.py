@@ -10,7 +10,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from rsu.track_assoc import iou_matrix
+from rsu.track.assoc import iou_matrix
 
 
 def band_exclusions(k: int, boxes: np.ndarray, bounds: list[tuple[int, int, int, int] | None]

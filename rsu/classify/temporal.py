@@ -69,17 +69,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from protocol.messages import EvCue, EvState, LightState
+from protocol.enums import EvCue, EvState, LightState
 from rsu.classify.evidence_config import EvidenceConfig
-from rsu.classify.lamps import (  # noqa: F401  (re-exported: the lamp signal API lived here before)
-    BAR_COLOURED,
-    LAMP_BRIGHT,
+from rsu.classify.lamps import (
     LampMeasurement,
     LampRun,
     blink_transitions,
     flash_pattern,
     lamp_runs,
-    measure_lamps,
     median_of,
 )
 

@@ -9,7 +9,8 @@ import math
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
+from protocol.corridor import CameraConfig
+from protocol.road import Road
 from rsu.hazard.config import HazardConfig
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.messages import HazardState
+from protocol.enums import HazardState
 
 ToGround = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """(N, 2) pixels (u, v) -> ((N, 2) ground x, y; (N,) valid)."""

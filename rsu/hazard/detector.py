@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
-from protocol.messages import HazardState
+from protocol.corridor import CameraConfig
+from protocol.enums import HazardState
+from protocol.road import Road
 from rsu.hazard.background import StaticForeground, road_mask
 from rsu.hazard.config import HazardConfig, HazardEvent, ToGround
 from rsu.hazard.vehicles import VehicleMask

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rsu.classify.ev import TrackEvClassifier, band_exclusions
+from rsu.classify.ev import TrackEvClassifier
+from rsu.classify.ownership import band_exclusions
 
 
 def _scene():
@@ -84,7 +85,7 @@ def test_a_vehicle_just_ahead_too_small_to_measure_may_own_the_lamps_on_the_bus_
 def test_a_confirmed_ev_lost_for_a_frame_still_counts_as_just_ahead():
     """SORT drops a track after one missed detection: the EV's confirmed track, lost in this frame, is still just
     ahead of the bus, so the bus's flashes do not confirm alone in that frame (sim tuning seed 44077)."""
-    from protocol.messages import EvState
+    from protocol.enums import EvState
     from rsu.classify.ev import TrackInfo
     from rsu.classify.temporal import TrackEvidence
 
@@ -106,7 +107,7 @@ def test_a_flashing_ev_lost_behind_the_nearer_truck_owns_its_flashes_while_hidde
     bottom edge is behind the truck's box; the truck's band does not confirm on them alone (tuning seed 52609,
     ``ev_two_lanes_dense``, rsu4: a false alert on the truck 0.67 s after the EV's track was lost). Out from behind
     the truck, the claim ends with the hand-over time as before."""
-    from protocol.messages import EvState
+    from protocol.enums import EvState
     from rsu.classify.ev import TrackInfo
 
     clf, boxes, _ = _bus_behind_ev()
@@ -128,7 +129,8 @@ def test_a_flashing_ev_lost_behind_the_nearer_truck_owns_its_flashes_while_hidde
 
 def _flashing_evidence(until_s: float):
     """Evidence of a track whose own band flashed red and blue (an EV's bar) until ``until_s``: not confirmed yet."""
-    from rsu.classify.temporal import LampMeasurement, TrackEvidence
+    from rsu.classify.lamps import LampMeasurement
+    from rsu.classify.temporal import TrackEvidence
 
     ev = TrackEvidence()
     for i in range(int(until_s * 15) + 1):
@@ -142,9 +144,9 @@ def test_a_flashing_track_just_ahead_may_own_the_flashes_before_it_is_confirmed(
     """An EV whose track SORT started again (it had passed a truck) builds its evidence anew; until it is confirmed
     its flashes, seen in the band of the truck just behind it, must not confirm the truck alone (ev_bench seed 51100,
     ``night_ev``, rsu2), in the frame where it is tracked and in one where SORT lost it."""
-    from protocol.messages import EvState, LightState
+    from protocol.enums import EvState, LightState
     from rsu.classify.ev import TrackInfo
-    from rsu.classify.temporal import LampMeasurement
+    from rsu.classify.lamps import LampMeasurement
 
     clf, boxes, bounds = _bus_behind_ev()
     big = boxes.copy()
@@ -186,9 +188,10 @@ def test_an_ev_just_ahead_of_a_bus_keeps_its_bar_inside_the_bus_crop():
 def test_a_steady_bar_just_ahead_does_not_hold_back_the_vehicle_behind():
     """A farther track whose band gave only a steady-bar cue (a blue object on a van's roof line in the Japanese
     clip, body 0.08) does not own flashes: the ambulance just behind it keeps its body scores. One that flashed does."""
-    from protocol.messages import LightState
+    from protocol.enums import LightState
     from rsu.classify.ev import TrackInfo, _may_own_flashes
-    from rsu.classify.temporal import LampMeasurement, TrackEvidence
+    from rsu.classify.lamps import LampMeasurement
+    from rsu.classify.temporal import TrackEvidence
 
     steady = TrackEvidence()
     for i in range(15):

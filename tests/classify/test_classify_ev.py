@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocol.messages import AlertState, DetectedObject, EvState, LightState
+from protocol.enums import AlertState, EvState, LightState
+from protocol.messages import DetectedObject
 from rsu.classify.alerts import EvAlertManager
 from rsu.classify.ev import TrackEvClassifier, clip_box, extrapolate_box, match_lost_tracks
 from rsu.frames import Frame
-from rsu.track import TrackSet
+from rsu.track.sort import TrackSet
 
 FPS = 15.0
 BOX_A = (100.0, 100.0, 180.0, 160.0)  # the EV

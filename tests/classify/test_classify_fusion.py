@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from protocol.messages import EvCue, EvState, LightState
+from protocol.enums import EvCue, EvState, LightState
 from rsu.classify.evidence_config import EvidenceConfig, lamp_activity
-from rsu.classify.lamps import measure_lamps
-from rsu.classify.temporal import LampMeasurement, TrackEvidence
+from rsu.classify.lamps import LampMeasurement, measure_lamps
+from rsu.classify.temporal import TrackEvidence
 
 FPS = 25.0
 BAR = 0.04  # a lit bar covers ~4 % of the band

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocol.messages import EvState, LightState
-from rsu.classify.temporal import LampMeasurement, TrackEvidence, blink_transitions, measure_lamps
+from protocol.enums import EvState, LightState
+from rsu.classify.lamps import LampMeasurement, blink_transitions, measure_lamps
+from rsu.classify.temporal import TrackEvidence
 
 FPS = 15.0
 ON = 0.03  # a lit lamp covers ~3% of the top band
@@ -92,7 +93,7 @@ def test_a_red_flash_handing_over_to_blue_is_enough_evidence():
 
 
 def test_runs_of_a_lamp_signal_with_hysteresis():
-    from rsu.classify.temporal import lamp_runs
+    from rsu.classify.lamps import lamp_runs
 
     t = np.arange(12) / FPS
     x = np.array([0, 1, 1, 0.5, 1, 0, 0, 1, 1, 0, 1, 1.0])

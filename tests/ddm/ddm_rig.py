@@ -11,22 +11,18 @@ from ddm.config import DdmConfig
 from ddm.service import DdmService
 from protocol.clock import SimClock
 from protocol.corridor import Corridor, load_corridor
+from protocol.enums import AckStatus, AlertState, EvState, ObjectType, VehicleMode
 from protocol.keys import all_vehicles_expr, ddm_health_key, rsu_key, vehicle_key
+from protocol.local_bus import LocalBus
 from protocol.messages import (
-    AckStatus,
-    AlertState,
     CommandAck,
     DetectedObject,
     EvAlert,
-    EvState,
     Health,
     ObjectList,
-    ObjectType,
     PathSwitchCommand,
-    VehicleMode,
     VehicleState,
 )
-from protocol.transport import LocalBus
 
 LANE_W = 3.7
 

@@ -8,8 +8,8 @@ from ddm import cli
 from ddm.build import DdmOptions, build_ddm
 from ddm.config import DdmConfig
 from protocol.clock import SimClock
+from protocol.local_bus import LocalBus
 from protocol.security import SecureTransport, new_key_pair
-from protocol.transport import LocalBus
 
 
 def _key_file(tmp_path) -> str:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from ddm.commands import CommandManager, CommandState
 from ddm.config import DdmConfig
-from protocol.messages import AckStatus, CommandAck, Manoeuvre
+from protocol.enums import AckStatus, Manoeuvre
+from protocol.messages import CommandAck
 
 WP = [(0.0, 0.0), (1.0, 0.0)]
 

@@ -12,16 +12,8 @@ from ddm.geometry import RoadFrame
 from ddm.hazard import HazardBook, HazardConfig
 from ddm.world import CorridorWorld
 from protocol.corridor import load_corridor
-from protocol.messages import (
-    AckStatus,
-    AlertState,
-    CommandAck,
-    EvAlert,
-    HazardAlert,
-    Manoeuvre,
-    VehicleMode,
-    VehicleState,
-)
+from protocol.enums import AckStatus, AlertState, Manoeuvre, VehicleMode
+from protocol.messages import CommandAck, EvAlert, HazardAlert, VehicleState
 
 CORRIDOR = load_corridor()
 T0 = 100.0

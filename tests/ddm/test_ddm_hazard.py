@@ -21,7 +21,8 @@ from ddm.hazard import (
 )
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
-from protocol.messages import HazardAlert, Manoeuvre, ObjectType
+from protocol.enums import Manoeuvre, ObjectType
+from protocol.messages import HazardAlert
 
 CORRIDOR = load_corridor()
 FRAME = RoadFrame(CORRIDOR.road)

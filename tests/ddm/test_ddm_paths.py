@@ -17,7 +17,8 @@ from ddm.paths import (
     quintic_offset,
     stop_offset_m,
 )
-from protocol.corridor import Road, Segment, load_corridor
+from protocol.corridor import load_corridor
+from protocol.road import Road, Segment
 
 CFG = DdmConfig()
 FRAME = RoadFrame(load_corridor().road)

@@ -15,7 +15,7 @@ from ddm.geometry import RoadFrame
 from ddm.policy import decide, gap_check, plan
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
-from protocol.messages import Manoeuvre, ObjectType
+from protocol.enums import Manoeuvre, ObjectType
 
 CFG = DdmConfig()
 FRAME = RoadFrame(load_corridor().road)

@@ -15,7 +15,7 @@ from ddm.geometry import RoadFrame
 from ddm.policy import ENTER_FRACTION, MIN_START_GAP_M, decide, gap_check
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
-from protocol.messages import Manoeuvre, ObjectType
+from protocol.enums import Manoeuvre, ObjectType
 
 CFG = DdmConfig()
 FRAME = RoadFrame(load_corridor().road)

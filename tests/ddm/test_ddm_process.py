@@ -16,8 +16,9 @@ from ddm_rig import det, lane_y, object_list
 
 from deploy.procs import stop_process
 from protocol.corridor import load_corridor
+from protocol.enums import AckStatus, AlertState, Manoeuvre, VehicleMode
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
-from protocol.messages import AckStatus, AlertState, CommandAck, EvAlert, Manoeuvre, VehicleMode, VehicleState
+from protocol.messages import CommandAck, EvAlert, VehicleState
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
 

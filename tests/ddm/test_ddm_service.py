@@ -7,8 +7,9 @@ from ddm_rig import Rig
 
 from ddm.config import DdmConfig
 from ddm.service import DdmService
+from protocol.enums import AckStatus, AlertState, Manoeuvre
 from protocol.keys import rsu_key
-from protocol.messages import AckStatus, AlertState, Manoeuvre, ObjectList
+from protocol.messages import ObjectList
 
 
 def ev_behind_rig(**kw) -> Rig:
@@ -184,10 +185,9 @@ def test_restarted_ddm_rebuilds_picture_and_adopts_the_active_command():
 
 def test_commands_get_through_a_lossy_radio_link():
     """The vehicle hears the DDM over an emulated DSRC link losing half the messages each way."""
-    from protocol.channel import ChannelModel
     from protocol.keys import vehicle_key
     from protocol.messages import CommandAck
-    from protocol.transport import DsrcLink
+    from protocol.radio import ChannelModel, DsrcLink
 
     r = ev_behind_rig(auto_ack=False)
     link = DsrcLink(r.bus, ChannelModel(latency_s=0.02, jitter_s=0.005, loss=0.5), seed=7, clock=r.clock)
@@ -238,9 +238,10 @@ def test_an_ev_alert_is_decided_at_once_only_for_the_vehicles_it_can_concern(mon
     import ddm.decider as decider
     from protocol.clock import SimClock
     from protocol.corridor import VehicleConfig, load_corridor
+    from protocol.enums import VehicleMode
     from protocol.keys import vehicle_key
-    from protocol.messages import EvAlert, VehicleMode, VehicleState
-    from protocol.transport import LocalBus
+    from protocol.local_bus import LocalBus
+    from protocol.messages import EvAlert, VehicleState
 
     base = load_corridor()
     cor = replace(base, vehicles=base.vehicles + (VehicleConfig("av2", 450.0, 1, 13.4),))

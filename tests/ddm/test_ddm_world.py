@@ -8,7 +8,8 @@ from ddm_rig import det, lane_y, object_list
 from ddm.config import DdmConfig
 from ddm.world import CorridorWorld
 from protocol.corridor import load_corridor
-from protocol.messages import AlertState, EvAlert, VehicleMode, VehicleState
+from protocol.enums import AlertState, VehicleMode
+from protocol.messages import EvAlert, VehicleState
 
 COR = load_corridor()
 

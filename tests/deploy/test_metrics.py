@@ -20,7 +20,7 @@ from deploy.procs import stop_process_group
 from protocol import metrics
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from protocol.messages import VehicleMode
+from protocol.enums import VehicleMode
 from sim.driving import make_scenario
 from sim.export_driving import DrivingExportConfig, augment, export_driving, side_correction_rad
 from vehicle.learned_steering import MODELS_DIR, LearnedSteering, LearnedVehicle

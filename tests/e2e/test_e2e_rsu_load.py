@@ -8,8 +8,9 @@ import pytest
 from bench.e2e_rsu_load import first_lit_frame_s, load_figures, rsu_load
 from deploy.record import McapRecorder
 from protocol.codec import encode
+from protocol.enums import Lighting, Role
 from protocol.keys import rsu_key, sim_world_key
-from protocol.messages import Health, Lighting, ObjectList, Role, WorldSnapshot
+from protocol.messages import Health, ObjectList, WorldSnapshot
 
 C = "tload"
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from protocol.messages import ClearReason
+from protocol.enums import ClearReason
 from scenario.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
 from scenario.outcome import judge_run
 
@@ -49,7 +49,7 @@ def test_lockstep_is_deterministic_and_alerts_carry_a_clear_reason(rellis_run):
 def test_lockstep_vehicle_link_through_a_lossy_radio():
     """The DsrcLink option: 100 ms latency and 20 % loss on the vehicle's link; commands still arrive
     (retransmitted until acked) and the link counts what it dropped."""
-    from protocol.channel import ChannelModel
+    from protocol.radio import ChannelModel
 
     runner = CorridorLockstep(LockstepConfig(seed=1, duration_s=9.0, channel_seed=3,
                                              vehicle_channel=ChannelModel(latency_s=0.1, jitter_s=0.02, loss=0.2)))

@@ -12,7 +12,7 @@ import dataclasses
 
 import pytest
 
-from protocol.channel import ChannelModel
+from protocol.radio import ChannelModel
 from scenario.faults import (
     LATENCIES_S,
     LOSSES,

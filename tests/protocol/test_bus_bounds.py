@@ -26,8 +26,8 @@ from protocol.codec import (
     encode,
 )
 from protocol.examples import example_messages, object_list
+from protocol.local_bus import LocalBus
 from protocol.messages import MAX_ACTORS, MAX_OBJECTS, Actor, LightBar, WorldSnapshot
-from protocol.transport import LocalBus
 
 C = "b24"
 MAX_INPUT_CPU_S = 0.05

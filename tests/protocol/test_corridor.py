@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from protocol.corridor import CorridorError, Road, Segment, load_corridor, parse_corridor
+from protocol.corridor import CorridorError, load_corridor, parse_corridor
+from protocol.road import Road, Segment
 
 
 def test_default_corridor_is_the_rellis_test():
@@ -109,7 +110,7 @@ def test_frenet_and_pose_fast_paths_match_the_full_search_on_curved_roads():
     of one point runs on plain floats: both give what the vectorised full search over every piece gives."""
     import numpy as np
 
-    from protocol.corridor import Road, Segment
+    from protocol.road import Road, Segment
 
     road = Road(10.0, -3.0, 0.3, (Segment("straight", 100.0), Segment("arc", 150.0, 60.0),
                                    Segment("straight", 50.0), Segment("arc", 200.0, -100.0)))

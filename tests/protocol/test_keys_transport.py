@@ -9,12 +9,12 @@ import time
 import pytest
 
 from protocol import keys
-from protocol.channel import ChannelModel, ChannelState, GilbertElliott
 from protocol.clock import RateTimer, SimClock, WallClock
 from protocol.codec import ProtocolError, encode
 from protocol.examples import example_messages
+from protocol.local_bus import LocalBus
 from protocol.messages import CommandAck, Health, ObjectList
-from protocol.transport import DsrcLink, LocalBus
+from protocol.radio import ChannelModel, ChannelState, DsrcLink, GilbertElliott
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone

@@ -21,8 +21,8 @@ from deploy import status
 from protocol import keys, presence, qos
 from protocol.clock import SimClock, WallClock
 from protocol.corridor import load_corridor
+from protocol.local_bus import LocalBus
 from protocol.messages import Health
-from protocol.transport import LocalBus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 ROOT = Path(__file__).resolve().parents[2]

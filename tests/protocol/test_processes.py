@@ -10,10 +10,10 @@ import time
 import pytest
 
 from protocol import keys
-from protocol.channel import ChannelModel
 from protocol.clock import SimClock
 from protocol.examples import example_messages
-from protocol.transport import DsrcLink, LocalBus
+from protocol.local_bus import LocalBus
+from protocol.radio import ChannelModel, DsrcLink
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone

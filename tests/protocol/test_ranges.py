@@ -14,9 +14,9 @@ import pytest
 from protocol import keys
 from protocol.codec import ProtocolError, decode, encode
 from protocol.examples import example_messages
+from protocol.local_bus import LocalBus
 from protocol.messages import MESSAGE_TYPES, WorldSnapshot
 from protocol.ranges import MAX_COUNT, MAX_SIM_TIME_S
-from protocol.transport import LocalBus
 
 ISSUE_24_CRASH = bytes.fromhex(
     "8aa46b696e64ad576f726c64536e617073686f74a17601a3737263a373696da373657100a57374616d70cb3ff0000000000000a873"

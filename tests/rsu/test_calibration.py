@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from protocol.corridor import load_corridor, parse_corridor
-from rsu.calibration import CalibrationError, SurveyPoint, read_points_csv, solve_camera
-from rsu.calibration_error import error_table
-from rsu.camera_geometry import ground_points, project
-from rsu.overlay import CalibrationOverlay, OverlayPoint, check_image
+from rsu.calibration.camera_geometry import ground_points, project
+from rsu.calibration.error import error_table
+from rsu.calibration.overlay import CalibrationOverlay, OverlayPoint, check_image
+from rsu.calibration.solve import CalibrationError, SurveyPoint, read_points_csv, solve_camera
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "tests" / "fixtures" / "commission"
@@ -46,7 +46,7 @@ def _errors(got, cam):
 
 
 def test_pose_from_8_points_with_1px_noise_on_a_render(sim, tmp_path):
-    from sim.render import Renderer
+    from sim.render.renderer import Renderer
 
     corridor, cam = sim
     frame = Renderer(cam, corridor.road, seed=0).background("day")

@@ -7,7 +7,7 @@ import pytest
 
 from protocol.corridor import load_corridor
 from rsu.build import PipelineConfig, build_detector
-from rsu.camera_geometry import project
+from rsu.calibration.camera_geometry import project
 from rsu.detect_roi import PROJECT_SCALE, ROI_MARGIN_M, VEHICLE_TOP_M, detection_roi, zone_box_px
 
 CORRIDOR = load_corridor()

@@ -23,7 +23,7 @@ from rsu.detect import (
     postprocess,
     yolox_grids,
 )
-from rsu.track import iou_matrix
+from rsu.track.assoc import iou_matrix
 
 REAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real"
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"

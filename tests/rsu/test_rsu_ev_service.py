@@ -7,9 +7,10 @@ import pytest
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
+from protocol.enums import AlertState, EvState, ObjectType
 from protocol.keys import rsu_key
-from protocol.messages import AlertState, EvAlert, EvState, ObjectList, ObjectType
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import EvAlert, ObjectList
 from rsu.build import PipelineConfig, build_classifier, build_tracker
 from rsu.detect import Detections
 from rsu.frames import ArraySource
@@ -137,8 +138,8 @@ def _jumping_ev_frames(n: int, shift_px: int = 60) -> tuple[list[np.ndarray], li
 def _first_confirmed_s(monkeypatch, held_back_tracks: bool) -> tuple[float, float]:
     """(first publication of the successor track, first frame it is published confirmed), in s."""
     from rsu.frames import Frame
-    from rsu.track import TrackSet
-    from rsu.track_frameworks import FrameworkTracker
+    from rsu.track.frameworks import FrameworkTracker
+    from rsu.track.sort import TrackSet
 
     if not held_back_tracks:
         monkeypatch.setattr(FrameworkTracker, "tentative", lambda self: TrackSet.empty())

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from protocol.corridor import load_corridor
-from protocol.messages import HazardState
+from protocol.enums import HazardState
 from rsu.hazard import HazardConfig, HazardDetector, road_mask
 from rsu.localize import Localizer
 
@@ -252,8 +252,8 @@ class _NoDetector:
 def test_service_publishes_hazard_alerts_appear_persist_clear(scene):
     from protocol.clock import SimClock
     from protocol.keys import rsu_key
+    from protocol.local_bus import LocalBus
     from protocol.messages import HazardAlert
-    from protocol.transport import LocalBus
     from rsu.build import PipelineConfig, build_tracker
     from rsu.frames import ArraySource
     from rsu.pipeline import RsuPipeline

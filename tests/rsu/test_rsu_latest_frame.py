@@ -9,9 +9,10 @@ import pytest
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
+from protocol.enums import Lighting
 from protocol.keys import rsu_key, sim_world_key
-from protocol.messages import Health, Lighting, WorldSnapshot
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import Health, WorldSnapshot
 from rsu.build import MOTION, PipelineConfig, build_pipeline
 from rsu.frames import Frame
 from rsu.service import RsuService

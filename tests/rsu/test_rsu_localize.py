@@ -10,7 +10,7 @@ import pytest
 from deploy.survey import project_points, survey
 from protocol.corridor import load_corridor
 from rsu.localize import INTERPOLATIONS, GroundProjector, Localizer, ReferenceInterpolator, bottom_centres
-from rsu.track import TrackSet
+from rsu.track.sort import TrackSet
 
 CORRIDOR = load_corridor()
 RSU = CORRIDOR.rsus[0]
@@ -196,7 +196,7 @@ def test_no_boxes_localise_to_nothing(method):
 def _rendered_vehicles_at_60_m(n_wanted=24):
     """(rsu, label box, true centre) of rendered vehicles 55-65 m from a camera, >= 90 % visible
     (the simulator's own labels of its renders: the visible part of each vehicle's silhouette)."""
-    from sim.render import Renderer
+    from sim.render.renderer import Renderer
     from sim.scenario import load_scenario
     from sim.world import World
 

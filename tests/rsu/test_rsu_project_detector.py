@@ -20,7 +20,7 @@ from models.evaluate_detector import (
     restrict,
 )
 from rsu.detect import PROJECT_CLASSES, OnnxDetector, yolox_grids
-from rsu.track import iou_matrix
+from rsu.track.assoc import iou_matrix
 
 MODEL = Path(__file__).resolve().parents[2] / "models" / "iea_det_tiny.onnx"
 needs_model = pytest.mark.skipif(not MODEL.is_file(), reason=f"{MODEL} not built (make models)")

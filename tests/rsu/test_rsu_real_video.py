@@ -9,7 +9,7 @@ import pytest
 
 from rsu.detect import OnnxDetector
 from rsu.frames import VideoSource
-from rsu.track import SortTracker
+from rsu.track.sort import SortTracker
 
 REAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real"
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
@@ -43,7 +43,7 @@ def test_service_on_real_video_with_yolox_writes_annotated_video(tmp_path):
     from protocol.clock import WallClock
     from protocol.corridor import load_corridor
     from protocol.keys import rsu_key
-    from protocol.transport import LocalBus
+    from protocol.local_bus import LocalBus
     from rsu.build import PipelineConfig, build_pipeline
     from rsu.service import RsuService
 

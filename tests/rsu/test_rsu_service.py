@@ -13,9 +13,10 @@ import pytest
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
+from protocol.enums import HealthStatus, ObjectType
 from protocol.keys import all_rsus_expr, rsu_key
-from protocol.messages import Health, HealthStatus, ObjectList, ObjectType
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import Health, ObjectList
 from protocol.zenoh_transport import ZenohTransport
 from rsu.build import MOTION, PipelineConfig, build_detector, build_pipeline, build_tracker
 from rsu.classify.ev import EvVerdict

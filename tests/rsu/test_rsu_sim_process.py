@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 
 from deploy.procs import stop_process
+from protocol.enums import AlertState
 from protocol.keys import rsu_key
-from protocol.messages import AlertState, EvAlert
+from protocol.messages import EvAlert
 from protocol.zenoh_transport import ZenohTransport
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone

@@ -10,8 +10,9 @@ from scipy.optimize import linear_sum_assignment
 
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort, _associate
 from rsu.evaluate import mot_result_lines, read_mot_detections, synthetic_scene
-from rsu.track import SortTracker, associate, iou_matrix
-from rsu.track_frameworks import FrameworkTracker
+from rsu.track.assoc import associate, iou_matrix
+from rsu.track.frameworks import FrameworkTracker
+from rsu.track.sort import SortTracker
 
 
 def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
@@ -49,7 +50,7 @@ def test_same_tracks_as_reference(seed, max_age, min_hits, iou_threshold):
 def test_scalar_and_array_steps_give_the_reference_tracks(monkeypatch, seed, scalar_max_rows):
     """Every frame on arrays (0), on Python floats (10**6), or switching between them as the density crosses 12
     live tracks + detections (issue 19: the scalar step for the densities an RSU sees)."""
-    import rsu.track as track
+    import rsu.track.sort as track
 
     monkeypatch.setattr(track, "SCALAR_MAX_ROWS", scalar_max_rows)
     frames = synthetic_scene(n_frames=150, n_targets=8, seed=seed, miss_prob=0.15, false_pos_per_frame=1.0,
@@ -281,7 +282,7 @@ def _tentative_run(frames, min_hits):
 def test_tentative_tracks_are_the_matched_ones_sort_holds_back(monkeypatch, min_hits):
     """``SortTracker.tentative``: after a frame, the tracks it matched but did not report (born or re-found under
     min_hits frames ago), with their filtered boxes (a newborn's: its detection); the same on the array step."""
-    import rsu.track as track
+    import rsu.track.sort as track
 
     frames = synthetic_scene(n_frames=120, n_targets=10, seed=5, miss_prob=0.15, false_pos_per_frame=1.0,
                              mean_life_frames=30.0)

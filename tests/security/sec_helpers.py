@@ -34,7 +34,8 @@ def pull_over(road, s_car: float, now: float, *, command_id: str = "c1", seq: in
     """A pull-over from lane 1 to lane 0 starting just ahead of the car (as the DDM would plan it)."""
     import numpy as np
 
-    from protocol.messages import Manoeuvre, PathSwitchCommand
+    from protocol.enums import Manoeuvre
+    from protocol.messages import PathSwitchCommand
     from vehicle.reference import lane_change_waypoints
 
     wp = np.asarray(lane_change_waypoints(road, s_car + 5.0, 1, 0, 40.0, 150.0, lead_m=8.0))
@@ -47,7 +48,8 @@ def pull_over(road, s_car: float, now: float, *, command_id: str = "c1", seq: in
 
 
 def resume(now: float, *, command_id: str, seq: int, vehicle_id: str = "av1", valid_s: float = 5.0):
-    from protocol.messages import Manoeuvre, PathSwitchCommand
+    from protocol.enums import Manoeuvre
+    from protocol.messages import PathSwitchCommand
 
     return PathSwitchCommand(src="ddm", stamp=now, command_id=command_id, command_seq=seq, vehicle_id=vehicle_id,
                              manoeuvre=Manoeuvre.RESUME, reason="test", target_lane=1, waypoints=[],

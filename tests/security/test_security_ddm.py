@@ -17,10 +17,11 @@ from ddm import service as ddm_service  # noqa: E402
 from ddm.service import DdmService  # noqa: E402
 from protocol.clock import SimClock  # noqa: E402
 from protocol.codec import ProtocolError, decode, encode  # noqa: E402
+from protocol.enums import AlertState, Role, VehicleMode
 from protocol.keys import all_rsus_expr, rsu_key, vehicle_key  # noqa: E402
-from protocol.messages import AlertState, EvAlert, Health, Role, VehicleMode, VehicleState  # noqa: E402
+from protocol.local_bus import LocalBus
+from protocol.messages import EvAlert, Health, VehicleState
 from protocol.security import AuthError, SecureTransport, TrustList, Verifier  # noqa: E402
-from protocol.transport import LocalBus  # noqa: E402
 from vehicle.commands import CommandGate  # noqa: E402
 
 DDM, DDM_PUB = key("ddm-1")
@@ -207,7 +208,8 @@ def test_implausible_numbers_are_kept_from_the_fusion():
 def test_seq_jumps_cannot_make_the_ddm_health_unpublishable():
     """Found by fuzzing (issue 24): acks whose seq jump by 2**53 on two vehicles' keys summed past the
     largest Count a Health may carry, and every health beat of the DDM raised."""
-    from protocol.messages import AckStatus, CommandAck
+    from protocol.enums import AckStatus
+    from protocol.messages import CommandAck
     from protocol.ranges import MAX_COUNT
 
     r = Rig()

@@ -13,8 +13,9 @@ import pytest
 from sec_helpers import key
 
 from protocol.corridor import DEFAULT_CORRIDOR, load_corridor
+from protocol.enums import AlertState, VehicleMode
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
-from protocol.messages import AlertState, EvAlert, ObjectList, VehicleMode, VehicleState
+from protocol.messages import EvAlert, ObjectList, VehicleState
 from protocol.security import new_key_pair
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 from scenario.faults import _detected

@@ -17,21 +17,12 @@ from bench import fuzz_bench
 from protocol.clock import SimClock
 from protocol.codec import ProtocolError, decode, encode
 from protocol.corridor import load_corridor
+from protocol.enums import AlertState, Manoeuvre, Role, VehicleMode
 from protocol.examples import example_messages
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
-from protocol.messages import (
-    MESSAGE_TYPES,
-    AlertState,
-    EvAlert,
-    Health,
-    Manoeuvre,
-    PathSwitchCommand,
-    Role,
-    VehicleMode,
-    VehicleState,
-)
+from protocol.local_bus import LocalBus
+from protocol.messages import MESSAGE_TYPES, EvAlert, Health, PathSwitchCommand, VehicleState
 from protocol.ranges import MAX_POSITION_M, MAX_SPEED_MPS
-from protocol.transport import LocalBus
 
 EXAMPLES = int(os.environ.get("IEA_FUZZ_EXAMPLES", "120"))
 """Examples per test (``IEA_FUZZ_EXAMPLES=2000`` for a longer, randomised run)."""

@@ -12,8 +12,8 @@ from sec_helpers import key, resume
 
 from deploy.procs import stop_process
 from protocol.corridor import DEFAULT_CORRIDOR
+from protocol.enums import AckStatus
 from protocol.keys import vehicle_key
-from protocol.messages import AckStatus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone

@@ -11,10 +11,11 @@ import pytest
 from sec_helpers import corridor_with, ddm_entry, key, pull_over, resume, rsu_entry
 
 from protocol.clock import SimClock
+from protocol.enums import AckStatus, Role, VehicleMode
 from protocol.keys import ddm_health_key, vehicle_key
-from protocol.messages import AckStatus, Health, Role, VehicleMode
+from protocol.local_bus import LocalBus
+from protocol.messages import Health
 from protocol.security import TrustList
-from protocol.transport import LocalBus
 from vehicle.commands import CommandGate
 from vehicle.service import MAX_INBOX, VehicleService
 

@@ -1,7 +1,7 @@
 import pytest
 
 from protocol.corridor import load_corridor
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 
 
 @pytest.fixture(scope="session")

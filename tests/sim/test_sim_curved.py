@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from protocol.corridor import parse_corridor
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 from sim.scenario import parse_scenario
 from sim.world import World
 

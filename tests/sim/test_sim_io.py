@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from protocol.clock import SimClock
+from protocol.enums import VehicleMode
 from protocol.keys import sim_health_key, sim_world_key, vehicle_key
-from protocol.messages import Health, VehicleMode, VehicleState, WorldSnapshot
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import Health, VehicleState, WorldSnapshot
 from sim.camera_source import SimCamera
 from sim.dataset import ExportConfig, ExportError, export_dataset
-from sim.render import Renderer
+from sim.render.renderer import Renderer
 from sim.scenario import load_scenario
 from sim.service import SimService
 from sim.world import World

@@ -6,7 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from protocol.messages import Actor, ActorKind, Lighting, WorldSnapshot
+from protocol.enums import ActorKind, Lighting
+from protocol.messages import Actor, WorldSnapshot
 from sim.bodies import face_points
 from sim.lamps import (
     DUTY,
@@ -16,8 +17,8 @@ from sim.lamps import (
     style_signal,
     with_signal_lamps,
 )
-from sim.render import Renderer
-from sim.render_labels import CLASS_VEHICLE
+from sim.render.labels import CLASS_VEHICLE
+from sim.render.renderer import Renderer
 from sim.scenario import ScenarioError, load_scenario, parse_scenario
 from sim.vehicles import LIVERY_TWO_TONE, make_style, style_detail, style_livery
 from sim.world import World

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot
+from protocol.enums import ActorKind, Lighting
+from protocol.messages import Actor, LightBar, WorldSnapshot
 from sim.bodies import ev_lamps_on
 from sim.dataset import yolo_line
-from sim.render import Renderer
-from sim.render_labels import CLASS_EV, CLASS_VEHICLE, MIN_VISIBLE_FRACTION
+from sim.render.labels import CLASS_EV, CLASS_VEHICLE, MIN_VISIBLE_FRACTION
+from sim.render.renderer import Renderer
 from sim.scenario import load_scenario
 from sim.vehicles import LIVERY_AMBULANCE, make_style
 from sim.world import World

@@ -1,14 +1,14 @@
 """The renderer's cached fast path (issue 19: body models built once per look, posed and shaded with array
 operations, shadows darkened by a scale, the static scene kept exposed at unit gain with each noise slot's noise and
-scaled per frame) draws the same pixels as issue 17's straightforward renderer (``sim.render_reference.
+scaled per frame) draws the same pixels as issue 17's straightforward renderer (``bench.render_reference.
 ReferenceRenderer``) within noise, and the static scene is rendered once per lighting."""
 
 import cv2
 import numpy as np
 import pytest
 
-from sim.render import Renderer
-from sim.render_reference import ReferenceRenderer
+from bench.render_reference import ReferenceRenderer
+from sim.render.renderer import Renderer
 from sim.scenario import load_scenario
 from sim.scenery import LIGHTING
 from sim.world import World
@@ -70,7 +70,7 @@ def test_fast_path_matches_in_every_lighting_with_blur_shadows_and_lamps(corrido
 
 
 def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):
-    import sim.render as render_mod
+    import sim.render.renderer as render_mod
 
     calls = []
     real = render_mod.render_scenery
@@ -89,7 +89,7 @@ def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):
 def test_lightings_prepared_together_share_one_geometry_and_draw_the_same_scenes(corridor, monkeypatch):
     """Renderer.prepare(*lightings): one sim.scenery.scenery_geometry for every lighting it makes, and each static
     scene identical to the one rendered alone."""
-    import sim.render as render_mod
+    import sim.render.renderer as render_mod
 
     made = []
     real = render_mod.scenery_geometry

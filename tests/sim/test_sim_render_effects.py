@@ -1,11 +1,11 @@
 """The renderer's effect numbers computed with array operations (issue 19) equal issue 17's per-tap and per-lamp
-loops (``sim.render_reference``'s arithmetic, restated here)."""
+loops (``bench.render_reference``'s arithmetic, restated here)."""
 
 import cv2
 import numpy as np
 import pytest
 
-from sim.render_effects import halo_numbers, hidden_lamps, line_kernel
+from sim.render.effects import halo_numbers, hidden_lamps, line_kernel
 
 
 def _grid_kernel(vec):
@@ -52,10 +52,11 @@ def test_halo_numbers_match_the_per_lamp_loop():
 
 
 def test_shade_faces_of_several_actors_equal_each_actors_own():
-    from protocol.messages import Actor, ActorKind
+    from protocol.enums import ActorKind
+    from protocol.messages import Actor
     from sim.bodies import body_model
-    from sim.render_effects import shade_faces
-    from sim.render_pose import actor_batch
+    from sim.render.effects import shade_faces
+    from sim.render.pose import actor_batch
     from sim.scenery import LIGHTING
 
     actors = [Actor(actor_id=f"a{k}", kind=ActorKind(kind), pos_x_m=20.0 + 9 * k, pos_y_m=1.85 + 3.7 * (k % 2),
@@ -103,10 +104,11 @@ def test_a_lamp_behind_a_nearer_vehicle_is_hidden_and_one_beside_it_is_not():
 
 @pytest.mark.parametrize("renderer", ["cached", "reference"])
 def test_an_ev_hidden_behind_a_bus_throws_no_halo(renderer):
+    from bench.render_reference import ReferenceRenderer
     from protocol.corridor import load_corridor
-    from protocol.messages import Actor, ActorKind, LightBar, Lighting, WorldSnapshot
-    from sim.render import Renderer
-    from sim.render_reference import ReferenceRenderer
+    from protocol.enums import ActorKind, Lighting
+    from protocol.messages import Actor, LightBar, WorldSnapshot
+    from sim.render.renderer import Renderer
     from sim.vehicles import LIVERY_AMBULANCE, make_style
 
     corridor = load_corridor()
@@ -134,9 +136,9 @@ def test_an_ev_hidden_behind_a_bus_throws_no_halo(renderer):
 
 
 def test_inside_convex_hulls_agrees_with_the_hull_and_point_test():
-    """sim.render_effects.inside_convex_hulls: the same answers as cv2.convexHull then cv2.pointPolygonTest > 0 on
+    """sim.render.effects.inside_convex_hulls: the same answers as cv2.convexHull then cv2.pointPolygonTest > 0 on
     random boxes' projected corners and random points (inside, outside, near their edges)."""
-    from sim.render_effects import inside_convex_hulls
+    from sim.render.effects import inside_convex_hulls
 
     rng = np.random.default_rng(5)
     corners = rng.uniform(-40, 40, (400, 8, 2)) * rng.uniform(0.05, 1, (400, 1, 2)) + rng.uniform(0, 200, (400, 1, 2))
@@ -149,12 +151,13 @@ def test_inside_convex_hulls_agrees_with_the_hull_and_point_test():
 
 
 def test_decal_paint_is_the_per_decal_rule():
-    """sim.render_effects.decal_paint (kept per body model and lamp states by the renderer) gives each decal the
+    """sim.render.effects.decal_paint (kept per body model and lamp states by the renderer) gives each decal the
     colour issue 17's per-decal loop drew it in: a lit lamp's colour, else its unlit colour, and no draw at all for
     a turn signal that is off; and names the lamps it lights."""
-    from protocol.messages import Actor, ActorKind, LightBar
+    from protocol.enums import ActorKind
+    from protocol.messages import Actor, LightBar
     from sim.bodies import body_model
-    from sim.render_effects import decal_paint, lit_bgr, unlit_bgr
+    from sim.render.effects import decal_paint, lit_bgr, unlit_bgr
     from sim.scenery import LIGHTING
     from sim.vehicles import LIVERY_AMBULANCE, make_style
 

@@ -1,14 +1,15 @@
-"""sim.render_pose: every actor of a snapshot posed from one concatenation of their body models
+"""sim.render.pose: every actor of a snapshot posed from one concatenation of their body models
 (``ActorBatch``) gives each actor's own projection, visible faces and decals."""
 
 import numpy as np
 
 from protocol.corridor import load_corridor
-from protocol.messages import Actor, ActorKind, LightBar
+from protocol.enums import ActorKind
+from protocol.messages import Actor, LightBar
 from sim.bodies import body_model
 from sim.camera import PinholeCamera
-from sim.render_effects import shade_faces
-from sim.render_pose import actor_batch, painter_order, pose_frame, visible_polygons
+from sim.render.effects import shade_faces
+from sim.render.pose import actor_batch, painter_order, pose_frame, visible_polygons
 from sim.scenery import LIGHTING
 from sim.vehicles import LIVERY_AMBULANCE, make_style
 

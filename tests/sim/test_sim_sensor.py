@@ -108,11 +108,11 @@ def test_exposure_table_gives_the_two_pass_values():
 
 
 def test_halo_falloff_is_made_once_per_radius_and_read_only():
-    """sim.render_effects.halo_falloff: the Gaussian a sprite is coloured from, cached by radius."""
+    """sim.render.effects.halo_falloff: the Gaussian a sprite is coloured from, cached by radius."""
     import numpy as np
     import pytest
 
-    from sim.render_effects import halo_falloff
+    from sim.render.effects import halo_falloff
 
     f = halo_falloff(6)
     assert f is halo_falloff(6) and f.shape == (25, 25, 1) and f.dtype == np.float32

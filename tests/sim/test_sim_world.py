@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from protocol.codec import decode, encode
-from protocol.messages import VehicleMode, VehicleState, WorldSnapshot
+from protocol.enums import VehicleMode
+from protocol.messages import VehicleState, WorldSnapshot
 from sim.scenario import ScenarioError, list_scenarios, load_scenario, parse_scenario
 from sim.traffic import IdmTraffic, TrafficModel, idm_accel
 from sim.world import World

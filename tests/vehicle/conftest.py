@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from protocol.corridor import Road, Segment
+from protocol.road import Road, Segment
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from protocol.clock import SimClock
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
 from vehicle import cli
 from vehicle.build import VehicleOptions, build_vehicle
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from vehicle_helpers import make_command
 
-from protocol.messages import AckStatus, Manoeuvre, PathSwitchCommand
+from protocol.enums import AckStatus, Manoeuvre
+from protocol.messages import PathSwitchCommand
 from vehicle.commands import CommandBook, validate_command
 
 POSE = (100.0, 5.55, 0.0)  # lane 1 centre, heading east

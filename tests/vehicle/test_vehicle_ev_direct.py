@@ -17,20 +17,11 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
+from protocol.enums import AlertState, Manoeuvre, Role, VehicleMode
 from protocol.keys import ddm_health_key, rsu_key, vehicle_key
-from protocol.messages import (
-    AlertState,
-    DetectedObject,
-    EvAlert,
-    Health,
-    Manoeuvre,
-    ObjectList,
-    PathSwitchCommand,
-    Role,
-    VehicleMode,
-)
+from protocol.local_bus import LocalBus
+from protocol.messages import DetectedObject, EvAlert, Health, ObjectList, PathSwitchCommand
 from protocol.security import Signer, public_key_b64
-from protocol.transport import LocalBus
 from vehicle.ev_direct import DirectAlertConfig, HeardAlert, act_on_alert, time_to_reach_s
 from vehicle.reference import lane_change_waypoints
 from vehicle.service import VehicleService

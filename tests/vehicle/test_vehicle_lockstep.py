@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from protocol.messages import AckStatus, VehicleMode
+from protocol.enums import AckStatus, VehicleMode
 from vehicle.failsafe import FailsafeConfig
 from vehicle.lockstep import field_test_scenario, run_scenario
 

@@ -13,8 +13,8 @@ from vehicle_helpers import make_command
 
 from deploy.procs import stop_process
 from protocol.corridor import load_corridor
+from protocol.enums import AckStatus
 from protocol.keys import vehicle_key
-from protocol.messages import AckStatus
 from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone

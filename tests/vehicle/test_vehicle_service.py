@@ -8,9 +8,10 @@ from vehicle_helpers import make_command
 
 from protocol.clock import SimClock
 from protocol.corridor import load_corridor
+from protocol.enums import AckStatus, Role, VehicleMode
 from protocol.keys import ddm_health_key, vehicle_key
-from protocol.messages import AckStatus, Health, PathSwitchCommand, Role, VehicleMode
-from protocol.transport import LocalBus
+from protocol.local_bus import LocalBus
+from protocol.messages import Health, PathSwitchCommand
 from vehicle.core import CoreConfig
 from vehicle.failsafe import FailsafeConfig
 from vehicle.service import VehicleService

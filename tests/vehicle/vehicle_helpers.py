@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from protocol.corridor import Road
-from protocol.messages import Manoeuvre, PathSwitchCommand
+from protocol.enums import Manoeuvre
+from protocol.messages import PathSwitchCommand
+from protocol.road import Road
 from vehicle.reference import lane_centre_waypoints, lane_change_waypoints
 
 

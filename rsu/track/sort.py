@@ -27,7 +27,7 @@ Kalman predict/update runs as batched numpy over all tracks instead of one filte
 - ids count from 1 in the output (the reference reports ``id + 1``), per tracker instance (the
   reference shares a class-level counter between instances and wraps it at 10000; this does not).
 
-The thesis's two ways of running it over classes are ``rsu.track_frameworks.FrameworkTracker``.
+The thesis's two ways of running it over classes are ``rsu.track.frameworks.FrameworkTracker``.
 
 Pure core: no I/O, no clock, deterministic.
 """
@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rsu import track_scalar
-from rsu.track_assoc import _associate, associate, iou_matrix  # noqa: F401  (re-exported)
+from rsu.track import sort_scalar
+from rsu.track.assoc import _associate, iou_matrix
 
 DIM_X = 7
 
@@ -188,10 +188,10 @@ _NEW_ROW[0, _P00] = np.diag(P0)[0:4]
 _NEW_ROW[0, _P11] = np.diag(P0)[4:7]
 _NEW_ROW[0, _ONE] = 1.0
 assert (_AGE, _TSU, _HITS, _STREAK, _ID, _CLASS, _DET, _SCORE, _NCOL) == (
-    track_scalar.AGE, track_scalar.TSU, track_scalar.HITS, track_scalar.STREAK, track_scalar.ID,
-    track_scalar.CLASS, track_scalar.DET, track_scalar.SCORE, track_scalar.NCOL), "rsu.track_scalar's row layout"
+    sort_scalar.AGE, sort_scalar.TSU, sort_scalar.HITS, sort_scalar.STREAK, sort_scalar.ID,
+    sort_scalar.CLASS, sort_scalar.DET, sort_scalar.SCORE, sort_scalar.NCOL), "rsu.track.sort_scalar's row layout"
 SCALAR_MAX_ROWS = 48
-"""Live tracks + detections up to which a frame runs on Python floats (``rsu.track_scalar``: the densities an RSU
+"""Live tracks + detections up to which a frame runs on Python floats (``rsu.track.sort_scalar``: the densities an RSU
 sees, where numpy's per-call cost dominates); above it, on the table with array operations. Measured with
 ``bench/rsu_bench.py``'s streams: at 20 targets the scalar step costs ~60 us of CPU, the array step ~75 us; at 100,
 ~375 and ~205 us."""
@@ -207,7 +207,7 @@ def _rows_trackset(r: np.ndarray) -> TrackSet:
 
 
 def _scalar_trackset(out: list[tuple]) -> TrackSet:
-    """``TrackSet`` of ``rsu.track_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
+    """``TrackSet`` of ``rsu.track.sort_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
     detection, hits, age)."""
     if not out:
         return TrackSet.empty()
@@ -232,7 +232,7 @@ class SortTracker:
         self.frame_count = 0
         self._t = np.zeros((0, _NCOL))
         self._rows: list[list[float]] | None = None
-        """The same table as Python lists while frames run on ``rsu.track_scalar`` (then ``_t`` is stale)."""
+        """The same table as Python lists while frames run on ``rsu.track.sort_scalar`` (then ``_t`` is stale)."""
 
     def __len__(self) -> int:
         """Number of live tracks (reported or not)."""
@@ -315,7 +315,7 @@ class SortTracker:
         """Process one frame of detections (N, 4) xyxy; returns the tracks reported on this frame.
 
         Up to ``SCALAR_MAX_ROWS`` live tracks + detections (and detections with a finite, positive size) the frame
-        runs on Python floats (``rsu.track_scalar``), otherwise with array operations; same tracks either way."""
+        runs on Python floats (``rsu.track.sort_scalar``), otherwise with array operations; same tracks either way."""
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
         n = len(boxes)
         if scores is not None:
@@ -323,10 +323,10 @@ class SortTracker:
         if class_ids is not None:
             class_ids = np.asarray(class_ids).reshape(n)
         self.frame_count += 1
-        if len(self) + n <= SCALAR_MAX_ROWS and track_scalar.valid_detections(dets := boxes.tolist()):
+        if len(self) + n <= SCALAR_MAX_ROWS and sort_scalar.valid_detections(dets := boxes.tolist()):
             if self._rows is None:
                 self._rows = self._t.tolist()
-            res = track_scalar.step(self._rows, dets, None if scores is None else scores.tolist(),
+            res = sort_scalar.step(self._rows, dets, None if scores is None else scores.tolist(),
                                     None if class_ids is None else class_ids.tolist(), self._ids,
                                     self.iou_threshold, self.frame_count <= self.min_hits, self.min_hits,
                                     self.max_age, iou_matrix)

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.corridor import Road
-from rsu.calibration import CalibrationError, CameraSolution, SurveyPoint, solve_camera
-from rsu.camera_geometry import ground_points, project
+from protocol.road import Road
+from rsu.calibration.camera_geometry import ground_points, project
+from rsu.calibration.solve import CalibrationError, CameraSolution, SurveyPoint, solve_camera
 
 GROUND_TOLERANCE_M = 0.05
 """Pairs within this height of the road plane count as road-plane pairs (the corridor's calibration)."""

@@ -1,4 +1,5 @@
-"""Seeded radio channel model for ``DsrcLink`` (pure: no threads, no clocks).
+"""The emulated radio: a seeded channel model (pure: no threads, no clocks) and ``DsrcLink``, the transport that
+puts it in front of any other transport (the DSRC / SmartConnect stand-in).
 
 A message offered at time ``now`` is, in this order: dropped during a scheduled outage; dropped when
 the node is beyond ``range_m`` of every peer radio; dropped by the bursty Gilbert-Elliott chain
@@ -12,10 +13,17 @@ Defaults stand for DSRC (SPEC.md): a few ms latency, 300 m range, 6 Mb/s.
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
 import random
+import threading
 from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+
+from protocol.clock import Clock, WallClock
+from protocol.transport import BytesCallback, Subscription, Transport
 
 
 @dataclass(frozen=True)
@@ -159,3 +167,128 @@ class ChannelState:
     @property
     def dropped(self) -> int:
         return sum(v for k, v in self.counts.items() if k.startswith("dropped_"))
+
+
+class DsrcLink(Transport):
+    """A radio link in front of any transport (the DSRC / SmartConnect stand-in).
+
+    Outgoing messages (``tx``) and incoming ones (``rx``) pass through a seeded ``ChannelModel``:
+    each is dropped or delayed as the model says and delivered in order. With a ``WallClock`` a
+    background thread delivers due messages; with a ``SimClock`` the lockstep runner calls
+    ``deliver_due()`` after advancing the clock. ``position`` gives this node's (x, y) for the
+    range check against ``peers`` (radio positions, e.g. the RSUs).
+    """
+
+    def __init__(
+        self,
+        inner: Transport,
+        channel: ChannelModel,
+        *,
+        seed: int = 0,
+        clock: Clock | None = None,
+        directions: Sequence[str] = ("tx", "rx"),
+        position: Callable[[], tuple[float, float] | None] | None = None,
+        peers: Sequence[tuple[float, float]] = (),
+        threaded: bool | None = None,
+    ) -> None:
+        super().__init__()
+        bad = set(directions) - {"tx", "rx"}
+        if bad:
+            raise ValueError(f"directions must be 'tx' and/or 'rx', got {sorted(bad)}")
+        self.inner = inner
+        self.channel = channel
+        self.clock = clock or WallClock()
+        self.directions = frozenset(directions)
+        self.state = {d: ChannelState(channel, seed=seed * 2 + (d == "rx")) for d in ("tx", "rx")}
+        self._position = position
+        self._peers = list(peers)
+        self._queue: list[tuple[float, int, Callable[[], None]]] = []
+        self._order = itertools.count()
+        self._cv = threading.Condition()
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        if threaded if threaded is not None else isinstance(self.clock, WallClock):
+            self._thread = threading.Thread(target=self._run, name="dsrc-link", daemon=True)
+            self._thread.start()
+
+    @property
+    def counts(self) -> dict[str, Counter]:
+        """Per direction: ``offered``, ``delivered`` and ``dropped_<reason>`` counts."""
+        return {d: s.counts for d, s in self.state.items()}
+
+    def _distance_m(self) -> float | None:
+        if self._position is None or not self._peers:
+            return None
+        pos = self._position()
+        if pos is None:
+            return None
+        return min(((pos[0] - px) ** 2 + (pos[1] - py) ** 2) ** 0.5 for px, py in self._peers)
+
+    def _enqueue(self, direction: str, size: int, deliver: Callable[[], None]) -> None:
+        if direction not in self.directions:
+            deliver()
+            return
+        now = self.clock.now()
+        with self._cv:
+            at = self.state[direction].admit(now, size, self._distance_m())
+            if at is None:
+                return
+            if at <= now and not self._queue:
+                pass  # deliver inline below, outside the lock
+            else:
+                heapq.heappush(self._queue, (at, next(self._order), deliver))
+                self._cv.notify()
+                return
+        deliver()
+
+    def deliver_due(self, now: float | None = None) -> int:
+        """Deliver every queued message whose time has come; returns how many."""
+        now = self.clock.now() if now is None else now
+        n = 0
+        while True:
+            with self._cv:
+                if not self._queue or self._queue[0][0] > now:
+                    return n
+                _, _, deliver = heapq.heappop(self._queue)
+            deliver()
+            n += 1
+
+    def pending(self) -> int:
+        with self._cv:
+            return len(self._queue)
+
+    def next_due(self) -> float | None:
+        """Delivery time of the earliest queued message (None when none is queued): a lockstep
+        scheduler advances its clock to it."""
+        with self._cv:
+            return self._queue[0][0] if self._queue else None
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                if self._closed:
+                    return
+                if not self._queue:
+                    self._cv.wait(0.5)
+                    continue
+                wait = self._queue[0][0] - self.clock.now()
+                if wait > 0:
+                    self._cv.wait(min(wait, 0.5))
+                    continue
+            self.deliver_due()
+
+    def publish_bytes(self, key: str, payload: bytes) -> None:
+        self._enqueue("tx", len(payload), lambda: self.inner.publish_bytes(key, payload))
+
+    def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
+        def on_bytes(key: str, payload: bytes) -> None:
+            self._enqueue("rx", len(payload), lambda: callback(key, payload))
+
+        return self.inner.subscribe_bytes(key_expr, on_bytes)
+
+    def close(self) -> None:
+        with self._cv:
+            self._closed = True
+            self._cv.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)

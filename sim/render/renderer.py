@@ -10,7 +10,7 @@ noise (``sim.sensor``: the static scene kept exposed at unit gain with each nois
 frame's gain, the pixels the frame drew on through this frame's exposure table and the slot's noise). Everything is
 deterministic for a given (snapshot, frame index).
 
-Labels (``labels``, ``sim.render_labels``) come from the same geometry: the visible part of each vehicle's silhouette
+Labels (``labels``, ``sim.render.labels``) come from the same geometry: the visible part of each vehicle's silhouette
 in a per-vehicle id buffer, as a box, with the visible fraction (``sim.dataset`` writes them out).
 """
 
@@ -21,12 +21,13 @@ import math
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
+from protocol.corridor import CameraConfig
 from protocol.messages import Actor, WorldSnapshot
+from protocol.road import Road
 from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
 from sim.lamps import signal_on
-from sim.render_effects import (
+from sim.render.effects import (
     decal_paint,
     halo_falloff,
     lamp_halos,
@@ -34,8 +35,8 @@ from sim.render_effects import (
     queue_lamp_glow,
     shade_faces,
 )
-from sim.render_labels import MIN_VISIBLE_FRACTION, Label, visible_labels
-from sim.render_pose import (
+from sim.render.labels import MIN_VISIBLE_FRACTION, Label, visible_labels
+from sim.render.pose import (
     ActorBatch,
     actor_batch,
     blur_vectors,
@@ -153,14 +154,14 @@ class Renderer:
         return parts, decals, corners, uv.reshape(len(parts), 8, 2), depth.reshape(len(parts), 8), rot
 
     def _ordered(self, snapshot: WorldSnapshot) -> list[Actor]:
-        """Actors in view, far to near (painter's order: ``sim.render_pose.painter_order``)."""
+        """Actors in view, far to near (painter's order: ``sim.render.pose.painter_order``)."""
         return [snapshot.actors[k] for k in painter_order(snapshot.actors, self.cam)]
 
     def _draw_headlight_pool(self, img: np.ndarray, uv16: np.ndarray, box: tuple[int, int, int, int],
                              colour: tuple) -> None:
         """Light thrown on the road ahead of a vehicle by its headlights (dusk and night): its pool's pixel quad
         (``uv16``: x 16 rounded, from the box's top-left corner) filled anti-aliased in ``colour`` on the canvas
-        ``box`` (``sim.render_pose.pool_quads``: the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond
+        ``box`` (``sim.render.pose.pool_quads``: the quad's reach, with the blur's), box-blurred 7 x 7 (zeros beyond
         the box) and added to the image."""
         x1, y1, x2, y2 = box
         pool = np.zeros((y2 - y1, x2 - x1, 3), np.uint8)
@@ -170,7 +171,7 @@ class Renderer:
     def _draw_shadow(self, img: np.ndarray, box: tuple[int, int, int, int], outline16: np.ndarray,
                      strength: float) -> None:
         """Cast shadow on the road, its pixel outline x 16 (``outline16``, from its ``box``'s top-left corner:
-        ``sim.render_pose.shadow_outlines``) darkened: v * round(256 (1 - strength)) >> 8 (a saturating scale
+        ``sim.render.pose.shadow_outlines``) darkened: v * round(256 (1 - strength)) >> 8 (a saturating scale
         rounded down) where the anti-aliased polygon covers more than half."""
         x1, y1, x2, y2 = box
         mask = np.zeros((y2 - y1, x2 - x1), np.uint8)
@@ -195,7 +196,7 @@ class Renderer:
 
     def _decal_paint(self, model: BodyModel, lighting: str, brake_on: bool, red_on: bool, blue_on: bool,
                      sig_on: bool) -> tuple[list, list]:
-        """Per decal, its colour this frame and the lamp it lights (``sim.render_effects.decal_paint``), kept on the
+        """Per decal, its colour this frame and the lamp it lights (``sim.render.effects.decal_paint``), kept on the
         body model per lighting and lamp states (at most 48 sets)."""
         key = (lighting, brake_on, red_on, blue_on, sig_on)
         paint = model.paint.get(key)
@@ -273,10 +274,10 @@ class Renderer:
 
         The cached static scene, then per actor its cast shadow and headlight pool (all actors, far to near), then
         per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the halos of
-        the lamps no nearer vehicle hides (``sim.render_effects.hidden_lamps``), exposure and noise: issue 17's
-        drawing (``sim.render_reference``) with each actor's body model built once (``sim.bodies.body_model``), the
-        snapshot's models concatenated once (``sim.render_pose.ActorBatch``) and posed, culled and shaded with a few
-        array operations for all actors (``sim.render_pose``)."""
+        the lamps no nearer vehicle hides (``sim.render.effects.hidden_lamps``), exposure and noise: issue 17's
+        drawing (``bench.render_reference``) with each actor's body model built once (``sim.bodies.body_model``), the
+        snapshot's models concatenated once (``sim.render.pose.ActorBatch``) and posed, culled and shaded with a few
+        array operations for all actors (``sim.render.pose``)."""
         lighting, L, frame_index, img, sun = self._frame_start(snapshot, frame_index)
         t = snapshot.sim_time_s
         actors = snapshot.actors
@@ -347,7 +348,7 @@ class Renderer:
         return self._expose_frame(img, lighting, t, frame_index)
 
     def _batch(self, models: list[BodyModel]) -> ActorBatch:
-        """The ``sim.render_pose.ActorBatch`` of a snapshot's body models, kept while its actors keep their looks
+        """The ``sim.render.pose.ActorBatch`` of a snapshot's body models, kept while its actors keep their looks
         (the last one)."""
         key = tuple(map(id, models))
         if self._last_batch is None or self._last_batch[0] != key:
@@ -398,7 +399,7 @@ class Renderer:
         return sprite
 
     def _draw_halos(self, img: np.ndarray, halos: list[tuple]) -> None:
-        """Additive halos around lamps that are on (bloom: ``sim.render_effects.halo_numbers``), from cached sprites on
+        """Additive halos around lamps that are on (bloom: ``sim.render.effects.halo_numbers``), from cached sprites on
         small ROIs only."""
         for cx, cy, r, col, hot, core in halos:
             sprite = self._glow_cache.get((r, col, hot, core))
@@ -416,5 +417,5 @@ class Renderer:
     # ------------------------------------------------------------------ labels
     def labels(self, snapshot: WorldSnapshot, min_visible_fraction: float = MIN_VISIBLE_FRACTION,
                include_dropped: bool = False) -> list[Label]:
-        """Visible boxes of vehicles as rendered (``sim.render_labels.visible_labels``)."""
+        """Visible boxes of vehicles as rendered (``sim.render.labels.visible_labels``)."""
         return visible_labels(self, snapshot, min_visible_fraction, include_dropped)

@@ -17,8 +17,9 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from protocol.corridor import CameraConfig, Road
-from rsu.camera_geometry import project
+from protocol.corridor import CameraConfig
+from protocol.road import Road
+from rsu.calibration.camera_geometry import project
 
 GRID = (110, 110, 110)
 LANE = (255, 255, 0)

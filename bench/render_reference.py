@@ -1,5 +1,5 @@
 """The straightforward renderer of issue 17 (each actor's parts built, transformed and shaded from scratch per
-frame, each cast shadow darkened with numpy), kept as the reference that ``sim.render.Renderer``'s cached fast path
+frame, each cast shadow darkened with numpy), kept as the reference that ``sim.render.renderer.Renderer``'s cached fast path
 is tested and benchmarked against (issue 19: same pixels within noise), headlight pools and lamp halos included.
 Not used by the corridor."""
 
@@ -14,8 +14,8 @@ from protocol.messages import Actor, WorldSnapshot
 from sim.bodies import FACE_IDX, FACE_NAMES, FACES, GLASS_BGR, ev_lamps_on, face_points
 from sim.camera import NEAR_M
 from sim.lamps import signal_on
-from sim.render import Renderer
-from sim.render_effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
+from sim.render.effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
+from sim.render.renderer import Renderer
 from sim.scenery import LIGHTING
 from sim.sensor import exposure_lut
 
@@ -230,7 +230,7 @@ class ReferenceRenderer(Renderer):
 def lamp_hidden(points_xy: np.ndarray, rank: int, drawn: list) -> bool:
     """Is every face centre of a lamp (quads ``points_xy`` (4k, 2) px) inside a silhouette part of a vehicle drawn
     after its own (``drawn[rank]``: (actor, geometry) far to near)? The plain loop that
-    ``sim.render_effects.hidden_lamps`` batches."""
+    ``sim.render.effects.hidden_lamps`` batches."""
     for cx, cy in points_xy.reshape(-1, 4, 2).mean(axis=1).tolist():
         if not any(cv2.pointPolygonTest(cv2.convexHull(uv[p].astype(np.float32)), (cx, cy), False) > 0
                    for _a, (parts, _d, _c, uv, _z, _r) in drawn[rank + 1:] for p in range(len(parts))

@@ -1,5 +1,5 @@
 """The corridor's pinhole camera (``protocol.corridor.CameraConfig``) in OpenCV's terms, for commissioning
-(:mod:`rsu.calibration`) and its check image (:mod:`rsu.overlay`): angles from a rotation, the camera from
+(:mod:`rsu.calibration.solve`) and its check image (:mod:`rsu.calibration.overlay`): angles from a rotation, the camera from
 OpenCV's rvec/tvec and back, projection of world points and back-projection of pixels to a height plane, with
 OpenCV's radial distortion when given."""
 

@@ -14,7 +14,7 @@ Solution (:func:`solve_camera`):
 4. per-point reprojection errors; the worst point beyond ``flag_px`` (3 x the inlier RMS, at least 2 px)
    is dropped and the solve repeated; dropped points are flagged by name; too many dropped: inconsistent;
 5. the parameter covariance ``s^2 (J'J)^-1`` (J: ``cv2.projectPoints`` Jacobian of the residuals,
-   s: the residual RMS, at least ``pixel_sigma_px``), the basis of :mod:`rsu.calibration_error`.
+   s: the residual RMS, at least ``pixel_sigma_px``), the basis of :mod:`rsu.calibration.error`.
 
 "When the pairs allow" (``solve_focal`` / ``solve_distortion`` ``"auto"``): the focal length is solved
 from >= ``MIN_POINTS_FOCAL`` inliers when its 1-sigma is under 2 % (a camera looking along a flat road
@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from protocol.corridor import CameraConfig
-from rsu.camera_geometry import camera_from_rvec_tvec, dist5, project
+from rsu.calibration.camera_geometry import camera_from_rvec_tvec, dist5, project
 
 MIN_POINTS = 6
 MIN_POINTS_FOCAL = 8

@@ -1,4 +1,4 @@
-"""The thesis's two tracking frameworks over ``rsu.track.SortTracker`` (thesis 2.2, 2.3; SPEC.md "Perception").
+"""The thesis's two tracking frameworks over ``rsu.track.sort.SortTracker`` (thesis 2.2, 2.3; SPEC.md "Perception").
 
 ``"B"`` (thesis 2.3, deployed) tracks every vehicle in one tracker whatever its class; ``"A"`` (thesis 2.2) runs
 one tracker per detector class with a shared id counter, so a detection whose class flips starts a new track, as in
@@ -11,7 +11,7 @@ import itertools
 
 import numpy as np
 
-from rsu.track import SortTracker, TrackSet
+from rsu.track.sort import SortTracker, TrackSet
 
 FRAMEWORKS = ("A", "B")
 

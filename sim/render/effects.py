@@ -1,5 +1,5 @@
 """Pure per-frame numbers of the renderer (issue 19: computed with a few array operations instead of a Python loop
-per lamp, kernel tap or actor), kept apart from ``sim.render`` so they can be tested alone."""
+per lamp, kernel tap or actor), kept apart from ``sim.render.renderer`` so they can be tested alone."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from sim.bodies import BLUE_LAMP_BGR, RED_LAMP_BGR, TAIL_OFF_BGR, TAIL_ON_BGR
 from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR
 
 if TYPE_CHECKING:
-    from sim.render_pose import ActorBatch
+    from sim.render.pose import ActorBatch
 
 
 def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -87,7 +87,7 @@ def halo_numbers(quads: np.ndarray, quad_colours: list, quad_strengths: list[flo
 
 def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, camera_centre: np.ndarray, lighting: dict,
                 sun: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The part faces of every actor of ``batch`` (a ``sim.render_pose.ActorBatch``; per actor its rotation 3x3 in
+    """The part faces of every actor of ``batch`` (a ``sim.render.pose.ActorBatch``; per actor its rotation 3x3 in
     ``rots`` and its (x, y, 0) in ``positions``, m), together: which face the camera ((S, 5) bool over the S parts of
     all) and their shaded colours ((S, 5, 3) BGR floats: base colour x (ambient + sun max(0, n . sun)), glass
     0.6 + 0.5 shade (x 1.3 on top), x the scene gain, clipped)."""
@@ -102,7 +102,7 @@ def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, came
 
 def queue_lamp_glow(glows: list, bar_halos: dict, key: tuple, lamp: str, on_bar: bool, brake_on: bool, face,
                     colour) -> None:
-    """Queue the halo of a lit lamp face (``face``: its pixel points, or what stands for them: ``sim.render`` passes
+    """Queue the halo of a lit lamp face (``face``: its pixel points, or what stands for them: ``sim.render.renderer`` passes
     its first point's index) with its strength (1 for an EV lamp, ``SIGNAL_GLOW`` for a flasher or turn signal,
     0.55 / 0.3 for a tail lamp braking / not): in ``glows`` as (face, colour, strength), or, the faces of one
     light-bar colour (``on_bar``: an EV lamp on the body's last part), gathered under ``key`` in ``bar_halos`` as
@@ -145,7 +145,7 @@ def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue
     """Per decal of a body (``sim.bodies.BodyModel.decals``), the colour it is drawn in this frame (a BGR tuple:
     ``lit_bgr`` when its lamp is lit, else ``unlit_bgr``; None for a turn signal that is off, which is not drawn: the
     tail light under it shows) and the lamp it lights (its name, or None), given the ``lighting`` (a
-    ``sim.scenery.LIGHTING`` entry) and the actor's lamp states. A pure function of these: ``sim.render`` keeps it
+    ``sim.scenery.LIGHTING`` entry) and the actor's lamp states. A pure function of these: ``sim.render.renderer`` keeps it
     per body model and states (issue 19: the per-decal tests cost ~0.15 ms a frame)."""
     tail_bright = brake_on or bool(lighting["running_lights"])
     colours: list[tuple | None] = []

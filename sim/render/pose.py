@@ -1,4 +1,4 @@
-"""Pure per-frame geometry of the renderer (``sim.render``): every actor of a snapshot posed and projected, its
+"""Pure per-frame geometry of the renderer (``sim.render.renderer``): every actor of a snapshot posed and projected, its
 painter's place, headlight pool, cast-shadow outline, motion-blur vector and visible faces and decals, each for all
 actors in a few array operations (issue 19: a Python loop per actor cost more than the drawing, and so did
 concatenating the actors' body models every frame). ``ActorBatch`` holds the snapshot's body models concatenated
@@ -176,7 +176,7 @@ def shadow_outlines(batch: ActorBatch, pose: FramePose, which: list[int], sun: n
     """Per actor in ``which``, its cast shadow's box in the image (x1, y1, x2, y2: floor to ceil + 1 of its pixels,
     cut to the image) and outline in pixels x 16 rounded (K, 2 int32, the drawing's fixed point) from the box's
     top-left corner, left out when any of it is behind the camera or its box is under 2 px either way: the part
-    corners projected along the unit vector ``sun`` onto z = 0 (``sim.render_effects.shadow_hull``'s projection, in
+    corners projected along the unit vector ``sun`` onto z = 0 (``sim.render.effects.shadow_hull``'s projection, in
     float32 as ``cv2.convexHull`` takes them), every actor's in one product, and into the image (a road point
     (x, y) -> homogeneous pixel (x, y) @ ground_m - ground_t); the outline is its ground hull's points, the box every
     corner's (the same: the image of a hull is the hull of the image, in front of the camera)."""
@@ -233,7 +233,7 @@ class VisiblePolygons:
 
 def visible_polygons(batch: ActorBatch, pose: FramePose, vis: np.ndarray, colours: np.ndarray) -> VisiblePolygons:
     """The ``VisiblePolygons`` of every actor from its faces' visibility and shaded colours (``vis``, ``colours``:
-    ``sim.render_effects.shade_faces``), in a few array operations."""
+    ``sim.render.effects.shade_faces``), in a few array operations."""
     all16 = pose.uv16
     faces = list(all16[batch.face_points[vis]])
     face_start = [0, *np.cumsum(np.add.reduceat(vis.sum(axis=1), batch.part_start[:-1])).tolist()]

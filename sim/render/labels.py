@@ -1,4 +1,4 @@
-"""Ground-truth labels of a rendered frame (``sim.render.Renderer.labels``; ``sim.dataset`` writes them out): the
+"""Ground-truth labels of a rendered frame (``sim.render.renderer.Renderer.labels``; ``sim.dataset`` writes them out): the
 visible part of each vehicle's silhouette in a per-vehicle id buffer, drawn from the same geometry as the frame, as a
 box with the visible fraction; a vehicle below ``MIN_VISIBLE_FRACTION`` is dropped. For scoring and training only:
 no perception code reads them."""
@@ -32,7 +32,7 @@ class Label:
 
 def visible_labels(renderer, snapshot: WorldSnapshot, min_visible_fraction: float = MIN_VISIBLE_FRACTION,
                include_dropped: bool = False) -> list[Label]:
-    """Visible boxes of vehicles as ``renderer`` (a ``sim.render.Renderer``) draws ``snapshot``: the silhouette (parts)
+    """Visible boxes of vehicles as ``renderer`` (a ``sim.render.renderer.Renderer``) draws ``snapshot``: the silhouette (parts)
     of each vehicle is drawn into an id buffer back to front; the label box is the bbox of the pixels each vehicle keeps
     and the visible fraction is kept pixels / full silhouette pixels (in or out of the image)."""
     ids = np.zeros((renderer.h, renderer.w), np.uint16)

@@ -1,13 +1,13 @@
 """SORT's frame step on Python floats, for the densities an RSU sees (issue 19, point 5).
 
-``rsu.track.SortTracker`` keeps one row of ``rsu.track``'s table layout per track; at 5-20 targets a frame of its
+``rsu.track.sort.SortTracker`` keeps one row of ``rsu.track.sort``'s table layout per track; at 5-20 targets a frame of its
 vectorised step is a few dozen numpy calls of ~0.5 us each on arrays of a few rows, so the calls, not the
 arithmetic, set its cost. This module runs the same step on those rows as Python lists of floats: the reference's
-algorithm (``bench/sort_reference.py``) with the same model as ``rsu.track`` (per component (u, v, s, r) a 2x2
+algorithm (``bench/sort_reference.py``) with the same model as ``rsu.track.sort`` (per component (u, v, s, r) a 2x2
 covariance block: predict p00 += 2 p01 + p11 + q0, p01 += p11, p11 += q1; update with gain k = [p00, p01] /
 (p00 + r_c): x += k y, p11 -= k1 p01, p00 = r_c k0, p01 = r_c k1), the reference's association (its shortcut when
 the pairs above the threshold are unambiguous, else Hungarian on -IoU), new tracks in its order and its output
-order. The IoU is computed here on up to ``NUMPY_IOU_PAIRS`` pairs (with early rejection), by ``rsu.track``'s
+order. The IoU is computed here on up to ``NUMPY_IOU_PAIRS`` pairs (with early rejection), by ``rsu.track.sort``'s
 array IoU above that. Results equal the vectorised step's to rounding (tested against the reference).
 
 Only finite detections with positive width and height are taken (``valid_detections``); the caller runs the
@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-# rsu.track's row layout (checked there at import): state 0:7, p00 7:11, p01 11:14, p11 14:17, constant 1.0 at 17,
+# rsu.track.sort's row layout (checked there at import): state 0:7, p00 7:11, p01 11:14, p11 14:17, constant 1.0 at 17,
 # then age, time since update, hits, hit streak, id, class, detection index, score
 AGE, TSU, HITS, STREAK, ID, CLASS, DET, SCORE = range(18, 26)
 NCOL = 26
