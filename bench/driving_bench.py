@@ -3,7 +3,7 @@ infrastructure-guided controller, on the same held-out hazard episodes.
 
     python bench/driving_bench.py [--quick] [--json] [--seeds 2000 2001 ...] [--plots DIR] [--models DIR]
 
-Every episode (``sim.driving.make_scenario``; the held-out seeds 2000.. are never trained on) is driven
+Every episode (``studies.clemson.driving.make_scenario``; the held-out seeds 2000.. are never trained on) is driven
 five times in lockstep on the same road: the **teacher** (the thesis controller under the DDM's hazard rule
 with perfect knowledge, the reference, like the report's manually driven ground truth), the
 **infrastructure-guided controller** ``iea`` (the same rule on the RSUs' noisy debris position, the AV's own
@@ -43,9 +43,15 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sim.dashcam import DashCamera  # noqa: E402
-from sim.driving import camera_driver, clearance_m, make_scenario, run, simulated_radar  # noqa: E402
-from vehicle.learned_steering import CASES, MODELS_DIR, LearnedSteering, LearnedVehicle, normalise_steer  # noqa: E402
+from studies.clemson.dashcam import DashCamera  # noqa: E402
+from studies.clemson.driving import camera_driver, clearance_m, make_scenario, run, simulated_radar  # noqa: E402
+from studies.clemson.learned_steering import (  # noqa: E402
+    CASES,
+    MODELS_DIR,
+    LearnedSteering,
+    LearnedVehicle,
+    normalise_steer,
+)
 
 cv2.setNumThreads(1)
 DRIVERS = ("teacher", "iea", "case1", "case2", "case3")

@@ -28,7 +28,7 @@ p99 <= 0.8 s over Zenoh (issue 8's were lights on -> manoeuvre, 0.6 / 1.0 s; the
 beside it, and the runs that waited for a gap in traffic are named). Then the fault
 table (condition -> outcome, margin): latency and drop-out on the vehicle link (lockstep, real DDM and
 vehicle services, scripted RSUs: ``scenario/faults.py``) and the process faults (RSU killed, DDM
-restarted, router restarted: ``scenario/process_faults.py``).
+restarted, router restarted: ``deploy/process_faults.py``).
 
 The same distribution from the whole corridor in lockstep (``scenario/lockstep.py``: simulator, 4 RSUs
 rendering and processing pixels, DDM, vehicle on one simulated clock; ``--lockstep-runs``) shows what
@@ -351,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.corridor_faults:
         faults += corridor_faults(quick=args.quick)
     if not args.no_process_faults:
-        from scenario.process_faults import PROCESS_FAULTS, run_retimed
+        from deploy.process_faults import PROCESS_FAULTS, run_retimed
 
         for fn in PROCESS_FAULTS.values():
             faults.append(run_retimed(fn, root))

@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     if browser is None:
         print("view_bench: Debian's chromium is needed (apt-get install chromium)", file=sys.stderr)
         return 2
-    from scenario.demo import run_demo
+    from deploy.demo import run_demo
 
     duration_s = 12.0 if args.quick else 30.0
     cid = f"view-{uuid.uuid4().hex[:6]}"

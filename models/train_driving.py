@@ -2,7 +2,7 @@
 
     /tmp/trainenv/bin/python models/train_driving.py --data datasets/driving datasets/driving_late [--out models]
 
-Data: ``iea-sim export-driving`` ({train,val,test}.npz). Writes:
+Data: ``python -m studies.clemson export`` ({train,val,test}.npz). Writes:
 
 - ``driving_seg.onnx``: the debris segmentation, a small fully convolutional net (report 2.2: FCN-based),
   trained on the label masks with a class-balanced binary cross-entropy; output: per-pixel logits.
@@ -16,7 +16,7 @@ Data: ``iea-sim export-driving`` ({train,val,test}.npz). Writes:
   (report 4.4).
 
 Inputs of every graph: ``image`` float32 (N, 3, 66, 200), BGR 0-255. Runtime: onnxruntime only
-(``vehicle.learned_steering``). Prints one JSON line with the training figures at the end.
+(``studies.clemson.learned_steering``). Prints one JSON line with the training figures at the end.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 SEGMENTED_BGR = (255, 0, 255)
-"""Colour of the hazard in I_segmented: the same as ``vehicle.learned_steering.SEGMENTED_BGR`` (the training venv
+"""Colour of the hazard in I_segmented: the same as ``studies.clemson.learned_steering.SEGMENTED_BGR`` (the training venv
 has torch but not the runtime's dependencies, so it is not imported; tests/driving checks they agree)."""
 MANOEUVRE_RAD = 0.01
 """Frames where the teacher steers harder than this (the avoidance, the side cameras' recoveries) weigh
@@ -216,7 +216,7 @@ def load(paths: list[Path]) -> dict:
     parts = []
     for path in paths:
         if not path.is_file():
-            raise SystemExit(f"train_driving: {path} not found: run 'iea-sim export-driving --out {path.parent}' first")
+            raise SystemExit(f"train_driving: {path} not found: run 'python -m studies.clemson export --out {path.parent}' first")
         with np.load(path) as z:
             parts.append({k: z[k] for k in z.files})
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -224,7 +224,7 @@ def load(paths: list[Path]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", required=True, nargs="+", help="folder(s) written by 'iea-sim export-driving'")
+    ap.add_argument("--data", required=True, nargs="+", help="folder(s) written by 'python -m studies.clemson export'")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent), help="where the .onnx files go")
     ap.add_argument("--epochs", type=int, default=12)
     ap.add_argument("--seg-epochs", type=int, default=4)

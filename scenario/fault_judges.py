@@ -1,7 +1,7 @@
 """One judge per fault kind (issue 8's criteria, issue 18's yield outcome), shared by every fault runner. Pure.
 
 A runner (the rig ``scenario/faults.py``, the lockstep corridor ``scenario/corridor_faults.py``, the processes
-``scenario/process_faults.py``) breaks one thing, records what it saw in the kind's ``*Seen`` record (times in
+``deploy/process_faults.py``) breaks one thing, records what it saw in the kind's ``*Seen`` record (times in
 seconds on one clock) and hands it to the kind's judge with the one yield judge's verdict of the run
 (``scenario.outcome.YieldVerdict.to_dict()``; None: no AV/EV ground truth). A row passes only on its kind's own
 criterion AND that verdict:

@@ -11,7 +11,7 @@ Two runners:
   true pose, the EV) and, from ``lights_on_s + alert_delay_s``, the EvAlert at 2 Hz. The EV drives in
   the AV's lane at constant speed. Fast (a few seconds of CPU per run) and deterministic per seed.
 - the process-level faults (an RSU killed, the DDM killed and restarted, the router restarted) run
-  the corridor's real processes over Zenoh on loopback: see ``scenario/process_faults.py``.
+  the corridor's real processes over Zenoh on loopback: see ``deploy/process_faults.py``.
 
 Each row is judged by its kind's judge (``scenario/fault_judges.py``: ``latency``, ``dropout``).
 Outcome of an EV-yield run (issue 18): the one yield judge, ``scenario.outcome.judge_yield``, on ground truth:

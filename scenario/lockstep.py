@@ -27,12 +27,11 @@ from __future__ import annotations
 
 import heapq
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from ddm.build import DdmOptions, build_ddm
 from ddm.config import DdmConfig
@@ -81,8 +80,6 @@ class LockstepConfig:
     warmup_s: float = WARMUP_S
     """Before scenario time 0 the motion and hazard detectors learn their background from this many seconds
     of each camera's own frames of the road with traffic (``sim.warmup``): no picture of the empty road."""
-    record_mcap: Path | None = None
-    """Record every key of the bus to this MCAP file (``deploy.record``; receive time: the simulated clock)."""
 
 
 class _Task:
@@ -94,10 +91,23 @@ class _Task:
         self.alive = True
 
 
+class Recorder(Protocol):
+    """What records a run: every message's bytes as the bus delivers them (e.g. ``deploy.record.McapRecorder``)."""
+
+    def on_bytes(self, key: str, payload: bytes) -> None: ...
+
+    def close(self) -> None: ...
+
+
+RecorderFactory = Callable[[Callable[[], float], dict[str, str]], Recorder]
+"""``factory(clock_now, metadata) -> Recorder``: the recorder of a run, given its clock and its metadata."""
+
+
 class CorridorLockstep:
     """Builds the services of a scenario on one bus and clock; ``run()`` returns the run's metrics."""
 
-    def __init__(self, config: LockstepConfig | None = None, *, scenario: Scenario | None = None) -> None:
+    def __init__(self, config: LockstepConfig | None = None, *, scenario: Scenario | None = None,
+                 recorder: RecorderFactory | None = None) -> None:
         self.config = cfg = config or LockstepConfig()
         sc = scenario or load_scenario(cfg.scenario)
         if cfg.seed is not None:
@@ -115,13 +125,10 @@ class CorridorLockstep:
         self.bus = LocalBus()
         self.monitor = RunMonitor(self.corridor_id, vehicle_id=self.vehicle_id or "av1", road=corridor.road)
         self._monitor_sub = self.bus.subscribe(keys.corridor_expr(self.corridor_id), self.monitor.on_message)
-        self.recorder = None
-        if cfg.record_mcap is not None:  # subscribed before any service: it sees each message before they act on it
-            from deploy.record import McapRecorder
-
-            self.recorder = McapRecorder(cfg.record_mcap, clock=self.clock.now,
-                                         metadata={"corridor_id": self.corridor_id, "scenario": sc.name,
-                                                   "seed": str(sc.seed), "mode": "lockstep"})
+        self.recorder: Recorder | None = None
+        if recorder is not None:  # subscribed before any service: it sees each message before they act on it
+            self.recorder = recorder(self.clock.now, {"corridor_id": self.corridor_id, "scenario": sc.name,
+                                                      "seed": str(sc.seed), "mode": "lockstep"})
             self.bus.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         self.sim = SimService(sc, self.bus, self.clock, seed=sc.seed)
         self.sim.close_subscription()  # the AV's pose comes from its plant (below), not over the radio
@@ -300,87 +307,3 @@ def ev_lights_on(scenario: Scenario, duration_s: float | None = None) -> bool | 
     on = scenario.ev.lights_on_at_s
     end = scenario.duration_s if duration_s is None else duration_s
     return on is not None and on < end
-
-
-def scenario_main(argv: list[str] | None = None) -> int:
-    """``iea scenario list | run NAME [--inprocess [--fast]]``."""
-    import argparse
-    import json
-
-    from scenario.outcome import judge_run
-    from sim.scenario import ScenarioError, list_scenarios
-
-    ap = argparse.ArgumentParser(
-        prog="iea scenario", description="Run a scenario end to end and judge it: as separate processes over Zenoh "
-        "(like `iea demo`), or in one process in lockstep on a simulated clock (--inprocess).")
-    sub = ap.add_subparsers(dest="action", required=True)
-    sub.add_parser("list", help="list the scenarios")
-    run = sub.add_parser("run", help="run one scenario and print its summary")
-    run.add_argument("name", help="scenario name (`iea scenario list`) or a scenario TOML file")
-    run.add_argument("--inprocess", action="store_true",
-                     help="all services in this process on a simulated clock (deterministic; no Zenoh)")
-    run.add_argument("--fast", action="store_true",
-                     help="with --inprocess: run as fast as the CPU allows instead of in real time")
-    run.add_argument("--seed", type=int, default=None, help="scenario seed (default: the scenario file's)")
-    run.add_argument("--duration-s", type=float, default=None, help="scenario time to run (default: the scenario's)")
-    run.add_argument("--detector", default="project",
-                     help="RSU detector: 'project' (models/iea_det_tiny.onnx), 'motion' (MOG2) or an ONNX model path")
-    run.add_argument("--runs", default=None, help="where the run folder goes (default ./runs)")
-    run.add_argument("--json", action="store_true", help="print the metrics as one JSON line at the end")
-    args = ap.parse_args(argv)
-    if args.action == "list":
-        for name in list_scenarios():
-            print(name)
-        return 0
-    try:
-        sc = load_scenario(args.name)
-    except ScenarioError as exc:
-        print(f"iea scenario: {exc}", file=sys.stderr)
-        return 2
-    if args.seed is not None:
-        sc = sc.with_overrides(seed=args.seed)
-    from scenario.demo import ROOT, run_demo
-    from scenario.monitor import print_summary
-
-    runs = Path(args.runs) if args.runs else ROOT / "runs"
-    if args.inprocess:
-        run_dir = runs / f"scenario-{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-        cfg = LockstepConfig(scenario=sc.name, seed=args.seed, duration_s=args.duration_s, detector=args.detector,
-                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast,
-                             record_mcap=run_dir / "run.mcap")
-        print(f"[scenario] {sc.name} seed {sc.seed} in lockstep ({'fast' if args.fast else 'real time'}); "
-              f"run folder {run_dir}", flush=True)
-        runner = CorridorLockstep(cfg, scenario=sc)
-        m = runner.run(progress=lambda line: print("  " + line, flush=True))
-        write_run_folder(runner, m, run_dir)
-        m["run_dir"] = str(run_dir)
-    else:
-        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed, detector=args.detector)
-    print_summary(m)
-    ok, why = judge_run(m, ev_lights_on=ev_lights_on(sc, args.duration_s))
-    print(f"\n[scenario] {sc.name}: {'PASS' if ok else 'FAIL'}: {why}")
-    if args.json:
-        print(json.dumps({**m, "passed": ok, "verdict": why}, default=str))
-    return 0 if ok else 1
-
-
-def write_run_folder(runner: CorridorLockstep, metrics: dict[str, Any], run_dir: Path) -> None:
-    """metrics.json, the vehicle's run (and its plots), and keep only the video of the first alerting RSU."""
-    import json
-
-    run_dir.mkdir(parents=True, exist_ok=True)
-    first = metrics.get("first_alert_rsu")
-    for rsu_id in [r.rsu_id for r in runner.corridor.rsus]:
-        video = run_dir / f"{rsu_id}.mp4"
-        if video.exists() and first is not None and rsu_id != first:
-            video.unlink()
-    if runner.vehicle is not None and runner.vehicle.record is not None:
-        from vehicle.plot import plot_run
-        from vehicle.record import write_run
-
-        write_run(run_dir / "vehicle", runner.vehicle.record)
-        try:
-            plot_run(run_dir / "vehicle")
-        except Exception as exc:  # plots are a convenience: the run's data is written
-            print(f"[scenario] plots not written: {exc}", file=sys.stderr)
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")

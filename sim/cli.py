@@ -3,7 +3,6 @@
     iea-sim run rellis_ev_yield [--corridor-id ID] [--record rsu1:out.mp4] [--speed 2.0]
     iea-sim render rellis_ev_yield --t 12.0 --out runs/frames
     iea-sim export-dataset --out datasets/sim --frames 2000 [--scenario NAME ...] [--seed 0]
-    iea-sim export-driving --out datasets/driving [--train-episodes 24 --val-episodes 6 --test-episodes 8]
     iea-sim list
 Every command takes --log-level (default: $IEA_LOG_LEVEL, else INFO).
 """
@@ -68,22 +67,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rsu", action="append", default=[], help="only these cameras (repeatable)")
     p.add_argument("--no-vary-lighting", action="store_true", help="keep each scenario's lighting")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p = sub.add_parser("export-driving", help="dashcam driving data of the teacher on hazard episodes (issue 23)",
-                       description="Record (dashcam image, hazard mask, threat values, steering angle) from the "
-                                   "thesis controller avoiding debris on seeded roads, three cameras, with the "
-                                   "Clemson report's augmentation; split by episode seed (sim/export_driving.py).")
-    p.add_argument("--out", required=True, help="output folder ({train,val,test}.npz, meta.json)")
-    p.add_argument("--train-episodes", type=int, default=24)
-    p.add_argument("--val-episodes", type=int, default=6)
-    p.add_argument("--test-episodes", type=int, default=8, help="held-out episodes (the bench's seeds 2000..)")
-    p.add_argument("--stride-s", type=float, default=0.2, help="sim time between recorded frames (default 0.2)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the augmentation and sensor noise")
-    p.add_argument("--episode-offset", type=int, default=0,
-                   help="train seeds start here, val at 1000 + it (a second export on other roads)")
-    p.add_argument("--late-triggers", default="", metavar="M,M",
-                   help="train/val episodes cycle through the DDM's trigger and these late ones (m to the debris): "
-                        "demonstrations of avoiding debris seen late")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
     sub.add_parser("list", help="list the scenarios")
     for p in sub.choices.values():
         add_log_level_argument(p)
@@ -117,16 +100,6 @@ def main(argv: list[str] | None = None) -> int:
                                val_every=args.val_every, vary_lighting=not args.no_vary_lighting, rsus=args.rsu or [],
                                **kw)
             counts = export_dataset(cfg, progress=not args.quiet)
-            print(" ".join(f"{k}={v}" for k, v in counts.items()))
-            return 0
-        if args.cmd == "export-driving":
-            from sim.export_driving import DrivingExportConfig, export_driving
-            counts = export_driving(DrivingExportConfig(
-                out=args.out, train_episodes=args.train_episodes, val_episodes=args.val_episodes,
-                test_episodes=args.test_episodes, stride_s=args.stride_s, seed=args.seed,
-                episode_offset=args.episode_offset,
-                late_triggers_m=tuple(float(v) for v in args.late_triggers.split(",") if v.strip())),
-                progress=not args.quiet)
             print(" ".join(f"{k}={v}" for k, v in counts.items()))
             return 0
         print("\n".join(list_scenarios()))

@@ -1,5 +1,5 @@
 """One vehicle process assembled in one place (issue 20, item 3): the corridor with the car's start, the
-command gate, the controller's fail-safe, the localisation and the steering, from one :class:`VehicleOptions`.
+command gate, the controller's fail-safe, the localisation, from one :class:`VehicleOptions`.
 
 ``iea-vehicle run`` calls :func:`run_vehicle`; a test or bench running the car on another transport and clock
 calls :func:`build_vehicle`. The in-process runners (lockstep corridor, fault injection) hold a loaded
@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import signal
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from protocol.clock import Clock, WallClock
@@ -26,7 +27,9 @@ from vehicle.service import VehicleService
 
 log = logging.getLogger("iea-vehicle")
 
-STEERING_MODES = ("thesis", "learned:1", "learned:2", "learned:3")
+Attachment = Callable[[VehicleService, Transport], None]
+"""An on-board component attached to a built vehicle service before it runs (e.g. a study's learned steering); it
+may subscribe on the transport and add subscriptions to the service, which closes them with itself."""
 
 
 @dataclass(frozen=True)
@@ -50,13 +53,7 @@ class VehicleOptions:
     record: bool = False
     require_signed: bool | None = None
     """Refuse unsigned commands (None: when the corridor trusts DDM keys)."""
-    steering: str = "thesis"
-    """``thesis`` or ``learned:CASE`` (the dashcam CNN of issue 23 while driving in lane)."""
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
-
-    def __post_init__(self) -> None:
-        if self.steering not in STEERING_MODES:
-            raise ValueError(f"steering must be one of {STEERING_MODES}, got {self.steering!r}")
 
 
 def vehicle_corridor(options: VehicleOptions) -> Corridor:
@@ -81,41 +78,40 @@ def command_gate(options: VehicleOptions, corridor: Corridor) -> CommandGate:
     return gate
 
 
-def build_vehicle(options: VehicleOptions, transport: Transport, clock: Clock) -> VehicleService:
-    """The vehicle service of ``options`` on ``transport`` and ``clock`` (learned steering attached when asked:
-    FileNotFoundError without its model). Raises before anything is subscribed for bad options."""
+def build_vehicle(options: VehicleOptions, transport: Transport, clock: Clock,
+                  attach: Attachment | None = None) -> VehicleService:
+    """The vehicle service of ``options`` on ``transport`` and ``clock``, with ``attach`` attached. Raises before
+    anything is subscribed for bad options."""
     corridor = vehicle_corridor(options)
-    return _service(options, corridor, command_gate(options, corridor), transport, clock)
+    return _service(options, corridor, command_gate(options, corridor), transport, clock, attach)
 
 
 def _service(options: VehicleOptions, corridor: Corridor, gate: CommandGate, transport: Transport,
-             clock: Clock) -> VehicleService:
+             clock: Clock, attach: Attachment | None) -> VehicleService:
     config = CoreConfig(failsafe=FailsafeConfig(link_timeout_s=options.link_timeout_s,
                                                 localisation_stale_s=options.localisation_stale_s))
     fix = FixSourceConfig("gnss", options.gnss_sigma_m, options.gnss_rate_hz, options.gnss_latency_s)
     service = VehicleService(transport, clock, corridor, options.vehicle_id, config=config,
                              localisation=options.localisation, fix_source=fix, seed=options.seed,
                              record=options.record, gate=gate)
-    if options.steering != "thesis":
-        from vehicle.learned_steering import attach_camera
+    if attach is not None:
         try:
-            attach_camera(service, transport, int(options.steering.split(":")[1]))
+            attach(service, transport)
         except BaseException:
             service.close()
             raise
-        log.info("steering: %s (dashcam CNN while driving in lane; thesis controller for manoeuvres and fail-safe)",
-                 options.steering)
     return service
 
 
-def run_vehicle(options: VehicleOptions, duration_s: float | None = None, record_dir: str | None = None) -> int:
+def run_vehicle(options: VehicleOptions, duration_s: float | None = None, record_dir: str | None = None,
+                attach: Attachment | None = None) -> int:
     """``iea-vehicle run``: check the options (raising before the Zenoh session opens), run the car over Zenoh
     in real time until SIGTERM / Ctrl-C or ``duration_s``, write the run to ``record_dir`` when given; 0."""
     corridor = vehicle_corridor(options)
     gate = command_gate(options, corridor)
     transport = ZenohTransport(options.zenoh)
     try:
-        service = _service(options, corridor, gate, transport, WallClock())
+        service = _service(options, corridor, gate, transport, WallClock(), attach)
     except BaseException:
         transport.close()
         raise

@@ -26,12 +26,6 @@ def _non_negative(text: str) -> float:
     return v
 
 
-def _steering(text: str) -> str:
-    if text == "thesis" or text in ("learned:1", "learned:2", "learned:3"):
-        return text
-    raise argparse.ArgumentTypeError(f"must be 'thesis' or 'learned:1', 'learned:2', 'learned:3', got {text!r}")
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="iea-vehicle", description=(
         "Autonomous vehicle process of the IEA corridor: follows path-switch commands from the DDM with the "
@@ -63,10 +57,6 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--require-signed", action=argparse.BooleanOptionalAction, default=None,
                      help="refuse unsigned commands (default: on when the corridor file's [[trust]] entries name a "
                           "DDM key; commands are then verified against them whatever this flag says)")
-    run.add_argument("--steering", default="thesis", type=_steering, metavar="MODE",
-                     help="'thesis' (default: the thesis lateral controller) or 'learned:CASE' (CASE 1, 2 or 3: the "
-                          "Clemson comparison's dashcam CNN through ONNX Runtime while driving in lane; the thesis "
-                          "controller keeps commanded manoeuvres and the fail-safe; needs the simulator's world)")
     add_log_level_argument(run)
     ZenohSettings.add_arguments(run)
     metrics.add_arguments(run)
@@ -87,26 +77,39 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from vehicle.build import VehicleOptions, run_vehicle
+def vehicle_options(args: argparse.Namespace):
+    """The ``VehicleOptions`` of ``iea-vehicle run``'s parsed arguments."""
+    from vehicle.build import VehicleOptions
 
-    configure_logging(args.parser, args)
-    options = VehicleOptions(
+    return VehicleOptions(
         corridor_file=args.corridor, corridor_id=args.corridor_id, vehicle_id=args.vehicle, start_s_m=args.start_s,
         start_lane=args.start_lane, cruise_speed_mps=args.speed, localisation=args.localisation,
         gnss_sigma_m=args.gnss_sigma, gnss_rate_hz=args.gnss_rate, gnss_latency_s=args.gnss_latency,
         link_timeout_s=args.link_timeout, localisation_stale_s=args.localisation_stale, seed=args.seed,
-        record=args.record is not None, require_signed=args.require_signed, steering=args.steering,
+        record=args.record is not None, require_signed=args.require_signed,
         zenoh=ZenohSettings.from_args(args))
+
+
+def run_from_args(args: argparse.Namespace, prog: str = "iea-vehicle", attach=None) -> int:
+    """Run the vehicle of ``iea-vehicle run``'s parsed arguments (with ``attach``: ``vehicle.build.Attachment``);
+    2 with a message for an unknown vehicle or a missing model file."""
+    from vehicle.build import run_vehicle
+
+    configure_logging(args.parser, args)
+    options = vehicle_options(args)
     metrics.serve_from_args(args, "vehicle", args.vehicle)
     try:
-        return run_vehicle(options, args.duration, args.record)
+        return run_vehicle(options, args.duration, args.record, attach=attach)
     except KeyError as exc:  # an unknown vehicle
-        print(f"iea-vehicle: {exc.args[0]}", file=sys.stderr)
+        print(f"{prog}: {exc.args[0]}", file=sys.stderr)
         return 2
-    except FileNotFoundError as exc:  # the learned steering's model
-        print(f"iea-vehicle: {exc}", file=sys.stderr)
+    except FileNotFoundError as exc:  # a model file an attached component needs
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    return run_from_args(args)
 
 
 def _cmd_lockstep(args: argparse.Namespace) -> int:

@@ -94,7 +94,8 @@ def test_lockstep_replayed_into_a_fresh_ddm_makes_the_same_decisions(tmp_path):
 
     path = tmp_path / "run.mcap"
     # the EV's lights come on at 4 s: the run holds the alert, the command and its ack
-    runner = CorridorLockstep(LockstepConfig(seed=1, duration_s=5.0, detector="motion", record_mcap=path))
+    runner = CorridorLockstep(LockstepConfig(seed=1, duration_s=5.0, detector="motion"),
+                              recorder=lambda now, meta: McapRecorder(path, clock=now, metadata=meta))
     runner.run()
     info = check_recording(path)
     assert {"ObjectList", "EvAlert", "PathSwitchCommand", "CommandAck", "VehicleState", "WorldSnapshot",

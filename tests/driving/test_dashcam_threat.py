@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from sim.dashcam import HEIGHT_PX, WIDTH_PX, DashCamera, hazard_mask
-from sim.driving import make_scenario, simulated_radar
-from vehicle.learned_steering import (
+from studies.clemson.dashcam import HEIGHT_PX, WIDTH_PX, DashCamera, hazard_mask
+from studies.clemson.driving import make_scenario, simulated_radar
+from studies.clemson.learned_steering import (
     SEGMENTED_BGR,
     case_input,
     denormalise_steer,

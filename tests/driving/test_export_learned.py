@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from protocol.enums import VehicleMode
-from sim.driving import make_scenario
-from sim.export_driving import DrivingExportConfig, augment, export_driving, side_correction_rad
-from vehicle.learned_steering import MODELS_DIR, LearnedSteering, LearnedVehicle
+from studies.clemson.driving import make_scenario
+from studies.clemson.export import DrivingExportConfig, augment, export_driving, side_correction_rad
+from studies.clemson.learned_steering import MODELS_DIR, LearnedSteering, LearnedVehicle
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
 
@@ -103,7 +103,7 @@ def nets():
 
 
 def test_onnx_nets_load_and_steer_back_towards_the_lane(nets):
-    from sim.dashcam import DashCamera
+    from studies.clemson.dashcam import DashCamera
 
     sc = make_scenario(2003, with_debris=False)
     cam = DashCamera(sc.road, seed=sc.seed, noise=False)
@@ -116,8 +116,8 @@ def test_onnx_nets_load_and_steer_back_towards_the_lane(nets):
 
 
 def test_case_2_and_3_see_the_threat_of_debris_ahead(nets):
-    from sim.dashcam import DashCamera
-    from sim.driving import simulated_radar
+    from studies.clemson.dashcam import DashCamera
+    from studies.clemson.driving import simulated_radar
 
     sc = make_scenario(2000)
     d = sc.debris[0]
@@ -131,7 +131,7 @@ def test_case_2_and_3_see_the_threat_of_debris_ahead(nets):
 
 def test_camera_loop_of_the_vehicle_process_steers_from_the_world_and_withdraws_when_it_is_stale():
     from protocol.messages import WorldSnapshot
-    from vehicle.learned_steering import CameraLoop
+    from studies.clemson.learned_steering import CameraLoop
 
     sc = make_scenario(2000)
     car = _car(2000)
@@ -167,7 +167,7 @@ def test_vehicle_process_steers_from_its_dashcam_over_zenoh(nets):
     from protocol.keys import sim_world_key, vehicle_key
     from protocol.messages import WorldSnapshot
     from protocol.zenoh_transport import ZenohSettings, ZenohTransport
-    from sim.dashcam import debris_actor
+    from studies.clemson.dashcam import debris_actor
 
     root = Path(__file__).resolve().parents[2]
     cid = f"t{uuid4().hex[:8]}"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from scenario.process_faults import ddm_restarted, router_restarted, rsu_killed
+from deploy.process_faults import ddm_restarted, router_restarted, rsu_killed
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow, pytest.mark.timeout(150)]
 

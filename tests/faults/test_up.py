@@ -90,10 +90,10 @@ def test_wait_for_log_reads_only_what_the_service_wrote_since_its_last_start(tmp
 @pytest.mark.timeout(90)
 def test_up_services_started_before_the_router_wait_for_it(tmp_path, corridor_id):
     """A client whose router is not up yet waits for it (connect/timeout_ms -1) instead of exiting."""
+    from deploy.process_faults import Recorder
     from deploy.up import Up
     from protocol.keys import corridor_expr
     from protocol.zenoh_transport import ZenohSettings, ZenohTransport
-    from scenario.process_faults import Recorder
 
     up = Up(corridor_id=corridor_id, port=0, run_dir=tmp_path / "up", rsu_ids=[], with_sim=False, restart="no")
     rec = Recorder()

@@ -29,8 +29,6 @@ def test_bad_options_raise_before_anything_is_subscribed():
         build_vehicle(VehicleOptions(vehicle_id="nobody"), bus, SimClock())
     with pytest.raises(ValueError, match="require-signed"):
         build_vehicle(VehicleOptions(require_signed=True), bus, SimClock())
-    with pytest.raises(ValueError, match="steering"):
-        VehicleOptions(steering="learned:9")
     assert not bus._subs
 
 
@@ -42,3 +40,18 @@ def test_bad_options_raise_before_anything_is_subscribed():
 def test_cli_refuses_bad_options_with_exit_2(argv, message, capsys):
     assert cli.main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_an_attached_component_sees_the_service_and_a_failing_one_closes_it():
+    bus = LocalBus()
+    seen = []
+    service = build_vehicle(VehicleOptions(), bus, SimClock(), attach=lambda s, t: seen.append((s, t)))
+    assert seen == [(service, bus)]
+    service.close()
+
+    def broken(_service, _transport):
+        raise FileNotFoundError("model missing")
+
+    with pytest.raises(FileNotFoundError):
+        build_vehicle(VehicleOptions(), bus, SimClock(), attach=broken)
+    assert not bus._subs

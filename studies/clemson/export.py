@@ -1,7 +1,7 @@
-"""``iea-sim export-driving``: the driving data set of the Clemson comparison (issue 23; report ch. 4).
+"""``python -m studies.clemson export``: the driving data set of the Clemson comparison (issue 23; report ch. 4).
 
-The teacher (``sim.driving``: the thesis controller under the DDM's hazard rule with perfect knowledge)
-drives seeded hazard episodes; every ``stride_s`` the three dashboard cameras (``sim.dashcam``: centre,
+The teacher (``studies.clemson.driving``: the thesis controller under the DDM's hazard rule with perfect knowledge)
+drives seeded hazard episodes; every ``stride_s`` the three dashboard cameras (``studies.clemson.dashcam``: centre,
 left, right) are rendered at the car's true pose, each with its label mask of the debris, the radar's
 (lx, ly) and threat value (eq. 2-3) as seen from that camera's place, the image threat value (eq. 4 on the
 label mask) and the steering angle. The side cameras' angle is the teacher's plus the correction that
@@ -31,9 +31,9 @@ import cv2
 import numpy as np
 
 from ddm.threat import image_threat
-from sim.dashcam import SIDE_CAMERA_OFFSET_M, DashCamera, hazard_mask
-from sim.driving import make_scenario, run, simulated_radar
-from vehicle.learned_steering import normalise_steer, radar_threat
+from studies.clemson.dashcam import SIDE_CAMERA_OFFSET_M, DashCamera, hazard_mask
+from studies.clemson.driving import make_scenario, run, simulated_radar
+from studies.clemson.learned_steering import normalise_steer, radar_threat
 from vehicle.plant import VehicleParams
 
 RECOVERY_M = 12.0
@@ -53,7 +53,7 @@ class DrivingExportConfig:
     episode_offset: int = 0
     """Train seeds start at this (val at 1000 + it): a second export with other roads."""
     late_triggers_m: tuple[float, ...] = ()
-    """Train/val debris episodes cycle through the DDM's trigger and these late ones (``sim.driving.run``'s
+    """Train/val debris episodes cycle through the DDM's trigger and these late ones (``studies.clemson.driving.run``'s
     ``late_trigger_m``): demonstrations of avoiding debris seen late."""
 
     def __post_init__(self) -> None:

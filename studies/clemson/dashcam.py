@@ -11,7 +11,7 @@ behind the camera to ``WINDOW_AHEAD_M`` ahead). The window starts on a multiple 
 period, so dashes stay where they are on the ground from frame to frame.
 
 ``hazard_mask`` is the label of the debris in a dashcam image (projected box faces): training labels
-and evaluation only; the car's own segmentation (``vehicle.learned_steering``) never reads it.
+and evaluation only; the car's own segmentation (``studies.clemson.learned_steering``) never reads it.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """On-board learned steering of the Clemson comparison (issue 23; Clemson hazard navigation report ch. 3).
 
-The car's own pipeline, from its dashboard camera (66 x 200 BGR, ``sim.dashcam``) and its radar:
+The car's own pipeline, from its dashboard camera (66 x 200 BGR, ``studies.clemson.dashcam``) and its radar:
 
 1. hazard segmentation: a small fully convolutional net (``models/driving_seg.onnx``) gives a debris mask;
 2. threat value T_f: case 2 from the radar's (lx, ly) by eq. 2-3, case 3 from the mask by eq. 4
@@ -34,7 +34,7 @@ STEER_LIMIT_RAD = 0.2
 """Eq. 5's theta_max (= -theta_min): road-wheel angles beyond it are clipped (the teacher stays under 0.1)."""
 SEGMENTED_BGR = (255, 0, 255)
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
-log = logging.getLogger("vehicle.learned_steering")
+log = logging.getLogger("studies.clemson.learned_steering")
 INPUT_SHAPE = (66, 200, 3)
 
 
@@ -151,15 +151,15 @@ class LearnedVehicle(SimulatedVehicle):
 
 
 class CameraLoop:
-    """The vehicle process's learned steering (``iea-vehicle run --steering learned:CASE``): the simulator's
+    """The vehicle process's learned steering (``python -m studies.clemson vehicle --case CASE``): the simulator's
     world snapshots (``iea/{c}/sim/world``) give the scene; every ``period_s`` the dashcam is rendered at
-    the car's true pose (``sim.dashcam``: the camera is on the car), the radar measures the debris
-    (``sim.driving.simulated_radar``), and ``steering`` sets ``vehicle.learned_steer_rad``. Without a
+    the car's true pose (``studies.clemson.dashcam``: the camera is on the car), the radar measures the debris
+    (``studies.clemson.driving.simulated_radar``), and ``steering`` sets ``vehicle.learned_steer_rad``. Without a
     snapshot newer than ``stale_s`` the learned angle is withdrawn and the thesis controller steers."""
 
     def __init__(self, vehicle: LearnedVehicle, road, steering, vehicle_id: str, period_s: float = 0.1,
                  stale_s: float = 0.5, seed: int = 0) -> None:
-        from sim.dashcam import DashCamera
+        from studies.clemson.dashcam import DashCamera
 
         self.vehicle, self.steering, self.vehicle_id = vehicle, steering, vehicle_id
         self.camera = DashCamera(road, seed=seed)
@@ -177,7 +177,7 @@ class CameraLoop:
     def tick(self, now_s: float) -> float | None:
         """One camera frame: the learned angle set (rad), or None when the world is stale."""
         from protocol.enums import ActorKind
-        from sim.driving import simulated_radar
+        from studies.clemson.driving import simulated_radar
 
         snap = self.snapshot
         if snap is None or now_s - self.snapshot_at_s > self.stale_s:

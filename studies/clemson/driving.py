@@ -16,7 +16,7 @@ the infrastructure-guided controller and a camera-steered car, all in lockstep o
   ``COMMAND_LATENCY_S`` later.
 - ``camera``: a steering function of the dashcam image (and the radar) drives while the core is in DRIVING;
   whatever the core does otherwise (a manoeuvre, a minimal-risk stop) it keeps in charge
-  (``vehicle.learned_steering.LearnedVehicle``).
+  (``studies.clemson.learned_steering.LearnedVehicle``).
 
 ``simulated_radar`` is the car's distance sensor (report section 4.1: Delphi ESR mid-range mode: 90 deg
 field of view, 60 m range): (lx, ly) of the nearest debris from the front bumper, with range noise
@@ -38,8 +38,8 @@ from ddm.threat import LX_MAX_M, av_hazard_distances, threat_value
 from protocol.enums import Manoeuvre
 from protocol.messages import Actor, PathSwitchCommand
 from protocol.road import Road, Segment
-from sim.dashcam import debris_actor
 from sim.scenario import DEBRIS_KINDS
+from studies.clemson.dashcam import debris_actor
 from vehicle.plant import VehicleParams
 from vehicle.simulated import SimulatedVehicle
 
@@ -254,7 +254,7 @@ def camera_driver(sc: DrivingScenario, steering: Callable[[np.ndarray, tuple[flo
                   seed: int = 0, noise: bool = True) -> CameraSteering:
     """The ``camera`` driver's loop: render the dashcam at the car's true pose, measure the radar, call
     ``steering(image, radar)`` -> (angle rad, T_f)."""
-    from sim.dashcam import DashCamera
+    from studies.clemson.dashcam import DashCamera
 
     cam = DashCamera(sc.road, seed=sc.seed, noise=noise)
     actors = sc.actors()
