@@ -38,7 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from models.train_ev_body import ABOVE_FRACTION, DEFAULT_DATA, teacher_key, usable_crops  # noqa: E402
+from models.ev_crop_cache import ABOVE_FRACTION, teacher_key  # noqa: E402
+from models.train_ev_body import DEFAULT_DATA, usable_crops  # noqa: E402
 from rsu.classify.real_data import load_ev_train, split_by_group  # noqa: E402
 
 BACKBONES = ((0, 224), (1, 240), (2, 260))

@@ -22,15 +22,28 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from rsu.classify.real_data import CropSample
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
 DEFAULT_YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
 MAX_DETECTED_AREA_FRACTION = 0.85
 """A detected box covering more of the photo than this adds nothing the whole photo does not show."""
+
+
+ABOVE_FRACTION = 0.25
+"""How far above its box a vehicle's crop reaches, as a fraction of the box height (the RSU's crop).
+"""
+
+def teacher_key(sample: CropSample, data_root: Path) -> str:
+    """A crop's key in a teacher file (:mod:`models.ev_body_teacher`): ``path relative to ev_train|x1,y1,x2,y2``."""
+    return f"{Path(sample.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, sample.box_px or ()))}"
 
 
 def detected_view(image: np.ndarray, detector, above_fraction: float) -> np.ndarray | None:
@@ -54,7 +67,6 @@ def write_crop_cache(data_root: str | Path, out: str | Path, side: int = 224, qu
     :func:`detected_view`); returns the number of crops stored."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from models.train_ev_body import ABOVE_FRACTION, teacher_key
     from rsu.classify.real_data import crop_of, load_ev_train, read_image, split_of
 
     data_root = Path(data_root)

@@ -36,6 +36,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from models.ev_body_net import build_model, predict_torch, squash, train  # noqa: E402
+from models.ev_crop_cache import ABOVE_FRACTION, teacher_key  # noqa: E402
 from rsu.classify.classifiers import CnnClassifier  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_group  # noqa: E402
@@ -43,7 +44,6 @@ from rsu.classify.real_data import CropSample, crop_of, load_ev_train, split_by_
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real" / "ev_train"
 DEFAULT_YOLOX = ROOT.parent / "shared" / "data" / "real" / "yolox_nano" / "yolox_nano.onnx"
 SIZE = 224  # the shipped student's input side
-ABOVE_FRACTION = 0.25
 
 
 def usable_crops(samples, log=print) -> list[tuple[CropSample, np.ndarray]]:
@@ -81,10 +81,6 @@ def squashed(pairs: list[tuple[CropSample, np.ndarray]], size: int) -> tuple[np.
     """The crops squashed to ``size`` x ``size`` (uint8) and their labels."""
     return squash([c for _s, c in pairs], size), np.asarray([s.label for s, _c in pairs], np.float32)
 
-
-def teacher_key(sample: CropSample, data_root: Path) -> str:
-    """A crop's key in a teacher file (:mod:`models.ev_body_teacher`): ``path relative to ev_train|x1,y1,x2,y2``."""
-    return f"{Path(sample.path).resolve().relative_to(data_root.resolve())}|{','.join(map(str, sample.box_px or ()))}"
 
 
 def best_threshold(y: np.ndarray, p: np.ndarray) -> float:
