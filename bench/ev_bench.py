@@ -332,11 +332,11 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
                 v = votes.get(key)
                 actor = v.most_common(1)[0][0] if v else None
                 ok = actor in lit
-                box = np.asarray([e.obj.bbox_px], float)
+                box = np.asarray(e.row.boxes, float).reshape(1, 4)
                 evl = [lb for lb in labels if lb.class_id == 1]
                 ev_iou = float(iou_matrix(box, np.array([lb.bbox_px for lb in evl], float)).max()) if evl else 0.0
                 alert_match[key] = (actor, ok, snap.sim_time_s, round(ev_iou, 2),
-                                    tuple(int(v) for v in e.obj.bbox_px))
+                                    tuple(int(v) for v in e.row.boxes[0]))
                 if DEBUG and not ok:
                     evd = clf.tracks[e.track_id].evidence
                     print("  FALSE", rsu_id, e.track_id, actor, round(snap.sim_time_s, 2), "cues",

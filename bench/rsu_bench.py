@@ -65,7 +65,7 @@ from rsu.evaluate import MotEvaluator, synthetic_scene  # noqa: E402
 from rsu.frames import Frame as RsuFrame  # noqa: E402
 from rsu.frames import VideoSource  # noqa: E402
 from rsu.pipeline import RsuPipeline  # noqa: E402
-from rsu.track.sort import SortTracker  # noqa: E402
+from rsu.track.sort import SortTracker, as_mot  # noqa: E402
 
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO = REAL / "traffic_videos" / "ambdet_video_3.mp4"
@@ -117,7 +117,7 @@ def same_tracks(boxes: list[np.ndarray], scores: list[np.ndarray], dets: list[np
     """Do SortTracker and the reference report the same tracks (ids, and boxes to 1e-6 px) on every frame?"""
     ours, ref = SortTracker(), ReferenceSort()
     for b, s, d in zip(boxes, scores, dets, strict=True):
-        a, r = ours.update(b, s).as_mot(), ref.update(d)
+        a, r = as_mot(ours.update(b, s)), ref.update(d)
         if a.shape != r.shape or not np.array_equal(a[:, 4], r[:, 4]) or not np.allclose(a, r, rtol=0, atol=1e-6):
             return False
     return True

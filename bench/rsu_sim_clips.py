@@ -123,8 +123,8 @@ def sim_mot(clips: list[SimClip], config: PipelineConfig, corridor) -> dict[str,
         camera = corridor.rsu(clip.rsu_id).camera
         for frame, truth in zip(clip.frames, clip.truths, strict=True):
             det = detector.detect(frame.image)
-            tracks = tracker.update(det.boxes, det.scores, det.classes)
-            objects = {m: loc.update(tracks, frame.timestamp_s, det.boxes) for m, loc in localizers.items()}
+            tracks = tracker.update(det)
+            placed = {m: loc.update(tracks, frame.timestamp_s, det.boxes) for m, loc in localizers.items()}
             if frame.timestamp_s < WARMUP_S:
                 continue
             keep = ~beyond_zone(tracks.boxes, truth.boxes, camera)
@@ -132,11 +132,12 @@ def sim_mot(clips: list[SimClip], config: PipelineConfig, corridor) -> dict[str,
             ev.update(truth.ids + id_offset, truth.boxes, tracks.track_ids[keep] + id_offset, tracks.boxes[keep],
                       truth.ignore_boxes)
             near60 = np.flatnonzero(np.abs(truth.range_m - 60.0) <= 5.0)
-            for method, objs in objects.items():
-                if not len(near60) or not objs:
+            for method, table in placed.items():
+                objs = table[table.localized]
+                if not len(near60) or not len(objs):
                     continue
-                boxes = np.array([o.bbox_px for o in objs], float)
-                xy = np.array([(o.x_m, o.y_m) for o in objs], float)
+                boxes = np.asarray(objs.boxes, float)
+                xy = np.asarray(objs.positions_m, float)
                 iou = iou_matrix(truth.boxes[near60], boxes)
                 best = iou.argmax(axis=1)
                 ok = iou[np.arange(len(near60)), best] >= 0.5

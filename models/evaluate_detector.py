@@ -156,7 +156,7 @@ def evaluate(model_path: str | Path, data: HeldOutSet, score_threshold: float = 
     res: dict = {"frames": len(data.images)}
     outs_a, outs_b = outputs if outputs is not None else detect_all(model_path, data.images, score_threshold)
     for cls, name in ((0, "vehicle"), (1, "ev")):
-        dets = [(o.boxes[o.classes == cls], o.scores[o.classes == cls]) for o in outs_a]
+        dets = [(o.boxes[o.class_ids == cls], o.scores[o.class_ids == cls]) for o in outs_a]
         # a box of the other class is not ground truth for this one, but a detection on it is not penalised
         # twice in Framework A either: keep VOC's rule (other classes are simply absent)
         tr = [(t.boxes[t.classes == cls], t.difficult[t.classes == cls]) for t in data.truths]

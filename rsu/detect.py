@@ -1,6 +1,7 @@
 """Vehicle detectors behind one interface (thesis 2.3, Framework B: every vehicle as one class).
 
-``detect(image) -> Detections(boxes (N, 4) float32 xyxy pixels, scores (N,) float32, classes (N,) int64)``
+``detect(image) -> Detections`` (``rsu.perception``: boxes (N, 4) float32 xyxy pixels, scores (N,) float32,
+class_ids (N,) int64)
 in the project's class space: ``0`` vehicle, ``1`` emergency vehicle (EV; Framework A only).
 
 ``OnnxDetector`` runs an ONNX model with onnxruntime (CPU by default, any installed provider on
@@ -29,12 +30,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import cv2
 import numpy as np
+
+from rsu.perception import Detections
 
 VEHICLE, EV = 0, 1
 PROJECT_CLASSES = ("vehicle", "ev")
@@ -48,26 +50,6 @@ PROJECT_MODEL = Path(__file__).resolve().parent.parent / "models" / "iea_det_tin
 LAYOUTS = ("yolox-coco", "project")
 YOLOX_STRIDES = (8, 16, 32)
 PAD_VALUE = 114
-
-
-@dataclass(frozen=True)
-class Detections:
-    boxes: np.ndarray
-    """(N, 4) float32 x1, y1, x2, y2 in pixels of the input image."""
-    scores: np.ndarray
-    """(N,) float32 in [0, 1]."""
-    classes: np.ndarray
-    """(N,) int64 project classes (0 vehicle, 1 EV)."""
-
-    def __len__(self) -> int:
-        return len(self.boxes)
-
-    def __iter__(self):  # boxes, scores, classes = detector.detect(image)
-        return iter((self.boxes, self.scores, self.classes))
-
-    @staticmethod
-    def empty() -> Detections:
-        return Detections(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
 
 
 @runtime_checkable
@@ -284,7 +266,7 @@ class OnnxDetector:
         found = postprocess(rows, ratio, (image.shape[1], image.shape[0]), self.class_map, self.score_threshold,
                             self.nms_threshold, self.classes_wanted)
         if (x0 or y0) and len(found):
-            found = Detections(found.boxes + np.array([x0, y0, x0, y0], np.float32), found.scores, found.classes)
+            found = Detections(found.boxes + np.array([x0, y0, x0, y0], np.float32), found.scores, found.class_ids)
         return found
 
 

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -55,23 +55,30 @@ class Frame:
         return int(self.image.shape[1]), int(self.image.shape[0])
 
 
-@runtime_checkable
-class FrameSource(Protocol):
-    """What the RSU service needs from a camera."""
+class FrameSource:
+    """What the RSU service needs from a camera: frames, and what it reports about them. Every source derives
+    from it and overrides what applies to it; the service reads these attributes and nothing else."""
 
-    source_id: str
+    source_id: str = "source"
+    fps: float | None = None
+    """Frames per second, None when unknown."""
+    drops: int = 0
+    """Frames dropped because the consumer was slow (a live source keeps the newest)."""
+    stamps_capture_time: bool = False
+    """Are frames stamped with the wall-clock capture time? Then the RSU reports each frame's age at publication."""
+    last_render_times_s: tuple[float, float] | None = None
+    """A simulated camera rendering in the RSU's process: (wall, CPU) seconds the last frame took to render."""
 
     def read(self, timeout_s: float | None = None) -> Frame | None:
         """Next frame; ``None`` once the source has ended; raises SourceStalled after ``timeout_s``."""
-        ...
+        raise NotImplementedError
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Release the camera or file."""
 
-
-class _IterMixin:
     def __iter__(self) -> Iterator[Frame]:
         while True:
-            frame = self.read()  # type: ignore[attr-defined]
+            frame = self.read()
             if frame is None:
                 return
             yield frame
@@ -80,7 +87,7 @@ class _IterMixin:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.close()  # type: ignore[attr-defined]
+        self.close()
 
 
 _END = object()
@@ -100,7 +107,7 @@ def _parse_uri(uri: str | int | os.PathLike) -> tuple[str | int, bool]:
     return text, False
 
 
-class VideoSource(_IterMixin):
+class VideoSource(FrameSource):
     """A video file, a camera index or an RTSP/HTTP URL through ``cv2.VideoCapture``.
 
     ``read_timeout_s`` bounds every ``read``; ``open_timeout_s`` bounds opening (done in the reader
@@ -248,7 +255,7 @@ class VideoSource(_IterMixin):
         self._ended = True
 
 
-class ImageFolderSource(_IterMixin):
+class ImageFolderSource(FrameSource):
     """Image files of a folder in name order, stamped ``index / fps``; unreadable files are counted and skipped."""
 
     def __init__(self, folder: str | os.PathLike, fps: float = 15.0, *, source_id: str | None = None) -> None:
@@ -280,7 +287,7 @@ class ImageFolderSource(_IterMixin):
         self._next = len(self.files)
 
 
-class ArraySource(_IterMixin):
+class ArraySource(FrameSource):
     """Frames from memory (an iterable of BGR images), stamped ``index / fps``; for tests and adapters."""
 
     def __init__(self, images: Iterable[np.ndarray], fps: float = 15.0, source_id: str = "array") -> None:

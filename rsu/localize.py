@@ -24,7 +24,8 @@ of the mapping (analytic for (a), central differences for (b)).
 
 Per track, :class:`Localizer` keeps a constant-velocity Kalman filter in world coordinates (state
 x, y, vx, vy; white-acceleration noise) that smooths position and gives velocity, speed and
-heading (the road's heading while the vehicle is nearly still), and adds lat/lon and the lane.
+heading (the road's heading while the vehicle is nearly still), and adds lat/lon and the lane: the world columns
+of the frame's table of tracks (``rsu.perception.Detections``).
 Pure core: no I/O, no clock (time comes with each call).
 """
 
@@ -39,7 +40,7 @@ import numpy as np
 from scipy.interpolate import CloughTocher2DInterpolator, LinearNDInterpolator, RBFInterpolator
 
 from protocol.corridor import CameraConfig, Corridor, RsuConfig
-from rsu.track.sort import TrackSet
+from rsu.perception import Detections, object_column
 
 METHODS = ("transform", "reference")
 INTERPOLATIONS = ("linear", "cubic", "rbf", "homography", "homography+rbf")
@@ -158,28 +159,7 @@ class ReferenceInterpolator:
         return jac
 
 
-# ----------------------------------------------------------------------------- per-object localisation
-@dataclass(frozen=True)
-class LocalizedObject:
-    track_id: int
-    x_m: float
-    y_m: float
-    lat_deg: float
-    lon_deg: float
-    lane: int | None
-    vel_x_mps: float
-    vel_y_mps: float
-    speed_mps: float
-    heading_rad: float
-    pos_cov_m2: tuple[float, float, float]
-    """(xx, xy, yy) of the reported position."""
-    bbox_px: tuple[float, float, float, float]
-    class_id: int
-    score: float
-    hits: int
-    age_s: float
-
-
+# ----------------------------------------------------------------------------- per-track localisation
 @dataclass
 class _WorldTrack:
     state: np.ndarray  # x, y, vx, vy
@@ -263,14 +243,16 @@ class Localizer:
         s, _ = self.corridor.road.to_frenet(x, y)
         return float(self.corridor.road.pose_at(s, 0.0)[2])
 
-    def update(self, tracks: TrackSet, timestamp_s: float, det_boxes: np.ndarray | None = None) -> list[LocalizedObject]:
-        """Localise the tracks reported on a frame taken at ``timestamp_s``; one object per valid track.
+    def update(self, tracks: Detections, timestamp_s: float, det_boxes: np.ndarray | None = None) -> Detections:
+        """Localise the tracks reported on a frame taken at ``timestamp_s``: ``tracks`` with the world columns
+        (``localized`` True where the track's ground point can be trusted; NaN, None and 0 elsewhere).
 
         ``det_boxes``: the frame's detections (the tracker's input). When given, each track is measured
         at the box of the detection it matched on this frame (``tracks.det_indices``) rather than at
         SORT's filtered box: SORT's image-space state (constant aspect ratio, linear area change) lags
         a vehicle receding in perspective, about +0.5 m at 60 m on sim renders; the smoothing is done
         here, in world coordinates."""
+        n = len(tracks)
         boxes = np.asarray(tracks.boxes, dtype=float).reshape(-1, 4)
         if det_boxes is not None and len(boxes):
             det_boxes = np.asarray(det_boxes, dtype=float).reshape(-1, 4)
@@ -279,12 +261,17 @@ class Localizer:
             boxes = boxes.copy()
             boxes[ok] = det_boxes[idx[ok]]
         xy, cov, valid = self.localize_boxes(boxes)
-        found: list[dict] = []
+        pos, latlon, vel = np.full((n, 2), np.nan), np.full((n, 2), np.nan), np.full((n, 2), np.nan)
+        speed, heading, ages = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
+        pos_cov = np.full((n, 3), np.nan)
+        lanes: list[int | None] = [None] * n
+        localized = np.zeros(n, dtype=bool)
         q = self.accel_sigma_mps2 ** 2
-        for k in range(len(tracks)):
+        track_ids = tracks.column("track_ids")
+        for k in range(n):
             if not valid[k]:
                 continue
-            tid = int(tracks.track_ids[k])
+            tid = int(track_ids[k])
             z, r = xy[k], cov[k]
             trk = self._tracks.get(tid)
             if trk is None or timestamp_s - trk.stamp_s > self.forget_after_s or timestamp_s < trk.stamp_s:
@@ -309,28 +296,30 @@ class Localizer:
                 trk.cov = i_kh @ trk.cov @ i_kh.T + gain @ r @ gain.T
                 trk.stamp_s = timestamp_s
             vx, vy = float(trk.state[2]), float(trk.state[3])
-            speed = math.hypot(vx, vy)
-            if speed >= self.min_heading_speed_mps:
+            speed[k] = math.hypot(vx, vy)
+            if speed[k] >= self.min_heading_speed_mps:
                 trk.heading_rad = math.atan2(vy, vx)
             x, y = float(trk.state[0]), float(trk.state[1])
-            lat, lon = self.corridor.to_latlon(x, y)
+            pos[k] = x, y
+            latlon[k] = self.corridor.to_latlon(x, y)
+            vel[k] = vx, vy
+            heading[k] = _wrap(trk.heading_rad)
             c = trk.cov
-            found.append(dict(
-                track_id=tid, x_m=x, y_m=y, lat_deg=lat, lon_deg=lon,
-                vel_x_mps=vx, vel_y_mps=vy, speed_mps=speed, heading_rad=_wrap(trk.heading_rad),
-                pos_cov_m2=(float(c[0, 0]), float(c[0, 1]), float(c[1, 1])),
-                bbox_px=tuple(float(v) for v in tracks.boxes[k]),
-                class_id=int(tracks.class_ids[k]), score=float(tracks.scores[k]), hits=int(tracks.hits[k]),
-                age_s=float(timestamp_s - trk.first_stamp_s),
-            ))
+            pos_cov[k] = float(c[0, 0]), float(c[0, 1]), float(c[1, 1])
+            ages[k] = float(timestamp_s - trk.first_stamp_s)
+            localized[k] = True
         stale = [tid for tid, t in self._tracks.items() if timestamp_s - t.stamp_s > self.forget_after_s]
         for tid in stale:
             del self._tracks[tid]
-        if not found:
-            return []
-        road = self.corridor.road  # every object's lane from one road query (per point, a query cost 5x more)
-        _, d_m = road.to_frenet(np.array([f["x_m"] for f in found]), np.array([f["y_m"] for f in found]))
-        return [LocalizedObject(lane=road.lane_of_offset(float(d)), **f) for f, d in zip(found, d_m, strict=True)]
+        if localized.any():
+            road = self.corridor.road  # every object's lane from one road query (per point, a query cost 5x more)
+            at = np.flatnonzero(localized)
+            _, d_m = road.to_frenet(pos[at, 0], pos[at, 1])
+            for k, d in zip(at, d_m, strict=True):
+                lanes[k] = road.lane_of_offset(float(d))
+        return tracks.with_columns(localized=localized, positions_m=pos, latlon_deg=latlon, velocities_mps=vel,
+                                   speeds_mps=speed, headings_rad=heading, pos_cov_m2=pos_cov,
+                                   lanes=object_column(lanes), ages_s=ages)
 
 
 def _wrap(angle: float) -> float:

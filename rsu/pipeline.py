@@ -1,18 +1,20 @@
 """One RSU camera's per-frame pipeline (thesis 3.2-3.3, Framework B), pure: no I/O, no clock but the frame's own.
 
-detector -> SORT -> classifier hook -> localiser -> EV alert life cycle, and the hazard detector beside them;
-``RsuPipeline.process(frame)`` returns one :class:`FrameResult` that ``rsu.service.RsuService`` publishes as it is
-and ``iea-rsu scan`` reports.
+detector -> SORT -> EV classifier -> localiser -> EV alert life cycle, and the hazard detector beside them. One
+table (``rsu.perception.Detections``) goes through the stages and each adds its columns; ``RsuPipeline.process``
+returns it in a :class:`FrameResult` with the frame's alert and hazard events, which ``rsu.service.RsuService``
+publishes through ``rsu.wire`` and ``iea-rsu scan`` reports.
 
-Classifier hook: any callable ``(frame, tracks) -> {track_id: EvVerdict}`` (:class:`rsu.classify.ev.EvVerdict`;
-:class:`rsu.classify.ev.TrackEvClassifier` plugs in here), handed the frame's reported tracks and, after them, the
-tracks SORT matched but holds back until ``min_hits`` (``FrameworkTracker.tentative``); only reported tracks are
-published. With an ``ev_state`` an object is published as
-``obj_type = ev`` while its state is ``confirmed``; without one, when ``ev_score >= ev_threshold``. With a
-classifier the pipeline runs an :class:`rsu.classify.alerts.EvAlertManager` on the frame times: ``active`` when a
-track is confirmed, refreshed at 2 Hz, ``cleared`` when its lights go off or it has left the view.
+Classifier stage: any callable ``(frame, tracks) -> tracks`` that adds ``ev_scores`` and, optionally,
+``light_states``, ``ev_states`` and ``evidence`` (:class:`rsu.classify.ev.TrackEvClassifier` plugs in here). It is
+handed the frame's reported tracks and, after them, the tracks SORT matched but holds back until ``min_hits``
+(``FrameworkTracker.tentative``); only reported tracks are published. A track is an EV (``ev_states`` =
+``confirmed``, published as ``obj_type = ev``) when the classifier says so; a classifier that gives no state
+decides by ``ev_score >= ev_threshold`` (:func:`ev_verdicts`). With a classifier the pipeline runs an
+:class:`rsu.classify.alerts.EvAlertManager` on the frame times: ``active`` when a track is confirmed, refreshed at
+2 Hz, ``cleared`` when its lights go off or it has left the view.
 
-Hazards (issue 10): with a :class:`rsu.hazard.HazardDetector`, static objects in a lane come out as
+Hazards: with a :class:`rsu.hazard.HazardDetector`, static objects in a lane come out as
 :class:`rsu.hazard.HazardEvent` (``appear``, ``persist`` at 1 Hz, ``clear``), placed on the corridor's
 latitude and longitude here.
 """
@@ -27,29 +29,26 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from protocol.enums import EvState, LightState, ObjectType
-from protocol.messages import DetectedObject
+from protocol.enums import EvState
 from rsu.classify.alerts import AlertEvent, EvAlertManager
-from rsu.classify.ev import EvVerdict
 from rsu.detect import EV, Detector, MotionDetector
 from rsu.frames import Frame
 from rsu.hazard import HazardDetector, HazardEvent
-from rsu.localize import LocalizedObject, Localizer
+from rsu.localize import Localizer
+from rsu.perception import Detections, object_column
 from rsu.track.frameworks import FrameworkTracker
-from rsu.track.sort import TrackSet
 
-Classifier = Callable[[Frame, TrackSet], dict[int, EvVerdict]]
+Classifier = Callable[[Frame, Detections], Detections]
 STAGES = ("detect", "track", "classify", "localize", "hazard", "publish")
 
 
 @dataclass
 class FrameResult:
-    """What one frame produced: the objects to publish (wire type), the tracks they came from, the classifier's
-    verdicts, the EV alert events and the hazard events due this frame, and the time of each stage."""
+    """What one frame produced: its table of reported tracks with every stage's columns, the EV alert events and
+    the hazard events due this frame, and the time of each stage."""
 
-    objects: list[DetectedObject]
-    tracks: TrackSet
-    verdicts: dict[int, EvVerdict] = field(default_factory=dict)
+    tracks: Detections
+    """The tracks SORT reported on this frame; ``published`` are those the localiser placed."""
     alerts: list[AlertEvent] = field(default_factory=list)
     hazards: list[HazardEvent] = field(default_factory=list)
     """With ``lat_deg`` / ``lon_deg`` set."""
@@ -58,9 +57,27 @@ class FrameResult:
     stage_cpu_s: dict[str, float] = field(default_factory=dict)
     """CPU seconds per stage (this thread: what the stage cost, whatever else the machine was doing)."""
 
+    @property
+    def published(self) -> Detections:
+        """The rows that go out in the frame's ObjectList: the localised tracks."""
+        return self.tracks[self.tracks.column("localized")]
+
+
+def ev_verdicts(tracks: Detections, ev_threshold: float) -> Detections:
+    """``tracks`` with the final EV columns: ``ev_scores`` clipped to [0, 1] (0 without a classifier),
+    ``ev_states`` the classifier's state or, where it gave none, ``confirmed`` for a detector's EV class or a score
+    at or above ``ev_threshold`` and ``none`` otherwise, and ``light_states`` (None: unknown)."""
+    n = len(tracks)
+    scores = np.zeros(n) if tracks.ev_scores is None else np.clip(np.asarray(tracks.ev_scores, float), 0.0, 1.0)
+    given = tracks.ev_states if tracks.ev_states is not None else [None] * n
+    states = [s if s is not None else (EvState.CONFIRMED if int(c) == EV or score >= ev_threshold else EvState.NONE)
+              for s, c, score in zip(given, tracks.class_ids, scores, strict=True)]
+    lights = tracks.light_states if tracks.light_states is not None else object_column([None] * n)
+    return tracks.with_columns(ev_scores=scores, ev_states=object_column(states), light_states=lights)
+
 
 class RsuPipeline:
-    """Detector -> tracker -> classifier hook -> localiser (-> EV alerts, hazards) for one camera; ``process(frame)``
+    """Detector -> tracker -> classifier -> localiser (-> EV alerts, hazards) for one camera; ``process(frame)``
     per frame. The localiser's corridor places hazards on latitude and longitude."""
 
     def __init__(self, detector: Detector, tracker: FrameworkTracker, localizer: Localizer,
@@ -96,67 +113,51 @@ class RsuPipeline:
 
         det = self.detector.detect(frame.image)
         lap()
-        tracks = self.tracker.update(det.boxes, det.scores, det.classes)
+        tracks = self.tracker.update(det)
         lap()
         # the classifier also reads the tracks SORT holds back until min_hits (``FrameworkTracker.tentative``): a
         # broken track's successor keeps gathering its lamps' evidence in those frames (``rsu.classify.ev``)
-        verdicts = {}
         if self.classifier is not None:
             held = self.tracker.tentative()
-            verdicts = self.classifier(frame, TrackSet.concatenate([tracks, held]) if len(held) else tracks)
+            tracks = self.classifier(frame, Detections.concatenate([tracks, held]) if len(held) else tracks)[
+                :len(tracks)]
+        tracks = ev_verdicts(tracks, self.ev_threshold)
         lap()
-        localized = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
-        objects = [self._to_message(o, verdicts.get(o.track_id)) for o in localized]
-        alerts = self.alerts.update(frame.timestamp_s, objects, verdicts) if self.alerts is not None else []
+        tracks = self.localizer.update(tracks, frame.timestamp_s, det.boxes)
+        result = FrameResult(tracks)
+        if self.alerts is not None:
+            result.alerts = self.alerts.update(frame.timestamp_s, result.published)
         lap()
-        hazards = []
         if self.hazards is not None:
-            hazards = [self._located(h) for h in self.hazards.update(
-                frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes,
-                {o.track_id: o.speed_mps for o in localized})]
+            published = result.published
+            speeds = dict(zip((int(i) for i in published.column("track_ids")),
+                              (float(v) for v in published.column("speeds_mps")), strict=True))
+            result.hazards = [self._located(h) for h in self.hazards.update(
+                frame.image, frame.timestamp_s, tracks.track_ids, tracks.boxes, speeds)]
         lap()
         names = STAGES[:5]
-        return FrameResult(objects, tracks, verdicts, alerts, hazards,
-                           {k: t[i + 1] - t[i] for i, k in enumerate(names)},
-                           {k: c[i + 1] - c[i] for i, k in enumerate(names)})
+        result.stage_s = {k: t[i + 1] - t[i] for i, k in enumerate(names)}
+        result.stage_cpu_s = {k: c[i + 1] - c[i] for i, k in enumerate(names)}
+        return result
 
     def _located(self, h: HazardEvent) -> HazardEvent:
         lat, lon = self.localizer.corridor.to_latlon(h.x_m, h.y_m)
         return dataclasses.replace(h, lat_deg=lat, lon_deg=lon)
 
-    def _to_message(self, o: LocalizedObject, verdict: EvVerdict | None) -> DetectedObject:
-        """The wire object of one localised track with its EV verdict, every number within its wire range."""
-        ev_score = float(np.clip(verdict.ev_score, 0.0, 1.0)) if verdict is not None else 0.0
-        ev_state = verdict.ev_state if verdict is not None else None
-        if ev_state is not None:
-            is_ev = ev_state == EvState.CONFIRMED
-        else:
-            is_ev = o.class_id == EV or ev_score >= self.ev_threshold
-        light = verdict.light_state if verdict is not None else None
-        return DetectedObject(
-            object_id=o.track_id, pos_x_m=o.x_m, pos_y_m=o.y_m, lat_deg=o.lat_deg, lon_deg=o.lon_deg,
-            bbox_px=o.bbox_px, obj_type=ObjectType.EV if is_ev else ObjectType.VEHICLE,
-            obj_type_cfd=float(np.clip(o.score, 0.0, 1.0)), ev_score=ev_score,
-            ev_state=ev_state if ev_state is not None else (EvState.CONFIRMED if is_ev else EvState.NONE),
-            light_state=light if light is not None else LightState.UNKNOWN,
-            vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps, heading_rad=o.heading_rad,
-            pos_cov_m2=(max(o.pos_cov_m2[0], 0.0), o.pos_cov_m2[1], max(o.pos_cov_m2[2], 0.0)),
-            lane=o.lane, age_s=max(o.age_s, 0.0), hits=max(o.hits, 0),
-        )
-
 
 def annotate(image: np.ndarray, result: FrameResult) -> np.ndarray:
     """Boxes, track ids and labels drawn on a copy of the frame (thesis Fig. 2.2 / 3.7)."""
     out = image.copy()
-    by_id = {o.object_id: o for o in result.objects}
-    for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
-        obj = by_id.get(int(tid))
-        is_ev = obj is not None and obj.obj_type == ObjectType.EV
+    tr = result.tracks
+    for k, (tid, box) in enumerate(zip(tr.column("track_ids"), tr.boxes, strict=True)):
+        placed = bool(tr.column("localized")[k])
+        is_ev = placed and tr.column("ev_states")[k] == EvState.CONFIRMED
         colour = (0, 0, 255) if is_ev else (0, 200, 0)
         x1, y1, x2, y2 = (int(round(v)) for v in box)
         cv2.rectangle(out, (x1, y1), (x2, y2), colour, 2)
         label = f"{int(tid)} {'EV' if is_ev else 'veh'}"
-        if obj is not None:
-            label += f" {obj.speed_mps:.1f}m/s" + (f" L{obj.lane}" if obj.lane is not None else "")
+        if placed:
+            lane = tr.column("lanes")[k]
+            label += f" {float(tr.column('speeds_mps')[k]):.1f}m/s" + (f" L{lane}" if lane is not None else "")
         cv2.putText(out, label, (x1, max(12, y1 - 4)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
     return out

@@ -35,9 +35,8 @@ from protocol.enums import AlertState, EvState, LightState
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.classify.ev import TrackEvClassifier
 from rsu.frames import VideoSource
-from rsu.localize import LocalizedObject
+from rsu.perception import Detections, object_column
 from rsu.pipeline import FrameResult
-from rsu.track.sort import TrackSet
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 DEFAULT_DETECTOR = REAL_DATA / "yolox_nano" / "yolox_nano.onnx"
@@ -145,14 +144,14 @@ class ImageOnlyLocalizer:
     def __init__(self) -> None:
         self.first_s: dict[int, float] = {}
 
-    def update(self, tracks: TrackSet, timestamp_s: float, det_boxes=None) -> list[LocalizedObject]:
-        out = []
-        for k, tid in enumerate(int(t) for t in tracks.track_ids):
-            first = self.first_s.setdefault(tid, timestamp_s)
-            out.append(LocalizedObject(tid, 0.0, 0.0, 0.0, 0.0, None, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0),
-                                       tuple(float(v) for v in tracks.boxes[k]), int(tracks.class_ids[k]),
-                                       float(tracks.scores[k]), int(tracks.hits[k]), timestamp_s - first))
-        return out
+    def update(self, tracks: Detections, timestamp_s: float, det_boxes=None) -> Detections:
+        n = len(tracks)
+        ages = [timestamp_s - self.first_s.setdefault(int(tid), timestamp_s) for tid in tracks.column("track_ids")]
+        zeros2, zeros = np.zeros((n, 2)), np.zeros(n)
+        return tracks.with_columns(localized=np.ones(n, dtype=bool), positions_m=zeros2, latlon_deg=zeros2,
+                                   velocities_mps=zeros2, speeds_mps=zeros, headings_rad=zeros,
+                                   pos_cov_m2=np.zeros((n, 3)), lanes=object_column([None] * n),
+                                   ages_s=np.asarray(ages, float).reshape(n))
 
 
 def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
@@ -214,17 +213,19 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
 def _record(now: float, result: FrameResult, first_seen: dict[int, float],
             decisions: dict[int, TrackDecision]) -> None:
     """Update the decision of every track of this frame that is (or was) candidate or confirmed."""
-    for obj in result.objects:
-        tid = int(obj.object_id)
+    tracks = result.published
+    records = tracks.evidence if tracks.evidence is not None else [None] * len(tracks)
+    for tid, state, box, info in zip(tracks.column("track_ids"), tracks.column("ev_states"), tracks.boxes, records,
+                                     strict=True):
+        tid = int(tid)
         first_seen.setdefault(tid, now)
         d = decisions.get(tid)
-        if d is None and obj.ev_state not in (EvState.CANDIDATE, EvState.CONFIRMED):
+        if d is None and state not in (EvState.CANDIDATE, EvState.CONFIRMED):
             continue
         if d is None:
             d = decisions[tid] = TrackDecision(tid, EvState.CANDIDATE.value, first_seen[tid])
-        info = _track_info(result, tid)
         ev = info.evidence if info is not None else None
-        if obj.ev_state == EvState.CONFIRMED:
+        if state == EvState.CONFIRMED:
             d.state = EvState.CONFIRMED.value
             if d.confirmed_s is None:
                 d.confirmed_s = now
@@ -236,13 +237,7 @@ def _record(now: float, result: FrameResult, first_seen: dict[int, float],
             d.light_state = ev.light_state.value
             d.handed_over_from = tuple(info.handed_over_from)
         d.last_seen_s = now
-        d.last_box = tuple(float(v) for v in obj.bbox_px)
-
-
-def _track_info(result: FrameResult, track_id: int):
-    """The evidence record behind this frame's verdict on a track (None: no verdict, or none kept)."""
-    verdict = result.verdicts.get(track_id)
-    return verdict.track if verdict is not None else None
+        d.last_box = tuple(float(v) for v in box)
 
 
 def _open_writer(path: str | Path, fps: float | None, shape: tuple[int, ...]) -> cv2.VideoWriter:
@@ -258,12 +253,14 @@ def draw_scan(image: np.ndarray, result: FrameResult, clf: TrackEvClassifier, no
     for tracks with lamp activity or an EV state) and a label ``id state cues body``; the time top left."""
     out = image.copy()
     h, w = out.shape[:2]
-    states = {int(o.object_id): o.ev_state for o in result.objects}
-    for tid, box in zip(result.tracks.track_ids, result.tracks.boxes, strict=True):
+    tracks = result.tracks
+    records = tracks.evidence if tracks.evidence is not None else [None] * len(tracks)
+    for tid, box, state, placed, info in zip(tracks.column("track_ids"), tracks.boxes, tracks.column("ev_states"),
+                                             tracks.column("localized"), records, strict=True):
         tid = int(tid)
-        info = _track_info(result, tid)
         ev = info.evidence if info is not None else None
-        state = states.get(tid) or (ev.state if ev is not None else EvState.NONE)
+        if not placed:
+            state = ev.state if ev is not None else EvState.NONE
         colour = RED if state == EvState.CONFIRMED else GREEN
         x1, y1, x2, y2 = (int(round(float(v))) for v in box)
         cv2.rectangle(out, (x1, y1), (x2, y2), colour, 2)

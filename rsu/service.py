@@ -36,7 +36,6 @@ import time
 from collections import Counter
 
 import cv2
-import numpy as np
 
 from protocol import metrics, presence
 from protocol.clock import Clock, WallClock
@@ -44,11 +43,12 @@ from protocol.codec import encode
 from protocol.corridor import Corridor
 from protocol.enums import AlertState, EvState, HazardState, HealthStatus, LightState, Role
 from protocol.keys import rsu_key, rsu_state_key
-from protocol.messages import EvAlert, EvEvidence, HazardAlert, Health, ObjectList
+from protocol.messages import Health
 from protocol.ranges import MAX_LATENCY_MS
 from protocol.runtime import freeze_startup_heap
 from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
+from rsu import wire
 from rsu.calibration.overlay import CalibrationOverlay
 from rsu.classify.alerts import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
@@ -115,7 +115,7 @@ class RsuService:
         objs = getattr(self._latest.get("objects"), "objects", [])
         summary = {"rsu_id": self.rsu_id, "frames": self.frames, "uptime_s": round(self.clock.now() - self._start_s, 2),
                    "stalled": self._stalled, "errors": self.errors, "last_error": self.last_error,
-                   "source": getattr(self.source, "source_id", None), "fps": getattr(self.source, "fps", None),
+                   "source": self.source.source_id, "fps": self.source.fps,
                    "ev_alerts_active": sorted(k for k, (key, _) in self._active.items() if key == self.ev_key),
                    "hazards_active": sorted(k for k, (key, _) in self._active.items() if key == self.hazard_key),
                    "tracks": [{"id": o.object_id, "type": str(o.obj_type.value), "x_m": round(o.pos_x_m, 2),
@@ -189,16 +189,15 @@ class RsuService:
             log.exception("processing frame %d failed", frame.frame_number)
             return
         t0, c0 = time.perf_counter(), time.thread_time()
-        msg = ObjectList(src=self.rsu_id, seq=self._seq["objects"], stamp=max(self.clock.now(), 0.0),
-                         rsu_id=self.rsu_id, frame=frame.frame_number,
-                         measurement_time=max(frame.timestamp_s, 0.0), objects=result.objects[:256])
+        msg = wire.object_list(self.rsu_id, self._seq["objects"], self.clock.now(), frame.frame_number,
+                               frame.timestamp_s, result.published)
         self.transport.publish(self.objects_key, msg)
-        if getattr(self.source, "stamps_capture_time", False):  # the frame's age when its objects went out
+        if self.source.stamps_capture_time:  # the frame's age when its objects went out
             self._period_ages_s.append(max(self.clock.now() - frame.timestamp_s, 0.0))
         self._latest["objects"] = msg
         self._seq["objects"] += 1
         if log.isEnabledFor(logging.DEBUG):
-            for o in result.objects:
+            for o in msg.objects:
                 if o.ev_state != EvState.NONE or o.light_state == LightState.FLASHING:
                     log.debug("frame %d t %.3f: track %d ev %s lights %s score %.2f", frame.frame_number,
                               frame.timestamp_s, o.object_id, o.ev_state, o.light_state, o.ev_score)
@@ -210,7 +209,7 @@ class RsuService:
             self._write_annotated(frame, result)
         result.stage_s["publish"] = time.perf_counter() - t0
         result.stage_cpu_s["publish"] = time.thread_time() - c0
-        render = getattr(self.source, "last_render_times_s", None)  # a simulated camera renders in this process
+        render = self.source.last_render_times_s  # a simulated camera renders in this process
         if render is not None:
             result.stage_s["render"], result.stage_cpu_s["render"] = render
         metrics.observe_stages(result.stage_s)
@@ -222,22 +221,11 @@ class RsuService:
         self._period_frames += 1
 
     def _publish_alert(self, e: AlertEvent) -> None:
-        o = e.obj
-        msg = EvAlert(src=self.rsu_id, seq=self._seq["ev"], stamp=max(self.clock.now(), 0.0),
-                      alert_id=f"{self.rsu_id}-ev-{e.track_id}", state=e.state, rsu_id=self.rsu_id,
-                      object_id=e.track_id, pos_x_m=o.pos_x_m, pos_y_m=o.pos_y_m, lat_deg=o.lat_deg,
-                      lon_deg=o.lon_deg, vel_x_mps=o.vel_x_mps, vel_y_mps=o.vel_y_mps, speed_mps=o.speed_mps,
-                      heading_rad=o.heading_rad, lane=o.lane, confidence=float(np.clip(e.confidence, 0.0, 1.0)),
-                      first_seen=max(e.first_seen_s, 0.0),
-                      evidence=EvEvidence(frames=e.frames, flash_hz=e.flash_hz,
-                                          mean_score=float(np.clip(e.mean_score, 0.0, 1.0)), cues=list(e.cues),
-                                          body_score=(None if e.body_score is None
-                                                      else float(np.clip(e.body_score, 0.0, 1.0)))),
-                      clear_reason=e.clear_reason)
+        msg = wire.ev_alert(self.rsu_id, self._seq["ev"], self.clock.now(), e)
         self._publish_alert_message("ev", self.ev_key, msg.alert_id, msg, msg.state == AlertState.CLEARED)
         self.alerts_published[str(e.state)] += 1
-        log.info("EvAlert %s %s (track %d, lane %s, x %.1f m, cues %s)", msg.alert_id, e.state, e.track_id, o.lane,
-                 o.pos_x_m, "+".join(e.cues) or "-")
+        log.info("EvAlert %s %s (track %d, lane %s, x %.1f m, cues %s)", msg.alert_id, e.state, e.track_id, msg.lane,
+                 msg.pos_x_m, "+".join(e.cues) or "-")
 
     def _publish_alert_message(self, kind: str, key: str, alert_id: str, msg, ended: bool) -> None:
         """Publish an EvAlert or HazardAlert and keep the latest message of each active one (queries answer them)."""
@@ -249,11 +237,7 @@ class RsuService:
         self._seq[kind] += 1
 
     def _publish_hazard(self, h: HazardEvent) -> None:
-        msg = HazardAlert(src=self.rsu_id, seq=self._seq["hazard"], stamp=max(self.clock.now(), 0.0),
-                          hazard_id=f"{self.rsu_id}-hz-{h.hazard_id}", state=h.state, rsu_id=self.rsu_id,
-                          pos_x_m=h.x_m, pos_y_m=h.y_m, lat_deg=h.lat_deg, lon_deg=h.lon_deg, lane=h.lane,
-                          length_m=max(h.length_m, 0.0), width_m=max(h.width_m, 0.0),
-                          confidence=float(np.clip(h.confidence, 0.0, 1.0)), first_seen=max(h.first_seen_s, 0.0))
+        msg = wire.hazard_alert(self.rsu_id, self._seq["hazard"], self.clock.now(), h)
         self._publish_alert_message("hazard", self.hazard_key, msg.hazard_id, msg, msg.state == HazardState.CLEAR)
         self.hazards_published[str(h.state)] += 1
         if h.state != "persist":
@@ -267,7 +251,7 @@ class RsuService:
                                                calibration=rsu.calibration)
         image = annotate(self._overlay.apply(frame.image), result)
         if self._writer is None:
-            fps = float(getattr(self.source, "fps", None) or 15.0)
+            fps = float(self.source.fps or 15.0)
             h, w = image.shape[:2]
             self._writer = cv2.VideoWriter(self.annotate_path, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
             if not self._writer.isOpened():
@@ -305,9 +289,9 @@ class RsuService:
             status = HealthStatus.ERROR
         elif self._stalled or self.errors:
             status = HealthStatus.DEGRADED
-        drops = {"source": int(getattr(self.source, "drops", 0) or 0)}
+        drops = {"source": int(self.source.drops)}
         rates_hz = {"frames": n / period if n else 0.0}
-        if getattr(self.source, "fps", None):
+        if self.source.fps:
             rates_hz["camera"] = float(self.source.fps)
         msg = Health(src=self.rsu_id, seq=self._seq["health"], stamp=max(now, 0.0), role=Role.RSU, status=status,
                      uptime_s=max(now - self._start_s, 0.0),

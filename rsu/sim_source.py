@@ -17,10 +17,10 @@ import dataclasses
 
 from protocol.corridor import Corridor
 from protocol.transport import Transport
-from rsu.frames import Frame, SourceStalled
+from rsu.frames import Frame, FrameSource, SourceStalled
 
 
-class SimSource:
+class SimSource(FrameSource):
     """Frames of one RSU's simulated camera; ``read`` raises :class:`SourceStalled` when no snapshot comes."""
 
     def __init__(self, corridor: Corridor, rsu_id: str, transport: Transport, *, corridor_id: str | None = None,
@@ -36,6 +36,17 @@ class SimSource:
         self.source_id = f"sim:{rsu_id}"
         self.stamps_capture_time = True
         """Frames carry the snapshot's publication stamp on the simulator's clock (the RSU reports their age)."""
+
+    @classmethod
+    def from_camera(cls, camera, source_id: str | None = None) -> SimSource:
+        """The source of a camera the caller steps itself (the lockstep runner renders each frame and pushes it to
+        ``RsuService.process_frame``): frames stamped with the scenario time, on the one simulated clock."""
+        self = cls.__new__(cls)
+        self.camera = camera
+        self.fps = float(camera.fps)
+        self.source_id = source_id or f"sim:{camera.rsu.rsu_id}"
+        self.stamps_capture_time = False
+        return self
 
     @property
     def drops(self) -> int:

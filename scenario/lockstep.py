@@ -46,6 +46,7 @@ from protocol.transport import Transport
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.frames import Frame
 from rsu.service import RsuService
+from rsu.sim_source import SimSource
 from scenario.monitor import RunMonitor
 from sim.camera_source import SimCamera
 from sim.scenario import Scenario, load_scenario
@@ -167,7 +168,8 @@ class CorridorLockstep:
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)
             annotate = str(Path(self.config.annotate_dir) / f"{rsu_id}.mp4")
-        svc = RsuService(self.corridor, rsu_id, cam, pipe, self.bus, self.clock, annotate_path=annotate)
+        svc = RsuService(self.corridor, rsu_id, SimSource.from_camera(cam), pipe, self.bus, self.clock,
+                         annotate_path=annotate)
         self.rsus[rsu_id] = svc
         self._cameras[rsu_id] = cam
         self._tasks.append(_Task(f"rsu:{rsu_id}", 1.0 / cam.fps, lambda now, rid=rsu_id: self._rsu_step(rid, now),

@@ -1,27 +1,26 @@
-"""EvAlert life cycle per track (issue 5; thesis 2.4): :class:`EvAlertManager` turns the per-track EV states
-that :class:`~rsu.classify.ev.TrackEvClassifier` gives into ``EvAlert`` events (pure: the caller gives the frame
-time): ``active`` when a track becomes confirmed, a refresh every ``refresh_period_s`` (2 Hz) while active,
-``cleared`` when its evidence clears (lights off) or the track has not been seen for ``leave_after_s`` (it left
-the view).
+"""EvAlert life cycle per track (thesis 2.4): :class:`EvAlertManager` turns the EV verdicts of the frame's
+localised tracks (the ``ev_states`` and ``evidence`` columns of ``rsu.perception.Detections``) into alert events
+(pure: the caller gives the frame time): ``active`` when a track becomes confirmed, a refresh every
+``refresh_period_s`` (2 Hz) while active, ``cleared`` when its evidence clears (lights off) or the track has not
+been seen for ``leave_after_s`` (it left the view). ``rsu.wire.ev_alert`` makes the wire message of an event.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 from protocol.enums import AlertState, ClearReason, EvCue, EvState
-from protocol.messages import DetectedObject
-from rsu.classify.ev import EvVerdict
+from rsu.perception import Detections
 
 
 @dataclass(frozen=True)
 class AlertEvent:
-    """One EvAlert to publish: state, the alerting track's latest object and its evidence summary."""
+    """One EvAlert to publish: state, the alerting track's latest localised row and its evidence summary."""
 
     state: AlertState
     track_id: int
-    obj: DetectedObject
+    row: Detections
+    """The track's row (one) of the last frame that localised it."""
     first_seen_s: float
     confidence: float
     frames: int
@@ -38,7 +37,7 @@ class AlertEvent:
 
 @dataclass
 class _Active:
-    obj: DetectedObject
+    row: Detections
     first_seen_s: float
     last_seen_s: float
     last_sent_s: float
@@ -58,20 +57,22 @@ class EvAlertManager:
     leave_after_s: float = 1.0
     active: dict[int, _Active] = field(default_factory=dict)
 
-    def update(self, now_s: float, objects: Iterable[DetectedObject],
-               verdicts: Mapping[int, EvVerdict]) -> list[AlertEvent]:
-        """``verdicts``: this frame's answers of the classifier hook, by track id (their evidence records)."""
+    def update(self, now_s: float, tracks: Detections) -> list[AlertEvent]:
+        """``tracks``: this frame's localised tracks with their EV verdicts (``ev_states``, ``ev_scores`` in [0, 1])
+        and evidence records (``evidence``, None for a classifier that keeps none)."""
         events: list[AlertEvent] = []
         seen: set[int] = set()
-        for obj in objects:
-            tid = int(obj.object_id)
+        ids, states, scores = tracks.column("track_ids"), tracks.column("ev_states"), tracks.column("ev_scores")
+        records = tracks.evidence if tracks.evidence is not None else [None] * len(tracks)
+        for k in range(len(tracks)):
+            tid = int(ids[k])
             seen.add(tid)
-            verdict = verdicts.get(tid)
-            info = verdict.track if verdict is not None else None
+            info = records[k]
             a = self.active.get(tid)
-            if obj.ev_state == EvState.CONFIRMED:
+            if states[k] == EvState.CONFIRMED:
+                row = tracks[k]
                 ev = info.evidence if info is not None else None
-                conf = float(obj.ev_score)
+                conf = float(scores[k])
                 frames = ev.frames if ev is not None else 0
                 hz = ev.flash_hz if ev is not None else None
                 mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else conf
@@ -79,14 +80,14 @@ class EvAlertManager:
                 body = ev.body_score if ev is not None else None
                 if a is None:
                     first = info.first_seen_s if info is not None else now_s
-                    a = self.active[tid] = _Active(obj, first, now_s, now_s, conf, frames, hz, mean, cues, body)
+                    a = self.active[tid] = _Active(row, first, now_s, now_s, conf, frames, hz, mean, cues, body)
                     events.append(self._event(AlertState.ACTIVE, tid, a))
                 else:
-                    a.obj, a.last_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score = (
-                        obj, now_s, conf, frames, hz, mean)
+                    a.row, a.last_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score = (
+                        row, now_s, conf, frames, hz, mean)
                     a.cues, a.body_score = cues, body
             elif a is not None:  # evidence cleared (lights off) or fell back
-                a.obj = obj
+                a.row = tracks[k]
                 events.append(self._event(AlertState.CLEARED, tid, a, ClearReason.LIGHTS_OFF))
                 del self.active[tid]
         for tid, a in list(self.active.items()):
@@ -103,5 +104,5 @@ class EvAlertManager:
 
     @staticmethod
     def _event(state: AlertState, tid: int, a: _Active, reason: ClearReason | None = None) -> AlertEvent:
-        return AlertEvent(state, tid, a.obj, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score,
+        return AlertEvent(state, tid, a.row, a.first_seen_s, a.confidence, a.frames, a.flash_hz, a.mean_score,
                           reason, a.cues, a.body_score)

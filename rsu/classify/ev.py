@@ -1,11 +1,12 @@
-"""The RSU's EV classifier hook and EV alert logic (issue 5; Framework B, thesis 2.3-2.4).
+"""The RSU's EV classifier (Framework B, thesis 2.3-2.4).
 
-:class:`TrackEvClassifier` is the ``RsuPipeline`` classifier hook ``(frame, tracks) -> {track_id:
-EvVerdict}`` (:class:`EvVerdict`: ev_score, light_state, ev_state and the track's evidence record). It
+:class:`TrackEvClassifier` is the ``RsuPipeline`` classifier stage ``(frame, tracks) -> tracks``: it adds the EV
+columns to the frame's table of tracks (``rsu.perception.Detections``: ``ev_scores``, ``light_states``,
+``ev_states``, ``evidence``: the track's evidence record). It
 keeps one :class:`~rsu.classify.temporal.TrackEvidence` per track id, measures the lamps (:func:`~rsu.classify.temporal.measure_lamps`) in each track's box crop
 (clipped to the image; optionally extended upwards by ``above_fraction`` of its height, since a
 detector's box can cut the light bar off the roof; 0.25 by default, as the EV-body classifier was trained),
-optionally scores the same crop with the EV-body classifier (``body``, issue 17: only while the track shows
+optionally scores the same crop with the EV-body classifier (``body``: only while the track shows
 lamp activity and at most once per ``body_period_s``, never on every box of every frame), optionally adds a
 per-crop EV probability from any ``crop_score(crop) -> float``
 callable (a trained CNN or feature classifier; None: lamps only), and skips boxes smaller than ``min_box_px`` on a side (too few pixels to resolve a light
@@ -17,20 +18,19 @@ range (several vehicles merged into one blob), and forgets tracks unseen for
 Evidence survives a broken track. SORT with the reference settings (max_age 1, min_hits 3, thesis 2.2)
 drops a track after one frame without a match and reports its successor only after three hits, so a
 vehicle whose box changes shape faster than the filter's aspect ratio follows (an EV driving away from
-the camera, seen first from the side, then from behind) gets a new id every few seconds; each new id
-used to start its lamp history from nothing, and an EV that is confirmed only after two flashes could
-lose every one of them to such switches (Framework A's weakness, thesis 2.2, reappearing inside
-Framework B). So when a track id appears that the classifier has not seen, it takes over the evidence
+the camera, seen first from the side, then from behind) gets a new id every few seconds; were each new id to
+start its lamp history from nothing, an EV that is confirmed only after two flashes could lose every one of them
+to such switches (Framework A's weakness, thesis 2.2, reappearing inside Framework B). So when a track id appears that the classifier has not seen, it takes over the evidence
 of a track lost within the last ``handover_after_s`` whose last box, moved on at that box's own
 velocity (:func:`extrapolate_box`), overlaps it by IoU >= ``handover_iou`` (SORT's own association
 threshold, 0.3): one new id per lost track, matched as SORT matches (:func:`match_lost_tracks`). A new box
 that holds most of a nearer vehicle's box takes over nothing: it is two vehicles merged by the detector
 (:func:`rsu.classify.ownership.holds_nearer_vehicle`). The pipeline hands this classifier SORT's held-back tracks
 as well as its reported ones (``rsu.track.sort.SortTracker.tentative``), so the successor takes over, and goes on
-gathering, from its birth, not from the frame SORT first reports it (three matches later): an EV whose track
-SORT's filter lost just as its lights came on (e2e_bench seed 10, rsu1: the area velocity learned while the EV
-came into view from under the camera shrank the box faster than the EV) lost the first flash to those frames and
-alerted one flash period (0.5 s) later.
+gathering, from its birth, not from the frame SORT first reports it (three matches later): an EV whose track SORT's
+filter loses just as its lights come on (its area velocity, learned while the EV came into view from under the
+camera, shrinking the box faster than the EV) would otherwise lose the first flash to those frames and alert one
+flash period (0.5 s) later.
 
 The EvAlert life cycle built on its verdicts is :class:`rsu.classify.alerts.EvAlertManager`.
 """
@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocol.enums import EvState, LightState
+from protocol.enums import EvState
 from rsu.classify.evidence_config import EvidenceConfig, lamp_activity
 from rsu.classify.lamps import BAR_COLOURED, LAMP_BRIGHT, LampColours, LampMeasurement, measure_band
 from rsu.classify.ownership import (
@@ -57,6 +57,8 @@ from rsu.classify.ownership import (
     rect_mask,
 )
 from rsu.classify.temporal import TrackEvidence
+from rsu.frames import Frame
+from rsu.perception import Detections, object_column
 from rsu.track.assoc import associate
 
 CropScore = Callable[[np.ndarray], float]
@@ -97,21 +99,6 @@ class TrackInfo:
     """Ids whose evidence this track took over (oldest first, the last 8)."""
     last_body_s: float | None = None
     """When the EV-body classifier last scored this track."""
-
-
-@dataclass(frozen=True)
-class EvVerdict:
-    """The classifier hook's answer for one track in one frame (``rsu.pipeline.Classifier``)."""
-
-    ev_score: float
-    """In [0, 1]."""
-    light_state: LightState | None = None
-    """None: unknown."""
-    ev_state: EvState | None = None
-    """None: the pipeline decides from ``ev_score`` and its threshold."""
-    track: TrackInfo | None = None
-    """The track's evidence record (read by :class:`~rsu.classify.alerts.EvAlertManager` and ``iea-rsu scan``); None for a hook that
-    keeps none."""
 
 
 def _may_own_flashes(info: TrackInfo) -> bool:
@@ -270,11 +257,13 @@ class TrackEvClassifier:
         info.last_body_s = now_s
         return float(np.clip(self.body(blank_rects(crop, rect_mask(bounds, others))), 0.0, 1.0))
 
-    def __call__(self, frame, tracks) -> dict[int, EvVerdict]:
+    def __call__(self, frame: Frame, tracks: Detections) -> Detections:
+        """``tracks`` with the EV columns of this frame (``ev_scores``, ``light_states``, ``ev_states``,
+        ``evidence``)."""
         now = float(frame.timestamp_s)
         image = frame.image
-        out: dict[int, EvVerdict] = {}
-        ids = [int(t) for t in tracks.track_ids]
+        ids = [int(t) for t in tracks.column("track_ids")]
+        scores, lights, states, records = [], [], [], []
         boxes = np.asarray(tracks.boxes, float).reshape(-1, 4)
         if self.handover_after_s > 0 and any(tid not in self.tracks for tid in ids):
             self._hand_over(now, ids, boxes)
@@ -308,9 +297,14 @@ class TrackEvClassifier:
                 body = None if ahead else self._body_score(info, now, lamps, bar, crop,
                                                            bounds[k], above_top(farther, box))
                 state = ev.update(now, lamps, score, body, bar, lamps_alone=not ahead)
-            out[tid] = EvVerdict(ev.ev_score, ev.light_state, state, info)
+            scores.append(ev.ev_score)
+            lights.append(ev.light_state)
+            states.append(state)
+            records.append(info)
         self._forget(now)
-        return out
+        return tracks.with_columns(ev_scores=np.asarray(scores, float).reshape(len(ids)),
+                                   light_states=object_column(lights), ev_states=object_column(states),
+                                   evidence=object_column(records))
 
     def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
         """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids`` that were

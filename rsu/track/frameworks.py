@@ -1,4 +1,4 @@
-"""The thesis's two tracking frameworks over ``rsu.track.sort.SortTracker`` (thesis 2.2, 2.3; SPEC.md "Perception").
+"""The thesis's two tracking frameworks over ``rsu.track.sort.SortTracker`` (thesis 2.2, 2.3; docs/architecture.md §Tracking).
 
 ``"B"`` (thesis 2.3, deployed) tracks every vehicle in one tracker whatever its class; ``"A"`` (thesis 2.2) runs
 one tracker per detector class with a shared id counter, so a detection whose class flips starts a new track, as in
@@ -11,7 +11,8 @@ import itertools
 
 import numpy as np
 
-from rsu.track.sort import SortTracker, TrackSet
+from rsu.perception import Detections
+from rsu.track.sort import SortTracker, no_tracks
 
 FRAMEWORKS = ("A", "B")
 
@@ -35,13 +36,13 @@ class FrameworkTracker:
         if framework == "B":
             self.trackers[-1] = SortTracker(*self._params, id_source=self._ids)
 
-    def update(self, boxes: np.ndarray, scores: np.ndarray | None = None,
-               class_ids: np.ndarray | None = None) -> TrackSet:
-        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    def update(self, detections: Detections) -> Detections:
+        """The tracks reported on this frame of ``detections`` (``SortTracker.update``): the table's tracked rows,
+        with the tracker's columns, detection indices into ``detections``."""
+        boxes = np.asarray(detections.boxes, dtype=np.float64).reshape(-1, 4)
         n = len(boxes)
-        scores = np.ones(n) if scores is None else np.asarray(scores, dtype=np.float64).reshape(n)
-        class_ids = (np.zeros(n, dtype=np.int64) if class_ids is None
-                     else np.asarray(class_ids, dtype=np.int64).reshape(n))
+        scores = np.asarray(detections.scores, dtype=np.float64).reshape(n)
+        class_ids = np.asarray(detections.class_ids, dtype=np.int64).reshape(n)
         if self.framework == "B":
             return self.trackers[-1].update(boxes, scores, class_ids)
         for c in np.unique(class_ids):
@@ -51,18 +52,20 @@ class FrameworkTracker:
         for c, trk in sorted(self.trackers.items()):
             sel = self._inputs[c] = np.flatnonzero(class_ids == c)
             parts.append(_with_input_indices(trk.update(boxes[sel], scores[sel], class_ids[sel]), sel))
-        return TrackSet.concatenate(parts)
+        return Detections.concatenate(parts) if parts else no_tracks()
 
-    def tentative(self) -> TrackSet:
+    def tentative(self) -> Detections:
         """The tracks the last ``update`` matched but did not report (``SortTracker.tentative``), of every
         per-class tracker; detection indices into that update's input."""
         if self.framework == "B":
             return self.trackers[-1].tentative()
-        return TrackSet.concatenate([_with_input_indices(trk.tentative(), self._inputs.get(c, np.empty(0, np.int64)))
-                                     for c, trk in sorted(self.trackers.items())])
+        parts = [_with_input_indices(trk.tentative(), self._inputs.get(c, np.empty(0, np.int64)))
+                 for c, trk in sorted(self.trackers.items())]
+        return Detections.concatenate(parts) if parts else no_tracks()
 
 
-def _with_input_indices(ts: TrackSet, sel: np.ndarray) -> TrackSet:
-    """``ts`` of a tracker fed the detections ``sel`` of an input, its detection indices into that input."""
-    return TrackSet(ts.track_ids, ts.boxes, ts.class_ids, ts.scores, sel[ts.det_indices] if len(ts) else ts.det_indices,
-                    ts.hits, ts.age_frames, ts.velocity_px)
+def _with_input_indices(tracks: Detections, sel: np.ndarray) -> Detections:
+    """``tracks`` of a tracker fed the detections ``sel`` of an input, its detection indices into that input."""
+    if not len(tracks):
+        return tracks
+    return tracks.with_columns(det_indices=sel[tracks.det_indices])

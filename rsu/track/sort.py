@@ -1,4 +1,4 @@
-"""SORT multi-object tracker (Bewley et al. 2016; thesis 2.2; SPEC.md "Perception"), vectorised.
+"""SORT multi-object tracker (Bewley et al. 2016; thesis 2.2; docs/architecture.md §Tracking), vectorised.
 
 Same algorithm as the reference ``sort.py`` (github.com/abewley/sort), re-implemented so that the
 Kalman predict/update runs as batched numpy over all tracks instead of one filterpy object per track:
@@ -27,6 +27,14 @@ Kalman predict/update runs as batched numpy over all tracks instead of one filte
 - ids count from 1 in the output (the reference reports ``id + 1``), per tracker instance (the
   reference shares a class-level counter between instances and wraps it at 10000; this does not).
 
+Two code paths give the same tracks: up to ``SCALAR_MAX_ROWS`` live tracks + detections a frame runs on Python floats
+(``rsu.track.sort_scalar``), above it on the table with array operations. At the densities an RSU sees (5-20
+targets) numpy's per-call cost, not the arithmetic, sets the array step's price (~75 us at 20 targets against ~60 us
+on floats), and the array step alone would fall under ten times the reference's speed at 20 targets; at 100 targets
+the array step is the cheaper (~205 against ~375 us). Both are measured by ``bench/rsu_bench.py --tracker-only``
+and tested equal to the reference and to each other.
+
+A frame's answer is the table of its reported tracks (``rsu.perception.Detections`` with the tracker's columns).
 The thesis's two ways of running it over classes are ``rsu.track.frameworks.FrameworkTracker``.
 
 Pure core: no I/O, no clock, deterministic.
@@ -36,10 +44,10 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 import numpy as np
 
+from rsu.perception import Detections
 from rsu.track import sort_scalar
 from rsu.track.assoc import _associate, iou_matrix
 
@@ -122,45 +130,16 @@ def x_to_boxes(x: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass(slots=True)
-class TrackSet:
-    """Tracks reported on one frame (arrays of equal length M, in the reference's output order)."""
+def no_tracks() -> Detections:
+    """A tracker's answer with no track: zero rows, every tracker column filled."""
+    e = np.empty(0, dtype=np.int64)
+    return Detections(np.empty((0, 4)), np.empty(0), e, track_ids=e, det_indices=e, hits=e, age_frames=e,
+                      velocity_px=np.empty((0, 2)))
 
-    track_ids: np.ndarray
-    """(M,) int64, from 1."""
-    boxes: np.ndarray
-    """(M, 4) float64 xyxy: the filtered state after the update."""
-    class_ids: np.ndarray
-    """(M,) int64: class of the detection matched on this frame."""
-    scores: np.ndarray
-    """(M,) float64: score of the detection matched on this frame."""
-    det_indices: np.ndarray
-    """(M,) int64: index of the matched detection in this frame's input."""
-    hits: np.ndarray
-    """(M,) int64: total updates of the track."""
-    age_frames: np.ndarray
-    """(M,) int64: predictions since the track was born."""
-    velocity_px: np.ndarray
-    """(M, 2) float64: filtered centre velocity (u', v') in pixels per frame."""
 
-    def __len__(self) -> int:
-        return len(self.track_ids)
-
-    def as_mot(self) -> np.ndarray:
-        """(M, 5) rows [x1, y1, x2, y2, id] as the reference ``Sort.update`` returns."""
-        return np.hstack([self.boxes, self.track_ids[:, None].astype(float)])
-
-    @staticmethod
-    def empty() -> TrackSet:
-        e = np.empty(0, dtype=np.int64)
-        return TrackSet(e, np.empty((0, 4)), e, np.empty(0), e, e, e, np.empty((0, 2)))
-
-    @staticmethod
-    def concatenate(parts: list[TrackSet]) -> TrackSet:
-        if not parts:
-            return TrackSet.empty()
-        return TrackSet(*(np.concatenate([getattr(p, f) for p in parts])
-                          for f in TrackSet.__dataclass_fields__))
+def as_mot(tracks: Detections) -> np.ndarray:
+    """(M, 5) rows [x1, y1, x2, y2, id] as the reference ``Sort.update`` returns."""
+    return np.hstack([tracks.boxes, tracks.column("track_ids")[:, None].astype(float)])
 
 
 # Structure of arrays: one float64 row per track (small integers are exact in float64), so that
@@ -197,23 +176,24 @@ sees, where numpy's per-call cost dominates); above it, on the table with array 
 ~375 and ~205 us."""
 
 
-def _rows_trackset(r: np.ndarray) -> TrackSet:
-    """``TrackSet`` of table rows (K, _NCOL), in their order: the filtered state's box and velocity, the row's
+def _rows_tracks(r: np.ndarray) -> Detections:
+    """The tracked rows of table rows (K, _NCOL), in their order: the filtered state's box and velocity, the row's
     bookkeeping."""
     ints = r[:, _AGE:_DET + 1].astype(np.int64)
-    # (track_ids, boxes, class_ids, scores, det_indices, hits, age_frames, velocity_px)
-    return TrackSet(ints[:, _ID - _AGE], x_to_boxes(r), ints[:, _CLASS - _AGE], r[:, _SCORE], ints[:, _DET - _AGE],
-                    ints[:, _HITS - _AGE], ints[:, 0], r[:, 4:6])
+    return Detections(x_to_boxes(r), r[:, _SCORE], ints[:, _CLASS - _AGE], track_ids=ints[:, _ID - _AGE],
+                      det_indices=ints[:, _DET - _AGE], hits=ints[:, _HITS - _AGE], age_frames=ints[:, 0],
+                      velocity_px=r[:, 4:6])
 
 
-def _scalar_trackset(out: list[tuple]) -> TrackSet:
-    """``TrackSet`` of ``rsu.track.sort_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
+def _scalar_tracks(out: list[tuple]) -> Detections:
+    """The tracked rows of ``rsu.track.sort_scalar.step``'s reported rows (x1, y1, x2, y2, u', v', score, id, class,
     detection, hits, age)."""
     if not out:
-        return TrackSet.empty()
+        return no_tracks()
     a = np.array(out)
     ints = a[:, 7:12].astype(np.int64)
-    return TrackSet(ints[:, 0], a[:, 0:4], ints[:, 1], a[:, 6], ints[:, 2], ints[:, 3], ints[:, 4], a[:, 4:6])
+    return Detections(a[:, 0:4], a[:, 6], ints[:, 1], track_ids=ints[:, 0], det_indices=ints[:, 2], hits=ints[:, 3],
+                      age_frames=ints[:, 4], velocity_px=a[:, 4:6])
 
 
 class SortTracker:
@@ -311,7 +291,7 @@ class SortTracker:
         np.multiply(k, _R7, out=p)
 
     def update(self, boxes: np.ndarray, scores: np.ndarray | None = None,
-               class_ids: np.ndarray | None = None) -> TrackSet:
+               class_ids: np.ndarray | None = None) -> Detections:
         """Process one frame of detections (N, 4) xyxy; returns the tracks reported on this frame.
 
         Up to ``SCALAR_MAX_ROWS`` live tracks + detections (and detections with a finite, positive size) the frame
@@ -332,14 +312,14 @@ class SortTracker:
                                     self.max_age, iou_matrix)
             if res is not None:
                 self._rows = res[0]
-                return _scalar_trackset(res[1])
+                return _scalar_tracks(res[1])
             self._to_arrays()  # a predicted box is not finite: the frame goes on with arrays, predicted
             return self._update_arrays(boxes, scores, class_ids, predicted=True)
         self._to_arrays()
         return self._update_arrays(boxes, scores, class_ids, predicted=False)
 
     def _update_arrays(self, boxes: np.ndarray, scores: np.ndarray | None, class_ids: np.ndarray | None,
-                       predicted: bool) -> TrackSet:
+                       predicted: bool) -> Detections:
         """``update`` with array operations over the table (``predicted``: the tracks were advanced already)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             predicted = self._predicted_boxes() if predicted else self._predict()
@@ -374,30 +354,30 @@ class SortTracker:
             if self.frame_count > self.min_hits:
                 report &= t[:, _STREAK] >= self.min_hits
             # (the reference walks its track list backwards)
-            out = _rows_trackset(t.take(np.flatnonzero(report)[::-1], axis=0))
+            out = _rows_tracks(t.take(np.flatnonzero(report)[::-1], axis=0))
             alive = t[:, _TSU] <= self.max_age
             if not alive.all():
                 self._t = t.compress(alive, axis=0)
         return out
 
-    def tentative(self) -> TrackSet:
+    def tentative(self) -> Detections:
         """The tracks matched to a detection on the last ``update`` that it did not report: born or re-found
         less than ``min_hits`` frames ago (SORT holds them back as possible false positives). Their boxes are
         measured like any track's, so what reads a vehicle's look over frames (the EV classifier) can start at
         the track's birth instead of when it is first reported. Same fields as ``update``'s result, oldest track
         first."""
         if self.frame_count <= self.min_hits:  # every matched track was reported
-            return TrackSet.empty()
+            return no_tracks()
         rows = self._rows if self._rows is not None else self._t
         held = [r for r in rows if r[_TSU] < 1.0 and r[_STREAK] < self.min_hits]
         if not held:
-            return TrackSet.empty()
+            return no_tracks()
         with np.errstate(invalid="ignore", divide="ignore"):
-            return _rows_trackset(np.array(held, dtype=np.float64).reshape(-1, _NCOL))
+            return _rows_tracks(np.array(held, dtype=np.float64).reshape(-1, _NCOL))
 
     def update_mot(self, dets: np.ndarray) -> np.ndarray:
         """Reference-compatible call: dets (N, >=4) [x1, y1, x2, y2, (score)] -> (M, 5) [box, id]."""
         dets = np.asarray(dets, dtype=np.float64)
         dets = dets.reshape(0, 5) if dets.size == 0 else dets
         scores = dets[:, 4] if dets.shape[1] > 4 else None
-        return self.update(dets[:, :4], scores).as_mot()
+        return as_mot(self.update(dets[:, :4], scores))

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from protocol.enums import AlertState, EvState, LightState
-from protocol.messages import DetectedObject
 from rsu.classify.alerts import EvAlertManager
 from rsu.classify.ev import TrackEvClassifier, clip_box, extrapolate_box, match_lost_tracks
 from rsu.frames import Frame
-from rsu.track.sort import TrackSet
+from rsu.perception import Detections, object_column
+from rsu.track.sort import no_tracks
 
 FPS = 15.0
 BOX_A = (100.0, 100.0, 180.0, 160.0)  # the EV
@@ -18,13 +18,27 @@ BOX_B = (300.0, 100.0, 380.0, 160.0)  # a red car
 
 
 def tracks(entries):
-    """TrackSet of (track_id, box) pairs."""
+    """The table of tracks of (track_id, box) pairs."""
     if not entries:
-        return TrackSet.empty()
+        return no_tracks()
     ids = np.array([e[0] for e in entries], np.int64)
     n = len(entries)
     z = np.zeros(n, np.int64)
-    return TrackSet(ids, np.array([e[1] for e in entries], float), z, np.ones(n), z, z + 5, z + 5, np.zeros((n, 2)))
+    return Detections(np.array([e[1] for e in entries], float), np.ones(n), z, track_ids=ids, det_indices=z,
+                      hits=z + 5, age_frames=z + 5, velocity_px=np.zeros((n, 2)))
+
+
+class Verdict:
+    """One track's EV columns, read by track id."""
+
+    def __init__(self, table, k):
+        self.ev_score, self.light_state = float(table.ev_scores[k]), table.light_states[k]
+        self.ev_state, self.track = table.ev_states[k], table.evidence[k]
+
+
+def by_id(table):
+    """The classifier's EV columns by track id."""
+    return {int(tid): Verdict(table, k) for k, tid in enumerate(table.track_ids)}
 
 
 def scene(t, lights_on_at=0.5, freq=2.0):
@@ -45,7 +59,7 @@ def run(n_frames, entries_of=lambda k: [(1, BOX_A), (2, BOX_B)], clf=None, **sce
     states = []
     for k in range(n_frames):
         t = k / FPS
-        out = clf(Frame(scene(t, **scene_kw), t, k, "cam"), tracks(entries_of(k)))
+        out = by_id(clf(Frame(scene(t, **scene_kw), t, k, "cam"), tracks(entries_of(k))))
         states.append((t, out))
     return clf, states
 
@@ -102,33 +116,39 @@ def test_tracks_are_forgotten_when_gone():
 
 
 def obj(tid, state, x=10.0):
-    return DetectedObject(object_id=tid, pos_x_m=x, pos_y_m=2.0, lat_deg=30.0, lon_deg=-96.0,
-                          bbox_px=(0, 0, 10, 10), ev_score=0.9 if state == EvState.CONFIRMED else 0.1, ev_state=state,
-                          lane=1)
+    """One localised track with its verdict and no evidence record."""
+    one = np.ones(1)
+    return Detections(np.array([[0.0, 0.0, 10.0, 10.0]]), one, np.zeros(1, np.int64), track_ids=np.array([tid]),
+                      ev_scores=np.array([0.9 if state == EvState.CONFIRMED else 0.1]),
+                      ev_states=object_column([state]), localized=np.ones(1, bool), positions_m=np.array([[x, 2.0]]),
+                      lanes=object_column([1]))
+
+
+def objs_of(rows):
+    return Detections.concatenate(rows) if rows else obj(0, EvState.NONE)[[]]
 
 
 def test_alert_life_cycle_active_refresh_2hz_and_cleared_when_gone():
     m = EvAlertManager()
-    info = {}  # no evidence records
     events = []
     for k in range(60):  # 4 s at 15 fps: candidate, then confirmed from frame 5, gone from frame 40
         t = k / FPS
-        objs = [] if k >= 40 else [obj(4, EvState.CONFIRMED if k >= 5 else EvState.CANDIDATE, x=k)]
-        events += [(t, e) for e in m.update(t, objs, info)]
+        objs = objs_of([] if k >= 40 else [obj(4, EvState.CONFIRMED if k >= 5 else EvState.CANDIDATE, x=k)])
+        events += [(t, e) for e in m.update(t, objs)]
     active = [(t, e) for t, e in events if e.state == AlertState.ACTIVE]
     cleared = [(t, e) for t, e in events if e.state == AlertState.CLEARED]
     assert active[0][0] == pytest.approx(5 / FPS)
     gaps = np.diff([t for t, _ in active])
     assert np.all(gaps >= 0.5 - 1e-6) and np.all(gaps <= 0.5 + 1 / FPS + 1e-6)
     assert len(cleared) == 1 and cleared[0][0] == pytest.approx(39 / FPS + 1.0, abs=1 / FPS + 1e-6)
-    assert cleared[0][1].obj.pos_x_m == 39  # last known position
+    assert cleared[0][1].row.positions_m[0, 0] == 39  # last known position
     assert not m.active
 
 
 def test_alert_cleared_when_the_evidence_clears():
     m = EvAlertManager()
-    ev1 = m.update(0.0, [obj(4, EvState.CONFIRMED)], {})
-    ev2 = m.update(0.1, [obj(4, EvState.CLEARED)], {})
+    ev1 = m.update(0.0, obj(4, EvState.CONFIRMED))
+    ev2 = m.update(0.1, obj(4, EvState.CLEARED))
     assert [e.state for e in ev1] == [AlertState.ACTIVE] and [e.state for e in ev2] == [AlertState.CLEARED]
 
 
@@ -175,7 +195,7 @@ def run_fragmented(clf, n_frames=int(4 * FPS), visible=9, hidden=3, other_at=Non
         entries = [(100 + seg, box)] if pos < visible else []
         if other_at is not None and k >= other_at:
             entries.append((7, (500.0, 100.0, 580.0, 160.0)))
-        out = clf(Frame(img, t, k, "cam"), tracks(entries))
+        out = by_id(clf(Frame(img, t, k, "cam"), tracks(entries)))
         confirmed += [(t, tid) for tid, v in out.items() if v.ev_state == EvState.CONFIRMED]
     return confirmed
 
@@ -228,7 +248,7 @@ def test_a_confirmed_ev_is_not_body_scored_again():
     per_frame = []
     for k in range(int(4 * FPS)):
         t = k / FPS
-        out = clf(Frame(scene(t), t, k, "cam"), tracks([(1, BOX_A)]))
+        out = by_id(clf(Frame(scene(t), t, k, "cam"), tracks([(1, BOX_A)])))
         per_frame.append((out[1].ev_state, len(calls)))
     first = next(k for k, (state, _n) in enumerate(per_frame) if state == EvState.CONFIRMED)
     assert per_frame[first][1] >= 1  # scored while a candidate
@@ -271,7 +291,7 @@ def test_a_car_just_behind_a_flashing_ev_is_not_body_scored_with_the_ev_in_its_c
         out = []
         for k in range(int(4 * FPS)):
             t = k / FPS
-            out.append(clf(Frame(tall_bar(t), t, k, "cam"), tracks(entries)))
+            out.append(by_id(clf(Frame(tall_bar(t), t, k, "cam"), tracks(entries))))
         return out
 
     scored = []

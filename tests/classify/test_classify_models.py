@@ -129,7 +129,7 @@ def test_evaluate_models_times_each_crop(tmp_path):
 
 def test_evaluate_scenes_classifies_the_largest_detected_vehicle(tmp_path):
     from rsu.classify.evaluation import evaluate_scenes
-    from rsu.detect import Detections
+    from rsu.perception import Detections
 
     class TwoBoxes:
         name = "fake"

@@ -14,7 +14,6 @@ from rsu.detect import (
     PAD_VALUE,
     PROJECT_TO_PROJECT,
     VEHICLE,
-    Detections,
     Detector,
     MotionDetector,
     OnnxDetector,
@@ -23,6 +22,7 @@ from rsu.detect import (
     postprocess,
     yolox_grids,
 )
+from rsu.perception import Detections
 from rsu.track.assoc import iou_matrix
 
 REAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real"
@@ -82,10 +82,8 @@ def test_decode_hand_made_yolox_coco_output():
     np.testing.assert_allclose(det.boxes[order[1]], [(208 - 60) * 2, (240 - 30) * 2, (208 + 60) * 2, (240 + 30) * 2],
                                atol=1e-3)
     np.testing.assert_allclose(det.scores[order], [0.72, 0.855], atol=1e-6)
-    assert det.classes.tolist() == [VEHICLE, VEHICLE]
-    assert det.boxes.dtype == np.float32 and det.classes.dtype == np.int64
-    boxes, scores, classes = det  # unpacks as the interface
-    assert boxes is det.boxes
+    assert det.class_ids.tolist() == [VEHICLE, VEHICLE]
+    assert det.boxes.dtype == np.float32 and det.class_ids.dtype == np.int64
 
 
 def test_decode_project_layout_two_classes_and_class_filter():
@@ -95,11 +93,11 @@ def test_decode_project_layout_two_classes_and_class_filter():
     _put(raw, 16, 15, 10, (248.0, 168.0, 64.0, 48.0), 0.9, 1, 0.8)  # EV
     rows = decode_yolox(raw, INPUT)
     det = postprocess(rows, 1.0, (416, 416), PROJECT_TO_PROJECT, 0.3, 0.45)
-    assert sorted(det.classes.tolist()) == [VEHICLE, EV]
-    ev = det.boxes[det.classes == EV][0]
+    assert sorted(det.class_ids.tolist()) == [VEHICLE, EV]
+    ev = det.boxes[det.class_ids == EV][0]
     np.testing.assert_allclose(ev, [216, 144, 280, 192], atol=1e-3)
     only_vehicles = postprocess(rows, 1.0, (416, 416), PROJECT_TO_PROJECT, 0.3, 0.45, classes_wanted=[VEHICLE])
-    assert only_vehicles.classes.tolist() == [VEHICLE]
+    assert only_vehicles.class_ids.tolist() == [VEHICLE]
 
 
 def test_nms_is_class_aware():
@@ -149,7 +147,7 @@ def test_yolox_model_detects_real_cars(yolox):
     image = _video_frame(VIDEO3, 30)
     det = yolox.detect(image)
     assert len(det) >= 5, "frame 30 of ambdet_video_3 shows at least 6 cars"
-    assert (det.classes == VEHICLE).all() and (det.scores >= 0.3).all()
+    assert (det.class_ids == VEHICLE).all() and (det.scores >= 0.3).all()
     h, w = image.shape[:2]
     assert (det.boxes[:, [0, 2]] <= w).all() and (det.boxes[:, [1, 3]] <= h).all() and (det.boxes >= 0).all()
     # the dark car left of centre (checked by eye on an annotated frame)
@@ -185,7 +183,7 @@ def test_motion_detector_finds_a_moving_box():
         det = md.detect(image)
     assert len(det) == 1
     assert iou_matrix(np.array([[x, 100, x + 41, 131]], float), det.boxes.astype(float))[0, 0] > 0.7
-    assert det.classes.tolist() == [VEHICLE]
+    assert det.class_ids.tolist() == [VEHICLE]
 
 
 def test_motion_detector_ignores_a_whole_frame_change():

@@ -12,9 +12,9 @@ from protocol.keys import rsu_key
 from protocol.local_bus import LocalBus
 from protocol.messages import EvAlert, ObjectList
 from rsu.build import PipelineConfig, build_classifier, build_tracker
-from rsu.detect import Detections
 from rsu.frames import ArraySource
 from rsu.localize import Localizer
+from rsu.perception import Detections
 from rsu.pipeline import RsuPipeline
 from rsu.service import RsuService
 
@@ -139,10 +139,10 @@ def _first_confirmed_s(monkeypatch, held_back_tracks: bool) -> tuple[float, floa
     """(first publication of the successor track, first frame it is published confirmed), in s."""
     from rsu.frames import Frame
     from rsu.track.frameworks import FrameworkTracker
-    from rsu.track.sort import TrackSet
+    from rsu.track.sort import no_tracks
 
     if not held_back_tracks:
-        monkeypatch.setattr(FrameworkTracker, "tentative", lambda self: TrackSet.empty())
+        monkeypatch.setattr(FrameworkTracker, "tentative", lambda self: no_tracks())
     images, boxes = _jumping_ev_frames(int(3 * FPS))
 
     class JumpingDetector:
@@ -160,11 +160,12 @@ def _first_confirmed_s(monkeypatch, held_back_tracks: bool) -> tuple[float, floa
     seen_s = None
     for k, img in enumerate(images):
         res = pipe.process(Frame(img, k / FPS, k, "cam"))
-        for o in res.objects:
-            first_id = o.object_id if first_id is None else first_id
-            if o.object_id != first_id and seen_s is None:
+        published = res.published
+        for tid, state in zip(published.track_ids, published.ev_states, strict=True):
+            first_id = tid if first_id is None else first_id
+            if tid != first_id and seen_s is None:
                 seen_s = k / FPS
-            if o.object_id != first_id and o.ev_state == EvState.CONFIRMED:
+            if tid != first_id and state == EvState.CONFIRMED:
                 return seen_s, k / FPS
     raise AssertionError("the successor track was never confirmed")
 

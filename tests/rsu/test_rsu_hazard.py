@@ -244,7 +244,7 @@ class _NoDetector:
     name = "none"
 
     def detect(self, image):
-        from rsu.detect import Detections
+        from rsu.perception import Detections
 
         return Detections.empty()
 

@@ -14,7 +14,7 @@ from protocol.keys import rsu_key, sim_world_key
 from protocol.local_bus import LocalBus
 from protocol.messages import Health, WorldSnapshot
 from rsu.build import MOTION, PipelineConfig, build_pipeline
-from rsu.frames import Frame
+from rsu.frames import Frame, FrameSource
 from rsu.service import RsuService
 from rsu.sim_source import SimSource
 
@@ -69,7 +69,7 @@ def test_the_camera_holds_its_newest_two_frames_for_a_reader_one_frame_late():
     src.close()
 
 
-class _LateSource:
+class _LateSource(FrameSource):
     """Frames stamped 0.2 s before the clock (age at read), every other camera frame missed."""
 
     source_id, fps, stamps_capture_time = "late", 15.0, True

@@ -10,7 +10,7 @@ import pytest
 from deploy.survey import project_points, survey
 from protocol.corridor import load_corridor
 from rsu.localize import INTERPOLATIONS, GroundProjector, Localizer, ReferenceInterpolator, bottom_centres
-from rsu.track.sort import TrackSet
+from rsu.perception import Detections
 
 CORRIDOR = load_corridor()
 RSU = CORRIDOR.rsus[0]
@@ -137,10 +137,30 @@ def test_vehicle_localisation_at_60_m(method):
     assert 1.5 < np.hypot(*(xy_raw[0] - truth)) < 3.0
 
 
-def _trackset(ids, boxes):
+def _trackset(ids, boxes, det_indices=None):
     n = len(ids)
-    return TrackSet(np.asarray(ids, np.int64), np.asarray(boxes, float).reshape(n, 4), np.zeros(n, np.int64),
-                    np.ones(n), np.arange(n), np.full(n, 5), np.full(n, 5), np.zeros((n, 2)))
+    return Detections(np.asarray(boxes, float).reshape(n, 4), np.ones(n), np.zeros(n, np.int64),
+                      track_ids=np.asarray(ids, np.int64),
+                      det_indices=np.arange(n) if det_indices is None else np.asarray(det_indices, np.int64),
+                      hits=np.full(n, 5), age_frames=np.full(n, 5), velocity_px=np.zeros((n, 2)))
+
+
+class Placed:
+    """One localised row of the localiser's table, by name."""
+
+    def __init__(self, table, k):
+        self.track_id = int(table.track_ids[k])
+        self.x_m, self.y_m = (float(v) for v in table.positions_m[k])
+        self.lat_deg, self.lon_deg = (float(v) for v in table.latlon_deg[k])
+        self.lane, self.speed_mps = table.lanes[k], float(table.speeds_mps[k])
+        self.heading_rad, self.age_s = float(table.headings_rad[k]), float(table.ages_s[k])
+        self.pos_cov_m2 = tuple(float(v) for v in table.pos_cov_m2[k])
+        self.bbox_px = tuple(float(v) for v in table.boxes[k])
+
+
+def placed(table):
+    """The rows the localiser placed, in order."""
+    return [Placed(table, k) for k in range(len(table)) if table.localized[k]]
 
 
 def test_tracked_vehicle_speed_heading_lane_and_latlon():
@@ -151,7 +171,7 @@ def test_tracked_vehicle_speed_heading_lane_and_latlon():
     rng = np.random.default_rng(8)
     for k in range(45):
         box, truth = _vehicle_box(RSU, s0 + speed * k / fps, d)
-        objs = loc.update(_trackset([7], [box + rng.normal(0, 0.3, 4)]), k / fps)
+        objs = placed(loc.update(_trackset([7], [box + rng.normal(0, 0.3, 4)]), k / fps))
     (obj,) = objs
     assert obj.track_id == 7 and obj.lane == 1
     assert obj.speed_mps == pytest.approx(speed, abs=0.5)
@@ -168,15 +188,15 @@ def test_standing_vehicle_takes_the_road_heading_and_forgotten_tracks_restart():
     loc = Localizer(CORRIDOR, RSU, forget_after_s=1.0)
     box, _ = _vehicle_box(RSU, RSU.camera.x_m - ROAD.start_x_m + 50.0, ROAD.lane_centre_offset_m(0))
     for k in range(10):
-        (obj,) = loc.update(_trackset([3], [box]), k * 0.1)
+        (obj,) = placed(loc.update(_trackset([3], [box]), k * 0.1))
     assert obj.speed_mps < 0.2 and abs(obj.heading_rad) < 1e-9 and obj.lane == 0
-    (obj,) = loc.update(_trackset([3], [box]), 5.0)  # seen again long after: a fresh track state
+    (obj,) = placed(loc.update(_trackset([3], [box]), 5.0))  # seen again long after: a fresh track state
     assert obj.age_s == 0.0
 
 
 def test_boxes_above_the_horizon_are_dropped():
     loc = Localizer(CORRIDOR, RSU)
-    objs = loc.update(_trackset([1, 2], [[600, 0, 680, 5], [600, 600, 700, 680]]), 0.0)
+    objs = placed(loc.update(_trackset([1, 2], [[600, 0, 680, 5], [600, 600, 700, 680]]), 0.0))
     assert [o.track_id for o in objs] == [2]
 
 
@@ -253,10 +273,9 @@ def test_tracks_are_measured_at_their_matched_detection_when_given():
     near, truth = _vehicle_box(RSU, RSU.camera.x_m - ROAD.start_x_m + 60.0, ROAD.lane_centre_offset_m(0))
     lagging = near + [0, -6, 0, -6]  # a filtered box 6 px higher: about 1.7 m too far at 60 m
     dets = np.array([[0, 0, 5, 5], near])  # the track matched detection 1
-    ts = TrackSet(np.array([3]), lagging[None], np.zeros(1, np.int64), np.ones(1), np.array([1]), np.full(1, 5),
-                  np.full(1, 5), np.zeros((1, 2)))
-    (with_det,) = Localizer(CORRIDOR, RSU).update(ts, 0.0, dets)
-    (without,) = Localizer(CORRIDOR, RSU).update(ts, 0.0)
+    ts = _trackset([3], [lagging], det_indices=[1])
+    (with_det,) = placed(Localizer(CORRIDOR, RSU).update(ts, 0.0, dets))
+    (without,) = placed(Localizer(CORRIDOR, RSU).update(ts, 0.0))
     assert math.hypot(with_det.x_m - truth[0], with_det.y_m - truth[1]) < 0.3
     assert math.hypot(without.x_m - truth[0], without.y_m - truth[1]) > 1.0
     assert with_det.bbox_px == tuple(lagging)  # the published box stays the track's

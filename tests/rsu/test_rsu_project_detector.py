@@ -61,8 +61,9 @@ def test_detects_the_simulated_vehicles_at_the_runtime_threshold(held_out):
     zone = restrict(held_out, max_range_m=ZONE_M)
     n_gt = hits = n_det = correct = 0
     for image, truth in zip(zone.images, zone.truths, strict=True):
-        boxes, scores, classes = det.detect(image)
-        assert (classes == 0).all() and ((scores >= 0.3) & (scores <= 1)).all()
+        found = det.detect(image)
+        boxes, scores = found.boxes, found.scores
+        assert (found.class_ids == 0).all() and ((scores >= 0.3) & (scores <= 1)).all()
         iou = iou_matrix(truth.boxes, boxes)
         counted = ~truth.difficult
         n_gt += int(counted.sum())
@@ -104,7 +105,7 @@ def test_detect_decodes_only_rows_that_can_pass_and_finds_the_same_boxes(held_ou
         full = postprocess(decode_yolox(det.raw_output(blob), det.input_hw), ratio, (image.shape[1], image.shape[0]),
                            det.class_map, det.score_threshold, det.nms_threshold, det.classes_wanted)
         fast = det.detect(image)
-        for a, b in zip(fast, full, strict=True):
-            np.testing.assert_array_equal(a, b)
+        for column in ("boxes", "scores", "class_ids"):
+            np.testing.assert_array_equal(getattr(fast, column), getattr(full, column))
         compared += len(full.boxes)
     assert compared >= 10

@@ -30,7 +30,7 @@ def test_yolox_and_sort_track_real_cars(video):
             if k >= n_frames:
                 break
             det = detector.detect(frame.image)
-            tracks = tracker.update(det.boxes, det.scores, det.classes)
+            tracks = tracker.update(det.boxes, det.scores, det.class_ids)
             ids = tracks.track_ids.tolist()
             assert len(ids) == len(set(ids))
             frames_per_id.update(ids)

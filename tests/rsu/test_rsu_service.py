@@ -19,7 +19,6 @@ from protocol.local_bus import LocalBus
 from protocol.messages import Health, ObjectList
 from protocol.zenoh_transport import ZenohTransport
 from rsu.build import MOTION, PipelineConfig, build_detector, build_pipeline, build_tracker
-from rsu.classify.ev import EvVerdict
 from rsu.frames import ArraySource, Frame, SourceStalled
 from rsu.localize import Localizer
 from rsu.pipeline import RsuPipeline
@@ -161,8 +160,7 @@ def test_classifier_hook_marks_ev_tracks():
     def classifier(frame, tracks):
         calls.append(frame.frame_number)
         # the left car (smaller x) is the EV with flashing lights
-        return {int(t): EvVerdict(0.9 if b[0] < 640 else 0.1) for t, b in zip(tracks.track_ids, tracks.boxes,
-                                                                             strict=True)}
+        return tracks.with_columns(ev_scores=np.where(tracks.boxes[:, 0] < 640, 0.9, 0.1))
 
     pipeline = RsuPipeline(build_detector(MOTION_RSU), build_tracker(MOTION_RSU), Localizer(CORRIDOR, "rsu1"),
                            classifier=classifier)

@@ -10,9 +10,18 @@ from scipy.optimize import linear_sum_assignment
 
 from bench.sort_reference import HAVE_FILTERPY, ReferenceSort, _associate
 from rsu.evaluate import mot_result_lines, read_mot_detections, synthetic_scene
+from rsu.perception import Detections
 from rsu.track.assoc import associate, iou_matrix
 from rsu.track.frameworks import FrameworkTracker
-from rsu.track.sort import SortTracker
+from rsu.track.sort import SortTracker, as_mot
+
+
+def dets(boxes, scores=None, class_ids=None):
+    """The detector's table of a frame (scores 1 and class 0 where not given)."""
+    boxes = np.asarray(boxes, float).reshape(-1, 4)
+    n = len(boxes)
+    return Detections(boxes, np.ones(n) if scores is None else np.asarray(scores, float),
+                      np.zeros(n, np.int64) if class_ids is None else np.asarray(class_ids, np.int64))
 
 
 def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
@@ -21,7 +30,7 @@ def _run_both(frames, max_age, min_hits, iou_threshold, use_filterpy=False):
     n_reported = 0
     for k, f in enumerate(frames):
         dets = np.hstack([f.det_boxes, f.det_scores[:, None]])
-        a = ours.update(f.det_boxes, f.det_scores).as_mot()
+        a = as_mot(ours.update(f.det_boxes, f.det_scores))
         b = ref.update(dets)
         assert a.shape == b.shape, f"frame {k}: {len(a)} tracks vs reference {len(b)}"
         np.testing.assert_array_equal(a[:, 4], b[:, 4], err_msg=f"frame {k}: ids differ")
@@ -67,7 +76,7 @@ def test_degenerate_detections_and_boxes_take_the_array_step(monkeypatch):
     with np.errstate(invalid="ignore", divide="ignore"):
         ours, ref = SortTracker(1, 1, 0.3), ReferenceSort(1, 1, 0.3)
         for f in frames:
-            a = ours.update(f.det_boxes, f.det_scores).as_mot()
+            a = as_mot(ours.update(f.det_boxes, f.det_scores))
             b = ref.update(np.hstack([f.det_boxes, f.det_scores[:, None]]))
             np.testing.assert_array_equal(a[:, 4], b[:, 4])
             np.testing.assert_allclose(a[:, :4], b[:, :4], rtol=0, atol=1e-6)
@@ -242,7 +251,7 @@ def test_framework_a_resets_the_id_on_a_misclassified_frame_b_does_not():
         ids = []
         for k in range(20):
             cls = 1 if k == 10 else 0  # one frame classified EV
-            out = trk.update(np.array([_box(100 + 4 * k, 100)]), np.array([0.9]), np.array([cls]))
+            out = trk.update(dets(np.array([_box(100 + 4 * k, 100)]), np.array([0.9]), np.array([cls])))
             ids += [int(t) for t in out.track_ids]
         return ids
 
@@ -255,7 +264,7 @@ def test_framework_a_resets_the_id_on_a_misclassified_frame_b_does_not():
 
 def test_framework_a_ids_unique_across_classes():
     trk = FrameworkTracker("A", min_hits=0)
-    out = trk.update(np.array([_box(100, 100), _box(300, 100), _box(500, 100)]), None, np.array([0, 1, 0]))
+    out = trk.update(dets(np.array([_box(100, 100), _box(300, 100), _box(500, 100)]), None, np.array([0, 1, 0])))
     assert sorted(out.track_ids.tolist()) == [1, 2, 3]
     assert sorted(out.det_indices.tolist()) == [0, 1, 2]
 
@@ -295,9 +304,9 @@ def test_tentative_tracks_are_the_matched_ones_sort_holds_back(monkeypatch, min_
 def test_framework_a_tentative_tracks_index_the_whole_input():
     trk = FrameworkTracker("A", min_hits=3)
     for k in range(4):  # a car (class 0) and an EV (class 1), each tracker past its first min_hits frames
-        trk.update(np.array([_box(100 + 2 * k, 100), _box(400, 300)]), np.ones(2), np.array([0, 1]))
+        trk.update(dets(np.array([_box(100 + 2 * k, 100), _box(400, 300)]), np.ones(2), np.array([0, 1])))
     boxes = np.array([_box(108, 100), _box(400, 300), _box(700, 300)])  # a new car, third in the input
-    reported = trk.update(boxes, np.ones(3), np.array([0, 1, 0]))
+    reported = trk.update(dets(boxes, np.ones(3), np.array([0, 1, 0])))
     held = trk.tentative()
     assert sorted(reported.det_indices.tolist()) == [0, 1]
     assert held.det_indices.tolist() == [2]  # class 0's second detection, the input's third
