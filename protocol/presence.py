@@ -1,4 +1,4 @@
-"""Presence by liveliness tokens (issue 21): who is up in the corridor, learned from Zenoh itself.
+"""Presence by liveliness tokens: who is up in the corridor, learned from Zenoh itself.
 
 Every service declares the token ``iea/{c}/alive/{role}/{id}`` for as long as it runs (``announce``);
 Zenoh withdraws it when the service's session ends, cleanly or not (a killed process closes its TCP
