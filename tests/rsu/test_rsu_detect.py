@@ -84,7 +84,7 @@ def test_decode_hand_made_yolox_coco_output():
     np.testing.assert_allclose(det.scores[order], [0.72, 0.855], atol=1e-6)
     assert det.classes.tolist() == [VEHICLE, VEHICLE]
     assert det.boxes.dtype == np.float32 and det.classes.dtype == np.int64
-    boxes, scores, classes = det  # unpacks as the interface
+    boxes, scores, classes = det  # unpacks as (boxes, scores, classes)
     assert boxes is det.boxes
 
 
