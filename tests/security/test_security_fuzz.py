@@ -110,7 +110,9 @@ def test_ddm_handlers_survive_extreme_but_valid_messages(x, y, vx, vy, ax, lane,
     from protocol.examples import object_list
 
     ol = object_list(3, max(0.0, now + dt))
-    objs = [dataclasses.replace(o, pos_x_m=x + i, pos_y_m=y, vel_x_mps=vx, vel_y_mps=vy) for i, o in enumerate(ol.objects)]
+    # objects 1 m apart, kept inside the position range at its ends
+    objs = [dataclasses.replace(o, pos_x_m=min(MAX_POSITION_M, x + i), pos_y_m=y, vel_x_mps=vx, vel_y_mps=vy)
+            for i, o in enumerate(ol.objects)]
     bus.publish(rsu_key(C, "rsu1", "objects"), ol.model_copy(update={"objects": objs}))
     for _ in range(3):
         clock.advance(0.05)
