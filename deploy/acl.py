@@ -15,7 +15,7 @@ Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) eve
 Only the DDM may therefore send a ``PathSwitchCommand``; vehicles also verify its signature
 (protocol/security.py).
 
-Presence and state (issue 21): everyone may watch and query liveliness tokens and query under
+Presence and state: everyone may watch and query liveliness tokens and query under
 ``iea/{c}/**``; a service may declare only its own token ``iea/{c}/alive/{role}/{user}`` and answer
 queries (``declare_queryable``, ``reply``) only on its own keys (those it may publish, and the DDM's
 ``iea/{c}/ddm/state``): an RSU cannot pose as another in ``iea status`` or in a DDM's start-up catch-up.

@@ -130,7 +130,7 @@ def _deploy(argv: list[str]) -> int:
     acl.add_argument("--mtls", action="store_true",
                      help="mutual TLS instead of passwords: a private CA and a certificate per service")
     acl.add_argument("--pki-path", default=None, help="with --mtls: where services will find the files")
-    mesh = sub.add_parser("mesh", help="a router per corridor segment linked to a core router, ACL on each (issue 21)")
+    mesh = sub.add_parser("mesh", help="a router per corridor segment linked to a core router, ACL on each")
     mesh.add_argument("--corridor", default=str(DEFAULT_CORRIDOR), help="corridor file (default: rellis)")
     mesh.add_argument("--out", required=True, help="output directory (keep it out of git: it holds passwords)")
     mesh.add_argument("--core-listen", action="append", default=None, help="core router endpoint (default tcp/0.0.0.0:7447)")

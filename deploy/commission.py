@@ -1,4 +1,4 @@
-"""`iea calibrate RSU --image FRAME --points PAIRS.csv [--corridor FILE] [--write]`: commission a camera (issue 27).
+"""`iea calibrate RSU --image FRAME --points PAIRS.csv [--corridor FILE] [--write]`: commission a camera.
 
 Reads the surveyed pairs (CSV: ``name,u_px,v_px,x_m,y_m[,z_m]`` in the corridor frame, or
 ``name,u_px,v_px,lat_deg,lon_deg[,height_m]``), solves the camera (``rsu.calibration.solve``), prints the pose,

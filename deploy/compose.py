@@ -9,7 +9,7 @@ check (``iea health ROLE ID``: a fresh ``Health`` message from that service with
 restart policy. RSU cameras default to the simulator's view (``--source sim``); set ``RSU1_SOURCE`` (etc.)
 to a camera URL or file for real cameras.
 
-Access control (issue 9): by default the router runs with the per-service ACL of ``deploy/acl.py`` and
+Access control: by default the router runs with the per-service ACL of ``deploy/acl.py`` and
 each service authenticates with its own credentials, so only the DDM may publish vehicle commands.
 Create the (secret, never committed) bundle once with::
 
@@ -17,13 +17,13 @@ Create the (secret, never committed) bundle once with::
 
 ``--no-acl`` writes an open deployment for a closed lab network.
 
-Signatures (issue 18): by default every service runs on the corridor file of an ``iea deploy keys``
+Signatures: by default every service runs on the corridor file of an ``iea deploy keys``
 bundle (``./secrets/keys/corridor.toml``, mounted read-only as ``/etc/iea/corridor.toml``), which trusts
 one key per signing service; the DDM and each RSU get their own private key only (``/etc/iea/keys/``), so
 vehicles follow only commands the DDM signed and the DDM acts only on alerts an RSU signed. Create the
 bundle once with ``iea deploy keys --out secrets/keys``; ``--unsigned`` writes a deployment without them.
 
-File format (issue 25): the Compose Specification with neither a ``version`` nor a ``name`` key, which the
+File format: the Compose Specification with neither a ``version`` nor a ``name`` key, which the
 two tools users have both read with the same meaning: Docker Compose v2 (``docker compose``) and Debian 12's
 ``docker-compose`` 1.29.2, which since 1.27 validates every non-v1 file against its own early-2021 copy of
 the specification (``deploy/compose_schema.py`` checks both schemas). Long-form ``depends_on`` with a
@@ -33,7 +33,7 @@ specification later; 1.29.2 refuses the file), so the project name comes from th
 ``COMPOSE_PROJECT_NAME`` / ``-p`` (the header suggests ``iea-<corridor>``); nor ``version``: optional for
 both, 1.29.2 validates "2.x", "3.x" and no version alike, and Docker Compose v2 warns it is obsolete.
 
-Metrics (issue 22): every IEA service serves Prometheus metrics on port ``METRICS_PORT`` of its container
+Metrics: every IEA service serves Prometheus metrics on port ``METRICS_PORT`` of its container
 (``--metrics-port``; exposed to the compose network only), and the optional profile ``monitoring`` adds a
 Prometheus server (the official ``prom/prometheus`` image, pinned) scraping them every 5 s, its UI on
 host port 9090: ``docker compose --profile monitoring up``. Its configuration is written by its own

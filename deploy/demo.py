@@ -7,7 +7,7 @@ the scenario time, what each service is doing, and the EV alert and the command 
 then a summary table. The run folder (``runs/demo-<time>/``) holds ``metrics.json``, each service's
 log, the vehicle's run and its plots, and the annotated video of the RSU that saw the EV first.
 
-Signatures (issue 9) are on by default: the demo makes throwaway Ed25519 keys in the run folder
+Signatures are on by default: the demo makes throwaway Ed25519 keys in the run folder
 (``keys/``: one for the DDM, one per RSU), writes ``corridor.toml`` there (the default corridor plus
 their ``[[trust]]`` entries) and starts every service on it, so the vehicle refuses any command the
 DDM did not sign and the DDM refuses unsigned EV alerts. ``--unsigned`` runs without them.
@@ -61,7 +61,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
     recorder = None
-    if record:  # every key as it went on the wire, for `iea replay` and log viewers (issue 22)
+    if record:  # every key as it went on the wire, for `iea replay` and log viewers
         from deploy.record import McapRecorder
 
         recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario})

@@ -1,4 +1,4 @@
-"""A corridor larger than one router (issue 21): a router per corridor segment, linked to a core router.
+"""A corridor larger than one router: a router per corridor segment, linked to a core router.
 
     iea deploy mesh [--corridor FILE] --out DIR --core-listen tcp/0.0.0.0:7447 \\
         --segment-listen tcp/0.0.0.0:7448 [--segment-listen tcp/0.0.0.0:7449 ...] [--core-connect EP ...]

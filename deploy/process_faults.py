@@ -1,4 +1,4 @@
-"""Process-level faults over real Zenoh on loopback (issue 8): the `iea up` topology, one thing broken.
+"""Process-level faults over real Zenoh on loopback: the `iea up` topology, one thing broken.
 
 Each function starts the corridor as ``iea up`` does (a router on a free loopback port, the vehicle, the
 DDM, the RSUs with ``--source sim`` and the simulator running ``rellis_ev_yield``, all as processes),
@@ -193,7 +193,7 @@ def router_restarted(run_root: Path | None = None, at_s: float = 0.5, down_s: fl
         t_back = time.time()
         _wait(lambda: all(rec.first_after(s, t_back) is not None for s in SERVICES), reconnect_limit_s, 0.1)
         _wait(lambda: any(s == "accepted" and t > t_back for t, _, s in rec.acks), timeout_s / 2, 0.2)
-        _wait(lambda: _ev_passed(up) is not None, 25.0, 0.2)  # the yield outcome is judged too (issue 18)
+        _wait(lambda: _ev_passed(up) is not None, 25.0, 0.2)  # the yield outcome is judged too
         time.sleep(0.5)
     finally:
         up.stop()

@@ -1,4 +1,4 @@
-"""`iea record`: every key of a corridor into an MCAP file, each message as it went on the wire (issue 22).
+"""`iea record`: every key of a corridor into an MCAP file, each message as it went on the wire.
 
 One MCAP channel per key (its topic is the key, e.g. ``iea/rellis/rsu/rsu1/objects``), message encoding
 ``msgpack`` (the payload bytes exactly as received: ``protocol.codec``), and per message kind one schema

@@ -1,4 +1,4 @@
-"""`iea replay run.mcap`: republish a recording (``deploy.record``), or replay it into a fresh DDM (issue 22).
+"""`iea replay run.mcap`: republish a recording (``deploy.record``), or replay it into a fresh DDM.
 
 Two ways to replay:
 

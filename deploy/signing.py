@@ -1,4 +1,4 @@
-"""Signing keys of a corridor deployment (issue 18, point 6: signed by default).
+"""Signing keys of a corridor deployment (signed by default).
 
 ``iea deploy keys --out DIR`` writes one Ed25519 key per signing service (the DDM, each RSU) as
 ``DIR/<service>.pem`` (mode 0600) and ``DIR/corridor.toml``: the corridor file with a ``[[trust]]`` entry

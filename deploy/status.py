@@ -1,4 +1,4 @@
-"""`iea status`: the whole corridor as one table, asked of Zenoh (issue 21). The first thing an operator runs.
+"""`iea status`: the whole corridor as one table, asked of Zenoh. The first thing an operator runs.
 
 It asks, with one query each (answers within ``--timeout-s``; nothing waits for a 1 Hz beat):
 

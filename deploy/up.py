@@ -8,7 +8,7 @@ compose file), and clients reconnect by themselves when the router comes back. R
 ``--duration-s``), printing a status line now and then; Ctrl-C stops the services, then the router.
 The run folder (``runs/up-<time>/``) holds ``logs/<service>.log``, the vehicle's run and ``metrics.json``.
 
-Signed by default (issue 18): the DDM and every RSU sign with their own key and every service runs on a
+Signed by default: the DDM and every RSU sign with their own key and every service runs on a
 corridor file trusting only those keys: an ``iea deploy keys`` bundle (``--keys DIR``), else throwaway
 keys written to the run folder (``keys/``). ``--unsigned`` runs without signatures.
 """
@@ -109,7 +109,7 @@ class Up:
         self.health: dict[str, tuple[float, str]] = {}
         self.transport = None
         self.record = record
-        """Record every key to ``<run folder>/run.mcap`` from the monitor's session (issue 22)."""
+        """Record every key to ``<run folder>/run.mcap`` from the monitor's Zenoh session."""
         self.recorder = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -130,8 +130,8 @@ class Up:
         if monitor:
             settings = ZenohSettings() if self.peer else ZenohSettings(mode="client", connect=[self.endpoint])
             self.transport = ZenohTransport(settings)
-            # one subscription, one decode per message, handed to every reader (issue 19: a subscription per reader
-            # decoded every snapshot and object list of the corridor once per reader, on the corridor's two cores)
+            # one subscription, one decode per message, handed to every reader (a subscription per reader
+            # would decode every snapshot and object list of the corridor once per reader)
             readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:

@@ -1,4 +1,4 @@
-"""`iea view [--port 8080]`: the corridor live in a browser, served by this process (issue 22).
+"""`iea view [--port 8080]`: the corridor live in a browser, served by this process.
 
 The process joins the corridor over Zenoh (peer on loopback, or ``--connect`` a router), subscribes to
 every RSU topic, the vehicles' states, commands and acks and every service's Health, watches the

@@ -1,4 +1,4 @@
-"""What `iea view` shows, as plain data (issue 22): the corridor plan and the live picture, no I/O here.
+"""What `iea view` shows, as plain data: the corridor plan and the live picture, no I/O here.
 
 - ``corridor_plan(corridor)``: the road in the corridor frame (its centre line and every lane edge as
   polylines, sampled along the road with ``Road.pose_at``), and each RSU with its camera's position,

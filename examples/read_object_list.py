@@ -1,4 +1,4 @@
-"""Print the objects the RSUs of a corridor see: zenoh, msgpack and jsonschema only (README "The protocol").
+"""Print the objects the RSUs of a corridor see: zenoh, msgpack and jsonschema only (docs/protocol.md).
 
     python examples/read_object_list.py [CORRIDOR_ID] [N_MESSAGES]      # e.g. while `iea demo` runs
 """

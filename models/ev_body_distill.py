@@ -1,4 +1,4 @@
-"""A fine-tuned teacher distilled into the RSU's EV-body student (issue 17), made for a GPU machine.
+"""A fine-tuned teacher distilled into the RSU's EV-body student, made for a GPU machine.
 
     python -m models.ev_body_distill --cache CACHE.npz --out-dir OUT [--device cuda] [--weights-dir W]
 

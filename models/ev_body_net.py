@@ -1,4 +1,4 @@
-"""The EV-body network and its training loop (issue 17), apart from the data and export code so that a training job
+"""The EV-body network and its training loop, apart from the data and export code so that a training job
 can run where only PyTorch, OpenCV and numpy are installed (a GPU machine, :mod:`models.ev_body_distill`).
 
 - :func:`build_model`: EfficientNet-Lite0/1/2 from its ImageNet weights with one EV logit; BGR [0, 1] crops in,

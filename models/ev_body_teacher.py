@@ -1,4 +1,4 @@
-"""Out-of-fold teacher scores for distilling the EV-body classifier (issue 17).
+"""Out-of-fold teacher scores for distilling the EV-body classifier.
 
     python -m models.ev_body_teacher [--data ../shared/data/real/ev_train] (--out TEACHER.json | --holdout)
     python -m models.train_ev_body --teacher TEACHER.json --distill-weight 0.5 ...

@@ -1,8 +1,8 @@
-"""Probe: the COCO YOLOX-Nano's features as an EV-body classifier's input (issue 17), against the shipped model.
+"""Probe: the COCO YOLOX-Nano's features as an EV-body classifier's input, against the shipped model.
 
     python -m models.ev_body_yolox_probe [--data ../shared/data/real/ev_train] [--yolox YOLOX.onnx] [--threads 2]
 
-Issue 17 names two pretrained backbones available offline: ImageNet EfficientNet-Lite (what ``models/ev_body.onnx``
+Two pretrained backbones are available offline: ImageNet EfficientNet-Lite (what ``models/ev_body.onnx``
 is fine-tuned from, and what ``models.ev_body_teacher`` probes frozen) and the COCO YOLOX-Nano the RSU already runs
 on real cameras. This probes the second, frozen: each RSU-style crop (``models.train_ev_body.usable_crops``, the label
 review applied), squashed to the detector's 416 x 416 input, gives its three PAFPN outputs (64 x 52 x 52,

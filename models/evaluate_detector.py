@@ -31,8 +31,8 @@ from rsu.track.assoc import iou_matrix
 
 HELD_OUT_SEEDS = (900_001, 900_002)
 ZONE_M = 100.0
-"""The RSU's zone of responsibility: about 100 m of road from its camera (DESIGN.md "Coordinates", SPEC.md
-"IEA architecture", deploy/corridors/rellis.toml: 4 RSUs 50 m apart, each covering about 100 m). A vehicle
+"""The RSU's zone of responsibility: about 100 m of road from its camera (docs/architecture.md §Coordinates,
+deploy/corridors/rellis.toml: 4 RSUs 50 m apart, each covering about 100 m). A vehicle
 farther away is the next RSU's (it is 50 m from it), so here it is 'difficult': neither counted nor penalised."""
 WORLD_DT_S = 0.05
 

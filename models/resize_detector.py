@@ -1,4 +1,4 @@
-"""The project detector re-declared at another input size (issue 19, point 3): same weights, same nodes.
+"""The project detector re-declared at another input size: same weights, same nodes.
 
 ``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but exported with a fixed
 input. ``resized_model`` saves it with the input [1, 3, h, w] and its anchor count (``bench/detector_size_bench.py``
@@ -20,9 +20,9 @@ from rsu.detect import YOLOX_STRIDES
 RSU_INPUT_HW = (384, 640)
 """A whole 1280x720 frame at the scale the network is trained at (0.5): the model's default input (metadata
 ``input_hw``). An RSU letterboxes only its zone of responsibility at that scale (``rsu.detect_roi``: 288x448 on the
-RELLIS cameras). The eighth session ran the whole frame at 0.4 (288x512: MOTA 0.923, ``bench/detector_size_bench.py``);
-the ninth found that smaller scale missed debris falling off a truck (``bench/hazard_bench.py``, hazard_falls seed 102:
-the AV drove into it), which scale 0.5 finds."""
+RELLIS cameras). The whole frame at 0.4 (288x512: MOTA 0.923, ``bench/detector_size_bench.py``) is cheaper, but
+that smaller scale misses debris falling off a truck (``bench/hazard_bench.py``, hazard_falls seed 102:
+the AV drives into it), which scale 0.5 finds."""
 FRAME_WH = (1280, 720)
 
 

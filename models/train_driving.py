@@ -1,4 +1,4 @@
-"""Train the Clemson comparison's on-board nets (issue 23) and export them to ONNX (models/driving.md).
+"""Train the Clemson comparison's on-board nets and export them to ONNX (models/driving.md).
 
     /tmp/trainenv/bin/python models/train_driving.py --data datasets/driving datasets/driving_late [--out models]
 

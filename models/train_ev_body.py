@@ -1,4 +1,4 @@
-"""Train the real EV-body classifier (issue 17): EfficientNet-Lite0 (ImageNet) fine-tuned on ``ev_train``.
+"""Train the real EV-body classifier: EfficientNet-Lite0 (ImageNet) fine-tuned on ``ev_train``.
 
     python -m models.train_ev_body [--data ../shared/data/real/ev_train] [--out models/ev_body.onnx]
 

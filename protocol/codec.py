@@ -8,7 +8,7 @@ a non-map, an unknown kind, the wrong kind for the key, an unknown schema versio
 extra field, a wrong type, NaN/inf or an out-of-range value all raise ``ProtocolError`` whose text
 names the field and the problem. Nothing else escapes ``decode``.
 
-Bounded work (issue 24): what one payload can make ``decode`` build is capped before validation, by
+Bounded work: what one payload can make ``decode`` build is capped before validation, by
 the largest valid message rather than by the payload size alone: the payload size, every array's and
 map's length, every string's and binary's size, and (for payloads over ``HOOK_FROM_BYTES``) the number
 of arrays and maps in the whole payload. A list field longer than its model allows is refused before

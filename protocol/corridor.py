@@ -1,4 +1,4 @@
-"""Corridor files (DESIGN.md "Corridor file"): load and validate a TOML file into typed objects.
+"""Corridor files (docs/architecture.md §Corridor file): load and validate a TOML file into typed objects.
 
 A corridor has an origin (lat/lon of the local east/north frame), a road (reference line made of
 straight and arc segments, lanes to its left, a shoulder to its right), RSUs with their cameras and

@@ -1,8 +1,7 @@
-"""The wire protocol's enumerations (DESIGN.md "Messages"): object classes, EV and hazard states, manoeuvres,
+"""The wire protocol's enumerations (docs/architecture.md §Messages): object classes, EV and hazard states, manoeuvres,
 acknowledgements, vehicle modes, roles, health and the simulator's actor kinds and lighting.
 
-Split out of ``protocol/messages.py`` (issue 20, item 6); ``protocol.messages`` re-exports every name, so
-``from protocol.messages import Manoeuvre`` keeps working.
+A module of its own so that code needing only the enumerations does not load the pydantic models.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ class LightState(StrEnum):
 
 
 class EvCue(StrEnum):
-    """Which evidence confirmed an EV (issue 17): a lamp flashing, alternating (left/right or colour) or
+    """Which evidence confirmed an EV: a lamp flashing, alternating (left/right or colour) or
     lit steady on the roof, and a classifier's confident EV body."""
 
     FLASH = "flash"

@@ -1,11 +1,11 @@
-"""Key expressions of the corridor (DESIGN.md "Key expressions"): the one place that knows the layout.
+"""Key expressions of the corridor (docs/architecture.md §Key expressions): the one place that knows the layout.
 
     iea/{c}/rsu/{rsu}/objects | ev | hazard | health
     iea/{c}/vehicle/{veh}/cmd | ack | state | health
     iea/{c}/ddm/health
     iea/{c}/sim/world | health
 
-Beside the published keys (issue 21):
+Beside the published keys:
 
     iea/{c}/alive/{role}/{id}       liveliness token of every running service (role: rsu, ddm, vehicle, sim)
     iea/{c}/ddm/state               queryable: the DDM's picture as a JSON document

@@ -1,4 +1,4 @@
-"""Message models shared by every service (DESIGN.md "Messages").
+"""Message models shared by every service (docs/architecture.md §Messages).
 
 Every message carries the common envelope ``v`` (schema version), ``src`` (publisher id), ``seq``
 (per publisher and key) and ``stamp`` (seconds on the publisher's clock). All quantities are SI
@@ -89,7 +89,7 @@ MAX_HEALTH_ENTRIES = 64
 MAX_TEXT = 256
 
 # ---------------------------------------------------------------- scalar types
-# Every number has a physical range: the types live in protocol/ranges.py (issue 24).
+# Every number has a physical range: the types live in protocol/ranges.py.
 Ident = Annotated[str, Field(strict=True, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")]
 Text = Annotated[str, Field(strict=True, max_length=MAX_TEXT)]
 Point2 = tuple[PositionM, PositionM]
@@ -195,7 +195,7 @@ class EvEvidence:
     flash_hz: FlashHz | None = None
     mean_score: Probability = 0.0
     cues: list[EvCue] = Field(default_factory=list, max_length=4)
-    """The cues that confirmed the alert (issue 17)."""
+    """The cues that confirmed the alert."""
     body_score: Probability | None = None
     """Mean EV-body classifier score of the track, when a body classifier ran on it."""
 

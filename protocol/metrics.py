@@ -1,4 +1,4 @@
-"""Prometheus metrics of a service (issue 22): ``--metrics-port PORT`` on iea-rsu, iea-ddm, iea-vehicle, iea-sim.
+"""Prometheus metrics of a service: ``--metrics-port PORT`` on iea-rsu, iea-ddm, iea-vehicle, iea-sim.
 
 Off by default: until ``serve`` is called every hook below is a no-op (one ``is None`` test), so the
 lockstep runner and the tests pay nothing. A service process serves one registry (``prometheus_client``)

@@ -1,10 +1,10 @@
-"""Presence by liveliness tokens (issue 21): who is up in the corridor, learned from Zenoh itself.
+"""Presence by liveliness tokens: who is up in the corridor, learned from Zenoh itself.
 
 Every service declares the token ``iea/{c}/alive/{role}/{id}`` for as long as it runs (``announce``);
 Zenoh withdraws it when the service's session ends, cleanly or not (a killed process closes its TCP
 link and the router or peer drops its declarations at once; a silent link after the session lease).
 A watcher (``watch``) hears each appearance and loss, and ``PresenceBook`` (pure) keeps the picture.
-Health messages stay for rates and counters; presence no longer waits for their timeout.
+Health messages stay for rates and counters; presence does not wait for their timeout.
 
 The helpers accept any ``Transport``; one without presence support (a test double) yields ``None``
 and the service falls back to its Health and stream timeouts.

@@ -1,10 +1,10 @@
-"""Quality of service per message kind (DESIGN.md "Transports"; issue 21): priority, congestion control
+"""Quality of service per message kind (docs/architecture.md §Presence and QoS): priority, congestion control
 and express, decided by the key's topic alone (pure, no Zenoh import).
 
 Zenoh keeps one transmission queue per priority and serves the higher ones first, so a command never
 waits behind a queued world snapshot. A ``BLOCK`` message holds its priority's queue until there is room
-(up to ``wait_before_close``), which stalls any ``DROP`` message queued at the same priority (zenoh
-issue #2584): the blocking kinds therefore own priorities no dropping kind uses.
+(up to ``wait_before_close``), which stalls any ``DROP`` message queued at the same priority (upstream
+eclipse-zenoh/zenoh#2584): the blocking kinds therefore own priorities no dropping kind uses.
 
 | kind (topic)              | priority          | congestion | express | why                                     |
 |---------------------------|-------------------|------------|---------|-----------------------------------------|
@@ -48,7 +48,7 @@ STATE = QosClass("DATA_HIGH", "DROP", True)
 OBJECTS = QosClass("DATA", "DROP", False)
 BULK = QosClass("BACKGROUND", "DROP", False)
 FLAT = QosClass("DATA", "DROP", True)
-"""Every kind the same way (the transport before issue 21): the bench's "no priorities" case."""
+"""Every kind the same way (no per-kind QoS): the bench's "no priorities" case."""
 
 BY_TOPIC: dict[str, QosClass] = {
     "cmd": COMMAND, "ack": COMMAND,

@@ -8,7 +8,7 @@ by independent Bernoulli loss; queued behind earlier messages at ``bandwidth_bps
 queue would hold it longer than ``max_queue_s``); then delivered after ``latency_s`` plus a
 half-normal jitter of scale ``jitter_s``, never before an earlier message (radios do not reorder).
 
-Defaults stand for DSRC (SPEC.md): a few ms latency, 300 m range, 6 Mb/s.
+Defaults stand for DSRC (docs/architecture.md §Radio model): a few ms latency, 300 m range, 6 Mb/s.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""Physical ranges of every number a message carries (issue 24): the one place that defines them.
+"""Physical ranges of every number a message carries: the one place that defines them.
 
 Each quantity is an ``Annotated`` float or int with its bounds, so pydantic refuses an out-of-range
 value on construction and on decoding, and the refusal names the field (``protocol.codec``). The
 bounds hold what any sensor, clock or estimator of this system produces, with a wide margin, and
 refuse what none produces; arithmetic on a decoded value therefore cannot overflow (``sim_time_s *
-fps`` with a finite ``sim_time_s`` near 1.8e308 did: issue 24). All bounds are inclusive.
+fps`` with a finite ``sim_time_s`` near 1.8e308 would). All bounds are inclusive.
 
 ==================  =========================================  =============================================
 type                range                                      why

@@ -1,4 +1,4 @@
-"""Road geometry of a corridor (DESIGN.md "Corridor file"): the reference line and its lanes.
+"""Road geometry of a corridor (docs/architecture.md §Corridor file): the reference line and its lanes.
 
 Road frame: the reference line is the right edge of lane 0 (the curb line), in the direction of travel, made of
 straight and arc segments; ``s`` is the distance along it and ``d`` the signed offset, positive to the left. Lane
@@ -95,7 +95,7 @@ class Road:
         """Build now what the first ``to_frenet`` / ``pose_at`` would build (the samples, the k-d tree and the
         scipy.spatial import under it: 0.4 s of CPU). A service calls it at start-up, before the scenario: several
         processes paying it together at the first world snapshot stalled every RSU of a two-core corridor for about
-        a second (issue 19)."""
+        a second."""
         _ = self._sample_tree, self._pieces, self._samples_list
         return self
 

@@ -3,7 +3,7 @@
 :func:`freeze_startup_heap` moves everything alive after start-up (modules, models, the corridor, the
 service's own tables) into Python's permanent generation (``gc.freeze``), so the cyclic garbage collector's
 full collections scan only what the service allocated since. A full collection of a started service's heap
-paused it 31-33 ms (``bench/fuzz_bench.py``, issue 24), longer than the 50 ms budget for one input allows
+paused it 31-33 ms (``bench/fuzz_bench.py``), longer than the 50 ms budget for one input allows
 once the input's own work is added; frozen, the pause is that of the service's recent objects only. Objects
 frozen this way are never collected, which is right for what a service keeps until it exits.
 """

@@ -1,7 +1,7 @@
 """Signed messages (after IEEE 1609.2): only trusted keys may command a vehicle or raise an alert.
 
 A signer attaches a ``Signature`` to a ``PathSwitchCommand``, ``EvAlert``, ``HazardAlert`` or its own
-``Health`` (a heartbeat: a vehicle's link watchdog counts only a trusted DDM's, issue 18): an
+``Health`` (a heartbeat: a vehicle's link watchdog counts only a trusted DDM's): an
 Ed25519 signature (RFC 8032, via the ``cryptography`` library) over
 
     b"iea-sig-v1\\0" + key + b"\\0" + canonical_encoding(message without its signature)

@@ -1,4 +1,4 @@
-"""Swappable transports (DESIGN.md "Transports").
+"""Swappable transports (docs/architecture.md §Transports).
 
 One small interface, ``publish(key, message)`` / ``subscribe(key_expr, callback) -> handle`` /
 ``close()``, and three implementations:
@@ -11,7 +11,7 @@ One small interface, ``publish(key, message)`` / ``subscribe(key_expr, callback)
 - ``DsrcLink`` (``protocol.radio``): wraps any transport with a seeded radio channel model: latency + jitter,
   independent and bursty loss, range, bandwidth, scheduled outages.
 
-Beyond publish/subscribe (issue 21), the same interface carries Zenoh's other primitives, so the
+Beyond publish/subscribe, the same interface carries Zenoh's other primitives, so the
 services use them without knowing the transport:
 
 - presence: ``declare_token(key)`` (a liveliness token, gone when the session is) and

@@ -98,8 +98,8 @@ BULK_THREAD_NICE = 19
 BULK_SWITCH_INTERVAL_S = 0.0001
 """The interpreter's GIL switch interval in a process with a bulk subscription: a command callback waiting
 for the GIL while the bulk thread decodes waits at most this long (plus the C call in progress). Python's
-default is 5 ms. ``bench/zenoh_bench.py --modes prio --flood-only`` on a 2-core AMD EPYC (2026-11-27), command
-p99 under the flood with 1 ms (before) 4.96-5.68 ms in 5 runs, 0.2 ms 3.87-5.02 in 5, 0.1 ms 3.42-5.00 in 4."""
+default is 5 ms. ``bench/zenoh_bench.py --modes prio --flood-only`` on a 2-core AMD EPYC, command
+p99 under the flood with 1 ms 4.96-5.68 ms in 5 runs, 0.2 ms 3.87-5.02 in 5, 0.1 ms 3.42-5.00 in 4."""
 
 
 class ZenohTransport(Transport):

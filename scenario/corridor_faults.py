@@ -1,4 +1,4 @@
-"""The fault table on the whole corridor in lockstep (issue 8, judged as issue 18 asks).
+"""The fault table on the whole corridor in lockstep, each row judged by docs/faults.md's rules.
 
 ``scenario/lockstep.py`` runs the simulator, 4 RSUs rendering and processing pixels, the DDM and the vehicle
 on one SimClock; one fault per run. Slower than the rig of ``scenario/faults.py`` (every camera frame is

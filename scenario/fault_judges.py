@@ -1,4 +1,4 @@
-"""One judge per fault kind (issue 8's criteria, issue 18's yield outcome), shared by every fault runner. Pure.
+"""One judge per fault kind (docs/faults.md: each kind's criteria and the yield outcome), shared by every fault runner. Pure.
 
 A runner (the rig ``scenario/faults.py``, the lockstep corridor ``scenario/corridor_faults.py``, the processes
 ``deploy/process_faults.py``) breaks one thing, records what it saw in the kind's ``*Seen`` record (times in

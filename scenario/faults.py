@@ -1,4 +1,4 @@
-"""Fault scenarios of the corridor (issue 8 "Fault tests"), each with a pass/fail outcome and a margin.
+"""Fault scenarios of the corridor (docs/faults.md), each with a pass/fail outcome and a margin.
 
 Two runners:
 
@@ -14,7 +14,7 @@ Two runners:
   the corridor's real processes over Zenoh on loopback: see ``deploy/process_faults.py``.
 
 Each row is judged by its kind's judge (``scenario/fault_judges.py``: ``latency``, ``dropout``).
-Outcome of an EV-yield run (issue 18): the one yield judge, ``scenario.outcome.judge_yield``, on ground truth:
+Outcome of an EV-yield run: the one yield judge, ``scenario.outcome.judge_yield``, on ground truth:
 pass only when the AV's body is out of the EV's lane before the EV is within its following distance of
 it (2 m + 1 s x its speed), with no collision; stopped in the lane, blocked and "the EV never reached the
 AV" are failures. Every row passes only on its own criterion AND that outcome.
@@ -56,7 +56,7 @@ CAMERA_VIEW_M = (18.0, 120.0)
 
 
 MEASURED_ALERT_DELAY_S = {"median": 0.86, "p99": 1.42}
-"""Lights on -> first EvAlert over Zenoh (process mode, ``bench/e2e_bench.py``, issue 18's figures); the
+"""Lights on -> first EvAlert over Zenoh (process mode, ``bench/e2e_bench.py``); the
 bench replaces it with the distribution it measures in the same run."""
 
 
@@ -110,7 +110,7 @@ class VehicleRadio(Transport):
 @functools.lru_cache(maxsize=4)
 def rig_keys(corridor_id: str, rsu_ids: tuple[str, ...]) -> tuple[Signer, dict[str, Signer], tuple[dict, ...]]:
     """The rig's signing keys (a DDM key, one per RSU) and the trust entries naming them: the rig runs a
-    signed corridor, as ``iea up`` does (issue 18: only signed evidence moves a car)."""
+    signed corridor, as ``iea up`` does (only signed evidence moves a car)."""
     def key(kid: str) -> tuple[Signer, str]:
         private = Ed25519PrivateKey.generate()
         return Signer(kid, private), public_key_b64(private.public_key())
@@ -387,7 +387,7 @@ def latency_faults(seed: int = 0, alert_delay_s: float = MEASURED_ALERT_DELAY_S[
 
 def dropout_faults(seed: int = 0, alert_delay_s: float = MEASURED_ALERT_DELAY_S["p99"]) -> list[FaultOutcome]:
     """Loss on the vehicle's radio, then 1 s / 2 s outages from the first command: of the command link only
-    (issue 8's "total loss on the command link": the RSUs' broadcasts still reach the car, which may act on a
+    ("total loss on the command link": the RSUs' broadcasts still reach the car, which may act on a
     signed EvAlert once its command is ``command_deadline_s`` late: the fault's least delay is the shorter of
     the two) and of the whole radio (nothing reaches the car: the outage's length)."""
     from vehicle.ev_direct import DirectAlertConfig

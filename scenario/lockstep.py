@@ -1,6 +1,6 @@
 """The whole corridor in one process on a simulated clock: ``iea scenario run NAME --inprocess``.
 
-DESIGN.md "The same cores run three ways": this is the lockstep way. The simulator (``SimService``),
+docs/architecture.md §Three ways to run: this is the lockstep way. The simulator (``SimService``),
 one RSU per camera of the corridor (``SimCamera`` renders the snapshot to pixels, then the RSU's own
 ``RsuService`` runs detector -> SORT -> EV classifier -> localiser and publishes), the DDM
 (``DdmService``) and the vehicle (``VehicleService``) share a ``LocalBus`` and a ``SimClock``. A
@@ -77,7 +77,7 @@ class LockstepConfig:
     realtime: bool = False
     """Pace the simulated clock to the wall clock (for watching); the default runs as fast as it can."""
     hazards: bool = True
-    """RSUs run the static-object hazard detector (``rsu.hazard``, issue 10)."""
+    """RSUs run the static-object hazard detector (``rsu.hazard``)."""
     warmup_s: float = WARMUP_S
     """Before scenario time 0 the motion and hazard detectors learn their background from this many seconds
     of each camera's own frames of the road with traffic (``sim.warmup``): no picture of the empty road."""

@@ -1,4 +1,4 @@
-"""Pass/fail of a run: the one yield judge of every runner (issue 18) and the scenario verdict. Pure.
+"""Pass/fail of a run: the one yield judge of every runner and the scenario verdict. Pure.
 
 **Yield judge** (``judge_yield``), fed with ground-truth samples of the AV and the EV in the road frame
 (s along the road, d to the left; lane k spans ``[k w, (k + 1) w]``) by the rig (``scenario/faults.py``),

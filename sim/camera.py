@@ -1,4 +1,4 @@
-"""Pinhole camera model of an RSU camera (DESIGN.md "Coordinates"; thesis App. B).
+"""Pinhole camera model of an RSU camera (docs/architecture.md §Coordinates; thesis App. B).
 
 p_cam = R (p_world - C), [u v 1]^T ~ K p_cam, OpenCV axes (x right, y down, z forward). The pose and
 intrinsics come from the corridor file (``protocol.corridor.CameraConfig``). Ground-plane

@@ -23,7 +23,7 @@ from sim.render.renderer import Renderer
 
 
 def camera_phase_s(index: int, fps: float, snapshot_hz: float = 20.0) -> float:
-    """How much earlier than t = k / fps the corridor's ``index``-th camera exposes frame k (issue 19).
+    """How much earlier than t = k / fps the corridor's ``index``-th camera exposes frame k.
 
     Real cameras run free, not in step. In step, a 15 fps camera fed 20 Hz snapshots starts a frame on 3 of every 4
     snapshots, every camera on the same 3: all four RSUs' work arrived at once, and none on the fourth. Cameras

@@ -1,4 +1,4 @@
-"""Signal lamps of ordinary vehicles (issue 17): hazard flashers and US-style red rear turn signals.
+"""Signal lamps of ordinary vehicles: hazard flashers and US-style red rear turn signals.
 
 They are decoys for the RSU's EV identification: a lamp that blinks at 1-2 Hz, as a naive
 flashing-light rule would take for a light bar. The vehicles stay ordinary traffic (``kind`` car, van,

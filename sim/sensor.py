@@ -1,4 +1,4 @@
-"""The camera sensor's effects on a rendered frame (issue 17's model): auto-exposure drift and sensor noise.
+"""The camera sensor's effects on a rendered frame: auto-exposure drift and sensor noise.
 
 Exposure: a slow gain oscillation ``g(t)`` and a per-lighting gamma: ``255 (min(1, x g / 255)) ** gamma`` per
 channel value x. Since ``(x g / 255) ** gamma = g ** gamma (x / 255) ** gamma``, it is also a fixed gamma table
@@ -28,7 +28,7 @@ NOISE_PAD_PX = 64
 NOISE_SLOTS = 8
 """How many noise offsets a camera's frames take theirs from (``noise_slot``): the static scene is kept exposed at
 unit gain with each slot's noise added (``noise_bank``, 8 x 2.8 MB at 1280x720), so a frame's static part is one
-scale of a kept image (issue 19: the exposure's and the noise's three passes over the frame cost ~2 ms)."""
+scale of a kept image (the exposure's and the noise's three passes over the frame cost ~2 ms)."""
 GAMMA_SCALE = 256
 """The gamma table's fixed-point scale: its uint16 entries are 256 x the 0-255 value, so that one scale per frame
 loses under 1/256 of a level to the table's rounding."""
@@ -41,7 +41,7 @@ def exposure_gain(t_s: float, seed: int) -> float:
 
 
 def exposure_lut(t_s: float, seed: int, lighting: str) -> np.ndarray:
-    """The exposure at ``t_s`` as one 256-entry uint8 table (the direct form; float32 as issue 17 computed it)."""
+    """The exposure at ``t_s`` as one 256-entry uint8 table (the direct form, in float32)."""
     x = np.arange(256, dtype=np.float32) / 255.0
     gain = exposure_gain(t_s, seed)
     return np.clip(255.0 * np.power(np.clip(x * gain, 0, 1), EXPOSURE_GAMMA[lighting]), 0, 255).astype(np.uint8)

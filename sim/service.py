@@ -78,7 +78,7 @@ class SimService:
         self._sub = transport.subscribe(all_vehicles_expr(self.corridor_id, "state"), self._on_state,
                                         on_reject=lambda _k, _e: None)
         self._last_health: Health | None = None
-        self._handles = [  # issue 21: presence token, latest Health on query
+        self._handles = [  # presence token, latest Health on query
             presence.serve(transport, sim_health_key(self.corridor_id),
                            lambda _q: [] if self._last_health is None
                            else [(sim_health_key(self.corridor_id), encode(self._last_health))]),
@@ -144,7 +144,7 @@ class SimService:
     def wait_to_start(self, timeout_s: float, *, avs: bool = True, rsu_ids: tuple[str, ...] | list[str] = (),
                       poll_s: float = 0.02) -> bool:
         """Hold the world at t = 0 until the corridor is up (or ``timeout_s``): every AV of the scenario has sent
-        its state (``avs``) and every RSU of ``rsu_ids`` has declared its liveliness token (issue 21).
+        its state (``avs``) and every RSU of ``rsu_ids`` has declared its liveliness token.
 
         A vehicle process starts driving its own plant as soon as it is up. Started beside the simulator
         it may be up seconds later (imports, Zenoh discovery on a loaded host); a world that ran from the

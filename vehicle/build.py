@@ -1,4 +1,4 @@
-"""One vehicle process assembled in one place (issue 20, item 3): the corridor with the car's start, the
+"""One vehicle process assembled in one place: the corridor with the car's start, the
 command gate, the controller's fail-safe, the localisation, from one :class:`VehicleOptions`.
 
 ``iea-vehicle run`` calls :func:`run_vehicle`; a test or bench running the car on another transport and clock

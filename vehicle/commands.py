@@ -17,7 +17,7 @@ retries until it hears an ack is answered every time. ``valid_until`` is the acc
 command already being executed is carried out to the end (a half-done pull-over is not abandoned);
 lost contact during it is the fail-safe's job (``vehicle/failsafe.py``).
 
-Before any of that, ``CommandGate`` authenticates the command (issue 9, after IEEE 1609.2): with a
+Before any of that, ``CommandGate`` authenticates the command (after IEEE 1609.2): with a
 trust list it refuses unsigned, unknown-key, wrongly signed, expired, not-yet-valid, out-of-scope and
 replayed commands (``protocol.security.AuthError`` with the reason); a refused command never reaches
 the book, so the car keeps driving on its last valid command.

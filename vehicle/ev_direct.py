@@ -1,4 +1,4 @@
-"""Acting on an EvAlert the car hears itself when its command is late (issue 18, point 3). Pure.
+"""Acting on an EvAlert the car hears itself when its command is late. Pure.
 
 The DDM decides; the car only follows its commands. But when the command path to the car is cut (a
 command-link outage: the RSUs' broadcasts still reach it) the DDM's pull-over arrives after the EV. The
@@ -9,7 +9,7 @@ car then acts on its own, on evidence it can trust, and only when it must:
 - the EV is **behind the car in the car's own lane** (Frenet s, d on the corridor's road), driving on at
   the alert's speed since the alert's stamp;
 - **nothing from the DDM** since the first such alert of this approach, for ``command_deadline_s``: no
-  command and no signed heartbeat (the DDM answers an alert within about 0.13 s over Zenoh, median, issue 8:
+  command and no signed heartbeat (the DDM answers an alert within about 0.13 s over Zenoh, median:
   a command later than the deadline is late; a DDM heard alive after the alert that sends nothing is waiting
   on purpose, for a gap in lane 0); and the car is cruising (a DDM manoeuvre is never overridden);
 - the EV will come within its **following distance** of the car (2 m + 1 s x its speed, the yield

@@ -1,6 +1,6 @@
 """Fail-safe watchdog (pure): when to cap the speed and when to give up on the plan and stop at the curb.
 
-Triggers, checked every control step, in every mode (issue 18):
+Triggers, checked every control step, in every mode:
 - ``degraded`` (not latched): no valid, authenticated DDM heartbeat (its Health, or a command that passed
   the command gate) for ``link_degraded_s``: the car keeps driving but caps its speed at
   ``degraded_speed_mps`` and says so in its VehicleState (``detail``) and Health (status degraded);

@@ -2,7 +2,7 @@
 
 A DDM command is a path and a stop point planned from the corridor's picture a moment ago; the car ahead may brake
 after it was planned (a driver slowing for the EV in the lane the AV pulls into: ``e2e_bench`` process seed 9,
-ninth session, where the AV braked at the comfort rate towards a stop point beyond that car and ran into it at
+where without this guard the AV braked at the comfort rate towards a stop point beyond that car and ran into it at
 1 m/s). So on every control step the car looks at its own picture of the corridor (the RSUs' latest objects,
 ``VehicleCore.on_picture``) for the nearest vehicle ahead whose footprint overlaps its own across the road, and
 brakes at least as hard as constant-deceleration kinematics need to match that vehicle's speed ``margin_m`` behind

@@ -5,7 +5,7 @@ within ``line_tolerance_m`` of the chord from the first to the last point; other
 fitted by least squares on the algebraic error of eq. 4.1, which is linear in the unknowns
 (x_c, y_c, R^2 - x_c^2 - y_c^2) and solved in one ``numpy.linalg.lstsq`` call (eq. 4.2).
 
-Sign convention (the thesis fixes none, SPEC.md asks for one): the path has a direction (the order
+Sign convention (the thesis fixes none; docs/architecture.md §Vehicle controller): the path has a direction (the order
 of its points). ``lateral_error_m`` is positive when the vehicle is to the LEFT of the path,
 ``curvature_1pm`` is positive for a left (counter-clockwise) turn, the yaw error is
 theta - theta_R wrapped to (-pi, pi] (eq. 4.6), and the yaw-rate error is

@@ -8,7 +8,7 @@
   (``VehicleParams.cornering_steer``): braking from 25 m/s on R = 200 m the sideslip unwinds, so the
   heading turns slower than the path and the car needs ~5 % less steering than eq. 4.13; with the
   weak high-speed feedback (k_e ~ 1/v^2) that mismatch alone held the car 3-7 cm off the path.
-- Feedback (eq. 4.14 as in SPEC.md): delta_fb = -k_e e_lat - k_theta yaw_err - k_omega yaw_rate_err.
+- Feedback (eq. 4.14 in the report's form, docs/architecture.md §Vehicle controller): delta_fb = -k_e e_lat - k_theta yaw_err - k_omega yaw_rate_err.
 - Steering (eq. 4.15): delta = delta_ff + delta_fb, clipped to the angle limit and rate limited.
 
 Gains are scheduled with speed so that the lateral error behaves the same at every speed: for the
@@ -107,7 +107,7 @@ class LateralController:
         ff, beta = p.cornering_steer(kappa, speed_mps, accel_mps2 if self.accel_feedforward else 0.0)
         if self.sideslip_compensation:
             ff -= k_theta * beta
-        # eq. 4.14 (SPEC.md form) and 4.15
+        # eq. 4.14 (the report's form) and 4.15
         fb = -k_e * e_lat - k_theta * yaw_err - k_omega * yaw_rate_err
         cmd = min(p.max_steer_rad, max(-p.max_steer_rad, ff + fb))
         max_step = p.max_steer_rate_rps * dt_s

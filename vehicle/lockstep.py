@@ -1,7 +1,7 @@
 """Lockstep runs of the vehicle alone: plant + localisation + controller under a scripted command.
 
 Used by the tests and ``bench/control_bench.py``. ``field_test_scenario`` reproduces the report's
-field test (SPEC.md "Response and control"): the car drives at 13.4 m/s in the left lane, a
+field test (docs/architecture.md §Vehicle controller): the car drives at 13.4 m/s in the left lane, a
 command arrives to change one lane right (3.7 m) and stop; the localisation is noisy, slow and
 late. Every control step is recorded in a ``vehicle.record.RunRecord`` (truth, estimate, errors against the
 active path, commands) that ``vehicle/record.py`` writes and ``vehicle/plot.py`` draws.
@@ -56,7 +56,7 @@ def straight_road(length_m: float = 1500.0) -> Road:
 
 
 def curved_road(radius_m: float = 200.0, length_m: float = 900.0) -> Road:
-    """A straight lead-in then a left arc of ``radius_m`` (the test of the issue: R = 200 m)."""
+    """A straight lead-in then a left arc of ``radius_m`` (the curved-road test: R = 200 m)."""
     return Road(0.0, 0.0, 0.0, (Segment("straight", 100.0), Segment("arc", length_m, radius_m)),
                 lanes=2, lane_width_m=3.7)
 
@@ -104,7 +104,7 @@ class RunResult:
 
 
 def run_scenario(sc: Scenario, on_step: Callable[[SimulatedVehicle, float], None] | None = None) -> RunResult:
-    """Step the scenario at ``dt_s`` and compute the figures of the issue."""
+    """Step the scenario at ``dt_s`` and compute its tracking figures."""
     sim = SimulatedVehicle(sc.road, "av1", sc.start_s_m, sc.start_lane, sc.speed_mps, sc.config,
                            sc.fix_source, seed=sc.seed)
     rec = RunRecord(meta={"scenario": sc.name, "speed_mps": sc.speed_mps, "dt_s": sc.dt_s, "seed": sc.seed,

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """A mid-size car (SPEC.md: Apollo's Lincoln MKZ)."""
+    """A mid-size car (Apollo's Lincoln MKZ; docs/architecture.md §Vehicle controller)."""
 
     mass_kg: float = 2080.0
     yaw_inertia_kgm2: float = 4208.0

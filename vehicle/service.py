@@ -13,12 +13,12 @@ scope and not replayed are offered to the command book). Each refusal is counted
 ``rejected`` as ``auth_<reason>``; the inbox is bounded (``MAX_INBOX``, overflow counted as
 ``inbox_full``).
 
-A signed EvAlert the car hears itself (issue 18, ``vehicle.ev_direct``): in a corridor whose trust list
+A signed EvAlert the car hears itself (``vehicle.ev_direct``): in a corridor whose trust list
 names RSU keys the service also subscribes to the RSUs' alerts, keeps the newest that verifies, and pulls
 over to the curb on its own when the EV is behind it in its lane, about to reach it, and nothing came from
 the DDM (no command, no heartbeat) within the deadline (a cut command link); the DDM's next command takes over.
 
-Presence (issue 21): the service declares its liveliness token ``iea/{c}/alive/vehicle/{id}``, answers
+Presence: the service declares its liveliness token ``iea/{c}/alive/vehicle/{id}``, answers
 queries on its keys (latest ``state`` and ``health``: a restarted DDM learns the active command at
 once) and watches the DDM's token: ``ddm_present`` is True while a DDM token is alive, False once the
 last one was lost (``ddm_lost_s``: when, on the service clock), None before any was seen. A lost token
@@ -80,7 +80,7 @@ class VehicleService:
         if localisation not in LOCALISATION_MODES:
             raise ValueError(f"localisation must be one of {LOCALISATION_MODES}, got {localisation!r}")
         self.transport, self.clock, self.corridor = transport, clock, corridor
-        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start (issue 19)
+        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start
         self.vehicle_id = vehicle_id
         self.timing = timing
         vc = corridor.vehicle(vehicle_id)  # KeyError names the corridor's vehicles
@@ -126,7 +126,7 @@ class VehicleService:
             self._subs.append(transport.subscribe(rsu_topic_expr(c, "ev"), self._on_alert, on_reject=self._on_reject))
         self.heartbeats_refused = Counter()
         """DDM Health not counted as a heartbeat, by reason (``auth_<reason>``): a signed corridor counts
-        only a DDM Health signed by a trusted DDM key (issue 18)."""
+        only a DDM Health signed by a trusted DDM key."""
         self.ddm_present: bool | None = None
         self.ddm_lost_s: float | None = None
         self._ddm_tokens = presence.PresenceBook()

@@ -1,5 +1,5 @@
-"""Pure per-frame numbers of the renderer (issue 19: computed with a few array operations instead of a Python loop
-per lamp, kernel tap or actor), kept apart from ``sim.render.renderer`` so they can be tested alone."""
+"""Pure per-frame numbers of the renderer (computed with a few array operations, not a Python loop per
+lamp, kernel tap or actor), kept apart from ``sim.render.renderer`` so they can be tested alone."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def line_kernel(vec: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     with the anchor (x, y) of the grid's centre in it, the same correlation as the full grid (which OpenCV would
     apply by DFT: a 51 x 51 kernel cost 4 ms a frame at night). The taps are plain floats rounded half to even as
     ``np.round`` does, and the kernel is made once per set of taps (``_taps_kernel``; they repeat from frame to
-    frame): 7 us a kernel against 24-35 us with numpy arrays (2-core Xeon, 2026-12-01)."""
+    frame): 7 us a kernel against 24-35 us with numpy arrays (2-core Xeon)."""
     vx, vy = float(vec[0]), float(vec[1])
     length = math.hypot(vx, vy)
     n = int(min(25, math.ceil(length)))
@@ -146,7 +146,7 @@ def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue
     ``lit_bgr`` when its lamp is lit, else ``unlit_bgr``; None for a turn signal that is off, which is not drawn: the
     tail light under it shows) and the lamp it lights (its name, or None), given the ``lighting`` (a
     ``sim.scenery.LIGHTING`` entry) and the actor's lamp states. A pure function of these: ``sim.render.renderer`` keeps it
-    per body model and states (issue 19: the per-decal tests cost ~0.15 ms a frame)."""
+    per body model and states (the per-decal tests cost ~0.15 ms a frame)."""
     tail_bright = brake_on or bool(lighting["running_lights"])
     colours: list[tuple | None] = []
     lamps: list[str | None] = []
@@ -179,7 +179,7 @@ def hidden_lamps(faces: np.ndarray, counts: list[int], ranks: list[int], bounds:
     ``bounds`` (A, 4) and its silhouette parts' projected corners (P, 8, 2) from ``silhouettes(place)`` (asked only
     for the vehicles a test needs). A lamp is hidden when the centre of every one of its faces lies inside a part of
     a vehicle drawn after it: one bounds test for all faces and vehicles, then ``inside_convex_hulls`` for every
-    (face, part) pair that test leaves, together (issue 19: a hull and a point test per pair cost 0.2 ms a frame,
+    (face, part) pair that test leaves, together (a hull and a point test per pair cost 0.2 ms a frame,
     these 0.16). A halo is the lens's image of a lamp it sees: without this test a hidden EV's light bar glowed
     through the bus in front of it (simulator, ev_bench tuning seed 80442, rsu4: a false alert on the bus)."""
     if not counts:

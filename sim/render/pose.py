@@ -1,6 +1,6 @@
 """Pure per-frame geometry of the renderer (``sim.render.renderer``): every actor of a snapshot posed and projected, its
 painter's place, headlight pool, cast-shadow outline, motion-blur vector and visible faces and decals, each for all
-actors in a few array operations (issue 19: a Python loop per actor cost more than the drawing, and so did
+actors in a few array operations (a Python loop per actor costs more than the drawing, and so does
 concatenating the actors' body models every frame). ``ActorBatch`` holds the snapshot's body models concatenated
 once (``Renderer`` keeps it while the snapshot's actors keep their looks); ``pose_frame`` poses them for one frame.
 Camera matrices in, pixel arrays out; nothing here draws."""

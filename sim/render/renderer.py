@@ -3,7 +3,7 @@
 The static scene (``sim.scenery``: sky, tree line, grass, asphalt, shoulder, lane markings, haze, street lights,
 vignetting) is rendered once per camera and lighting into a cached image. Per frame: vehicles as shaded 3-D part
 boxes with decals (``sim.bodies``; each actor's body model built once per look and posed, culled and shaded with a
-few array operations per frame, issue 19) drawn back to front (painter's order by depth), cast shadows (a LUT under
+few array operations per frame) drawn back to front (painter's order by depth), cast shadows (a LUT under
 a mask), a cheap ROI glow for lamps that
 are on, motion blur on vehicle ROIs when the image motion during the exposure exceeds ~1.5 px, then exposure and sensor
 noise (``sim.sensor``: the static scene kept exposed at unit gain with each noise slot's noise and scaled by the
@@ -123,7 +123,7 @@ class Renderer:
         needs them (``SimCamera(prerender=True)``). The static scenes share one ``sim.scenery.scenery_geometry`` and the
         noise fields one ``sim.sensor.standard_noise``, most of a lighting's cost: three lightings' static scenes take
         1.13-1.22 s of CPU instead of 2.07-2.26 s, their noise fields 0.10-0.18 s instead of 0.20-0.27 s (rsu2, 2-core
-        Xeon, 2026-11-28)."""
+        Xeon)."""
         missing = [lighting for lighting in dict.fromkeys(lightings) if lighting not in self._backgrounds]
         if len(missing) > 1:
             geometry = scenery_geometry(self.cfg, self.cam, self.road, self.seed)
@@ -274,7 +274,7 @@ class Renderer:
 
         The cached static scene, then per actor its cast shadow and headlight pool (all actors, far to near), then
         per actor (far to near) its contact shadow, visible faces, decals and lamps and motion blur, then the halos of
-        the lamps no nearer vehicle hides (``sim.render.effects.hidden_lamps``), exposure and noise: issue 17's
+        the lamps no nearer vehicle hides (``sim.render.effects.hidden_lamps``), exposure and noise: the reference renderer's
         drawing (``bench.render_reference``) with each actor's body model built once (``sim.bodies.body_model``), the
         snapshot's models concatenated once (``sim.render.pose.ActorBatch``) and posed, culled and shaded with a few
         array operations for all actors (``sim.render.pose``)."""

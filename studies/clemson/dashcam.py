@@ -1,4 +1,4 @@
-"""Dashboard cameras of the AV (issue 23; Clemson hazard navigation report, section 4.1, figs. 7-8).
+"""Dashboard cameras of the AV (the Clemson comparison; Clemson hazard navigation report, section 4.1, figs. 7-8).
 
 A front camera at the centre of the windscreen, and for training data a left and a right camera offset
 sideways by ``SIDE_CAMERA_OFFSET_M`` (the report's three cameras, DAVE-2's recovery views), all rendered

@@ -1,4 +1,4 @@
-"""Hazard-avoidance driving episodes of the Clemson comparison (issue 23): roads with debris, the teacher,
+"""Hazard-avoidance driving episodes of the Clemson comparison: roads with debris, the teacher,
 the infrastructure-guided controller and a camera-steered car, all in lockstep on the same roads.
 
 - ``make_scenario(seed)``: a seeded two-lane road (a straight lead-in, an arc of radius 250-600 m either way

@@ -1,4 +1,4 @@
-"""``python -m studies.clemson export``: the driving data set of the Clemson comparison (issue 23; report ch. 4).
+"""``python -m studies.clemson export``: the driving data set of the Clemson comparison (report ch. 4).
 
 The teacher (``studies.clemson.driving``: the thesis controller under the DDM's hazard rule with perfect knowledge)
 drives seeded hazard episodes; every ``stride_s`` the three dashboard cameras (``studies.clemson.dashcam``: centre,

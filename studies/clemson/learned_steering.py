@@ -1,4 +1,4 @@
-"""On-board learned steering of the Clemson comparison (issue 23; Clemson hazard navigation report ch. 3).
+"""On-board learned steering of the Clemson comparison (Clemson hazard navigation report ch. 3).
 
 The car's own pipeline, from its dashboard camera (66 x 200 BGR, ``studies.clemson.dashcam``) and its radar:
 

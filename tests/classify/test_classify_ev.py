@@ -241,8 +241,8 @@ def test_boxes_cut_by_the_left_right_or_top_border_are_not_measured():
 
 
 def test_a_confirmed_ev_is_not_body_scored_again():
-    """Issue 19: the body classifier runs on lamp-active tracks until they confirm, not on a confirmed EV (its
-    cost on four RSUs at once halved their processed fps while an EV was in view)."""
+    """The body classifier runs on lamp-active tracks until they confirm, not on a confirmed EV (scoring one on
+    four RSUs at once would halve their processed fps while an EV is in view)."""
     calls = []
     clf = TrackEvClassifier(body=lambda crop: calls.append(crop.shape) or 0.95)
     per_frame = []

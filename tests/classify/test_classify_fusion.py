@@ -1,4 +1,4 @@
-"""Per-track fusion of EV body and lamp evidence (issue 17): a steady bar counts only with a confident body,
+"""Per-track fusion of EV body and lamp evidence: a steady bar counts only with a confident body,
 corner lamps never count, and a strong flash pattern still confirms alone."""
 
 from __future__ import annotations

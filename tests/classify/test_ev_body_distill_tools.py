@@ -1,4 +1,4 @@
-"""The GPU training job's pieces that need no PyTorch (issue 17): the crop cache (with the photos' detected views),
+"""The GPU training job's pieces that need no PyTorch: the crop cache (with the photos' detected views),
 folds by photo, the teacher mean, the student specs, the augmentation the students train on, and the teacher's
 held-out figures."""
 

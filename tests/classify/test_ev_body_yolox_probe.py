@@ -1,4 +1,4 @@
-"""The YOLOX-feature probe of issue 17 (``models.ev_body_yolox_probe``): the detector graph's PAFPN outputs pooled per
+"""The YOLOX-feature probe (``models.ev_body_yolox_probe``): the detector graph's PAFPN outputs pooled per
 crop. Skips without ``../shared/data/real``."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The real EV training data loader (issue 17): the label review relabels, drops, and lets reviewed Open Images Car and
+"""The real EV training data loader: the label review relabels, drops, and lets reviewed Open Images Car and
 Truck boxes in; without the review the data is as published."""
 
 from __future__ import annotations

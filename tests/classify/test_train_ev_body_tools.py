@@ -1,4 +1,4 @@
-"""The EV-body training script's distillation targets and int8 export (issue 17), without PyTorch."""
+"""The EV-body training script's distillation targets and int8 export, without PyTorch."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""ddm/build.py (issue 20, item 3): the one place a DDM is assembled from its options, used by ``iea-ddm run``."""
+"""ddm/build.py: the one place a DDM is assembled from its options, used by ``iea-ddm run``."""
 
 from __future__ import annotations
 

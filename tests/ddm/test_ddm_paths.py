@@ -117,7 +117,7 @@ def test_road_frame_matches_the_corridor_road():
 
 
 def test_pull_over_holding_speed_clears_the_lane_before_it_brakes():
-    """Issue 18: the held-speed pull-over keeps 13.4 m/s over its lane change and brakes only after it; with
+    """The held-speed pull-over keeps 13.4 m/s over its lane change and brakes only after it; with
     the EV close (time to pass < urgent_within_s) the change is shorter (urgent lateral acceleration)."""
     from ddm.paths import plan_stop_holding_speed
 

@@ -112,10 +112,10 @@ def test_slower_car_beside_in_lane_0_keeps_speed_faster_one_is_let_by():
     slow = trk(3, 100.0, 0, 5.0)  # a yielding car beside the AV in lane 0
     d = decide(ego(), [ev], [ev, slow], FRAME, CFG, Response())
     assert d.action == "none" and "keep speed past the slower vehicle" in d.reason
-    fast = trk(4, 96.0, 0, 22.0)  # a faster car coming up beside: keep speed and let it pass (issue 18)
+    fast = trk(4, 96.0, 0, 22.0)  # a faster car coming up beside: keep speed and let it pass
     d = decide(ego(), [ev], [ev, fast], FRAME, CFG, Response())
     assert d.action == "none" and "let the faster vehicle in lane 0 pass" in d.reason
-    # the rule before issue 18: slow in the EV's lane for the gap
+    # with let_faster_pass off: slow in the EV's lane for the gap
     d = decide(ego(), [ev], [ev, fast], FRAME, replace(CFG, let_faster_pass=False), Response())
     assert d.action == Manoeuvre.SLOW_IN_LANE and d.slow_because == "gap"
 

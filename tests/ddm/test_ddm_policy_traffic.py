@@ -1,7 +1,7 @@
-"""Issue 18, e2e seed 7: passing a slower car in lane 0, the AV pulls over as soon as the gap it leaves is safe.
+"""e2e seed 7: passing a slower car in lane 0, the AV pulls over as soon as the gap it leaves is safe.
 
-The AV kept its speed 7-9 s past a car 3.5 m/s slower (no room to stop behind it), then waited for the full
-minimum gap ahead of it before moving over, and the EV reached the AV 0.30 s before it left the lane. A slower
+The AV keeps its speed 7-9 s past a car 3.5 m/s slower (no room to stop behind it); waiting then for the full
+minimum gap ahead of it before moving over lets the EV reach the AV 0.30 s before it leaves the lane. A slower
 follower drops back during the lane change: it needs the minimum gap only when the AV's body enters its lane.
 """
 

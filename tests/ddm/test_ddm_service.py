@@ -1,4 +1,4 @@
-"""DDM service in lockstep (SimClock + LocalBus) with scripted object streams: the issue's 'Done when' list."""
+"""DDM service in lockstep (SimClock + LocalBus) with scripted object streams: the DDM's required behaviours."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def test_alert_cleared_resumes():
 
 
 def test_faster_car_in_lane_0_is_let_by_at_speed_then_pull_over():
-    """Issue 18 (e2e seed 6): no slowing in the EV's lane for a faster car in lane 0: keep speed, let it by."""
+    """e2e seed 6: no slowing in the EV's lane for a faster car in lane 0: keep speed, let it by."""
     cover = {"rsu1": (-150.0, 60.0), "rsu2": (40.0, 160.0), "rsu3": (140.0, 260.0), "rsu4": (240.0, 400.0)}
     r = Rig(coverage=cover)
     r.add("av1", 20.0, 1, 13.4)
@@ -88,7 +88,7 @@ def test_faster_car_in_lane_0_is_let_by_at_speed_then_pull_over():
 
 
 def test_unsafe_gap_slows_in_lane_then_changes_when_gap_opens():
-    """The rule before issue 18 (let_faster_pass off): slow in lane for the gap, change when it opens."""
+    """With let_faster_pass off: slow in lane for the gap, change when it opens."""
     cover = {"rsu1": (-150.0, 60.0), "rsu2": (40.0, 160.0), "rsu3": (140.0, 260.0), "rsu4": (240.0, 400.0)}
     r = Rig(coverage=cover, config=DdmConfig(startup_listen_s=0.5, let_faster_pass=False))
     r.add("av1", 20.0, 1, 13.4)

@@ -132,8 +132,8 @@ def test_ev_alert_marks_track_and_clear_unmarks_it():
 
 
 def test_object_level_ev_state_alone_marks_no_track():
-    """Issue 18: an object list's (unsigned) EV state never makes an EV on its own; ev_from_objects_alone
-    restores the old behaviour (to measure the cost)."""
+    """An object list's (unsigned) EV state never makes an EV on its own; ev_from_objects_alone lets it (to
+    measure the cost)."""
     w = CorridorWorld(DdmConfig())
     w.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
     assert w.ev_tracks(1.0) == []

@@ -1,4 +1,4 @@
-"""docker-compose deployment (issue 8 item 3, issue 25): the committed file is what `iea deploy compose`
+"""docker-compose deployment: the committed file is what `iea deploy compose`
 generates, it matches the corridor file, every service command parses with that service's own CLI, it
 satisfies both the Compose Specification's schema (Docker Compose v2) and the one docker-compose 1.29.2
 applies (Debian 12) on every machine, and `docker-compose config` accepts it with the same meaning where
@@ -51,7 +51,7 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
     assert "name" not in doc and "version" not in doc  # neither key means the same to compose v1 and v2
     services = doc["services"]
     rsu_ids = [r.rsu_id for r in corridor.rsus]
-    optional = {n for n, s in services.items() if s.get("profiles")}  # `--profile monitoring` only (issue 22)
+    optional = {n for n, s in services.items() if s.get("profiles")}  # `--profile monitoring` only
     assert optional == {"prometheus"}
     services = {n: s for n, s in services.items() if n not in optional}
     assert set(services) == {"router", "sim", "ddm", *rsu_ids, *(v.vehicle_id for v in corridor.vehicles)}
@@ -67,7 +67,7 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
         args = parsers[cmd[0]]().parse_args(cmd[1:])  # the service's own CLI accepts it
         assert args.connect == [ROUTER_ENDPOINT] and args.mode == "client"
         assert args.zenoh_config == f"/etc/iea/acl/{name}.json5"  # ACL credentials of that service
-        # signed by default (issue 18): the `iea deploy keys` corridor file trusting the keys, and each signing
+        # signed by default: the `iea deploy keys` corridor file trusting the keys, and each signing
         # service its own private key, nobody else's
         assert args.corridor == "/etc/iea/corridor.toml"
         assert "./secrets/keys/corridor.toml:/etc/iea/corridor.toml:ro" in svc["volumes"]
@@ -77,7 +77,7 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
             assert keys_mounted == [f"./secrets/keys/{name}.pem:/etc/iea/keys/{name}.pem:ro"]
         else:
             assert keys_mounted == [] and getattr(args, "key", None) is None
-        assert args.metrics_port == METRICS_PORT and svc["expose"] == [str(METRICS_PORT)]  # issue 22
+        assert args.metrics_port == METRICS_PORT and svc["expose"] == [str(METRICS_PORT)]
         if cmd[0] == "rsu":  # camera source from the environment, the simulator's view by default
             assert args.rsu == name and args.source == f"${{{name.upper()}_SOURCE:-sim}}"
     # the vehicle starts where the scenario puts the AV
@@ -86,7 +86,7 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
 
 
 def test_monitoring_profile_scrapes_every_service():
-    """The optional Prometheus server (issue 22): the official image pinned, its config listing every IEA
+    """The optional Prometheus server: the official image pinned, its config listing every IEA
     service's metrics port, written by its own command line."""
     services = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))["services"]
     prom = services["prometheus"]
@@ -127,7 +127,7 @@ def test_compose_files_satisfy_both_compose_schemas():
 
 def test_schema_check_refuses_what_the_tools_refuse():
     doc = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))
-    # the issue's report: a top-level name is the Compose Specification's, but 1.29.2 refuses it
+    # a top-level name is the Compose Specification's, but 1.29.2 refuses it
     named = {"name": "iea-rellis", **doc}
     errors = compose_errors(named)
     assert list(errors) == [DOCKER_COMPOSE_V1]
@@ -156,7 +156,7 @@ def _docker_compose_config(tool: str, text: str, tmp_path: Path) -> subprocess.C
 
 def test_docker_compose_config_accepts_the_file(tmp_path):
     """The real docker-compose (Debian 12: 1.29.2) accepts the file, keeps its meaning (health checks,
-    restart policies, start conditions) and refuses the file the issue reported (a top-level name)."""
+    restart policies, start conditions) and refuses a file with a top-level name."""
     tool = shutil.which("docker-compose")
     if tool is None:
         pytest.skip("docker-compose is not installed (Debian package docker-compose; .ci/run installs it); "

@@ -1,4 +1,4 @@
-"""Prometheus metrics (issue 22): off by default; a running RSU's endpoint shows its per-stage latency
+"""Prometheus metrics: off by default; a running RSU's endpoint shows its per-stage latency
 histogram moving, its published messages by kind and the rates of its Health."""
 
 from __future__ import annotations

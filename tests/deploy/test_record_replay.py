@@ -1,4 +1,4 @@
-"""MCAP recording and replay (issue 22): the file validates with the mcap reader, carries each message's
+"""MCAP recording and replay: the file validates with the mcap reader, carries each message's
 key, stamp, receive time and JSON Schema, and a lockstep run replayed into a fresh DDM makes the same
 decisions; `iea record` and `iea replay` move the bytes over real Zenoh."""
 

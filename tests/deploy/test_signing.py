@@ -1,4 +1,4 @@
-"""Signed by default (issue 18, point 6): `iea deploy keys` writes a key per signing service and the corridor
+"""Signed by default: `iea deploy keys` writes a key per signing service and the corridor
 file trusting them; `iea up` signs with throwaway keys unless told `--unsigned`."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`iea status` over a running `iea up` (issue 21): one query per kind lists every service as one table."""
+"""`iea status` over a running `iea up`: one query per kind lists every service as one table."""
 
 from __future__ import annotations
 

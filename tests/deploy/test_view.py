@@ -1,4 +1,4 @@
-"""`iea view` (issue 22): the picture it builds from the corridor's messages, and the page in a real headless
+"""`iea view`: the picture it builds from the corridor's messages, and the page in a real headless
 browser drawing a live lockstep run (the EV, the AV and the EV alert, read from the page itself)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 23: the dashboard camera sees the debris ahead; the report's threat value and fusion equations."""
+"""The Clemson comparison: the dashboard camera sees the debris ahead; the report's threat value and fusion equations."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 23: the driving export (augmentation, split), the ONNX steering nets, learned mode under the fail-safe."""
+"""The Clemson comparison: the driving export (augmentation, split), the ONNX steering nets, learned mode under the fail-safe."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""End to end, lockstep (issue 10): hazard_in_lane on sim renders -> RSU hazard detection -> HazardAlert ->
+"""End to end, lockstep: hazard_in_lane on sim renders -> RSU hazard detection -> HazardAlert ->
 DDM hazard policy -> PathSwitchCommand -> vehicle controller on the plant; the AV passes the debris with
 >= 1 m lateral clearance (or stops before it). Runs bench/hazard_bench.py's lockstep, one RSU, 10 s."""
 

@@ -1,4 +1,4 @@
-"""bench/e2e_rsu_load.py (issue 19): per-RSU processed fps, drops, frame age and CPU per stage from a run's
+"""bench/e2e_rsu_load.py: per-RSU processed fps, drops, frame age and CPU per stage from a run's
 recording, and the first frame with the lamps lit that the alerting RSU published."""
 
 from __future__ import annotations

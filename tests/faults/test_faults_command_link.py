@@ -1,4 +1,4 @@
-"""Latency and drop-out on the vehicle's radio link (issue 8 fault tests, judged as issue 18 asks), in lockstep.
+"""Latency and drop-out on the vehicle's radio link (docs/faults.md), in lockstep.
 
 The real DdmService and VehicleService on one SimClock; every message to and from the vehicle passes a
 DsrcLink with the channel under test; scripted RSUs report the EV approach (scenario/faults.py) with the
@@ -67,7 +67,7 @@ def test_every_rig_row_passes_only_with_the_yield_or_is_beyond_its_bound():
 
 
 def test_a_row_that_delivers_every_command_but_blocks_the_ev_does_not_pass():
-    """Issue 18: the outage rows used to pass on delivery alone while the AV blocked the EV."""
+    """An outage row that delivers every command does not pass on delivery alone when the AV blocks the EV."""
     r = run_command_link(ChannelModel(latency_s=0.003), kind="dropout", seed=3, outage_after_alert=(0.0, 2.0))
     f = r.outcome
     assert r.counts["lost_commands"] == [] and r.counts["duplicate_activations"] == {}  # delivery fine ...
@@ -108,9 +108,9 @@ def test_burst_outage_at_the_alert_command_retransmitted_and_acked(outage_s):
 
 @pytest.mark.parametrize("outage_s", OUTAGES_S)
 def test_a_command_link_outage_passes_because_the_car_acts_on_the_signed_alert(outage_s):
-    """Issue 18: with the command link cut from the first command (the RSUs still heard) the car pulls over on
+    """With the command link cut from the first command (the RSUs still heard) the car pulls over on
     the signed EvAlert once its command is 0.3 s late, and clears the EV's lane in time; without that it blocks.
-    Alert delay 0.50 s: the p99 the bench measured over Zenoh on 2026-11-25."""
+    Alert delay 0.50 s: the p99 the bench measures over Zenoh."""
     from vehicle.ev_direct import DirectAlertConfig
 
     sc = YieldScenario(alert_delay_s=0.5)

@@ -1,4 +1,4 @@
-"""The one yield judge (scenario/outcome.py, issue 18): pass only out of the EV's lane before the EV is within
+"""The one yield judge (scenario/outcome.py): pass only out of the EV's lane before the EV is within
 its following distance; stopped in the lane, blocked, never reached and collisions fail."""
 
 from __future__ import annotations

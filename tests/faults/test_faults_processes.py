@@ -1,4 +1,4 @@
-"""Process-level faults over real Zenoh on loopback (issue 8): an RSU killed, the DDM killed and restarted,
+"""Process-level faults over real Zenoh on loopback: an RSU killed, the DDM killed and restarted,
 the router restarted, each on the full `iea up` topology (router + vehicle + DDM + 4 RSUs + simulator as
 processes, unique corridor id, free port). Each scenario runs once (module fixture, ~20 s) and the tests
 read its measured outcome; every process is stopped at the end of the scenario.

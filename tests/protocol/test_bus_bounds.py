@@ -1,9 +1,8 @@
-"""Issue 24: one LocalBus input costs a bounded amount of time and memory, whatever its bytes.
+"""One LocalBus input costs a bounded amount of time and memory, whatever its bytes.
 
-Before, a 1 MB payload of nested one-element arrays (what the fuzzer's "list grown to 5,000 items of a
-200-deep nesting" makes) took 16 s and grew the fuzz process by 123 MB: the fuzz harness unpacked it
-whole to pick a key, and the decoder would build up to ~250,000 tuples from any payload under its
-512 kB cap before validating. Now the decoder refuses a payload over 256 kB before parsing, caps every
+A 1 MB payload of nested one-element arrays (what the fuzzer's "list grown to 5,000 items of a 200-deep
+nesting" makes) would take 16 s and 123 MB if unpacked whole, and an unbounded decoder builds up to ~250,000
+tuples from a 512 kB payload before validating. So the decoder refuses a payload over 256 kB before parsing, caps every
 array, map, string and binary at the largest any valid message has, and stops building once a payload
 holds more arrays and maps than any valid message (``protocol.codec``)."""
 
@@ -31,10 +30,10 @@ from protocol.messages import MAX_ACTORS, MAX_OBJECTS, Actor, LightBar, WorldSna
 
 C = "b24"
 MAX_INPUT_CPU_S = 0.05
-"""The issue's bound on one input (measured worst: ~3 ms for a 1,024-actor snapshot)."""
+"""The bound on one input (measured worst: ~3 ms for a 1,024-actor snapshot)."""
 MAX_INPUT_TRACED_BYTES = 4 * 2**20
 """Python memory one input may allocate at its peak (decoding the largest valid snapshot: ~1.8 MB; a
-256 kB tuple bomb built ~6.8 MB of tuples before issue 24, now ~0.1 MB)."""
+256 kB tuple bomb builds ~0.1 MB; unbounded it would build ~6.8 MB)."""
 
 
 def _deep(depth: int):
@@ -59,8 +58,8 @@ def _largest_snapshot() -> WorldSnapshot:
 
 
 HOSTILE = {
-    # the issue's input: a CommandAck whose ``v`` is 5,000 copies of a 200-deep nesting (1 MB)
-    "issue_1MB_nesting": _with(4, v=[_deep(200)] * 5000),
+    # a CommandAck whose ``v`` is 5,000 copies of a 200-deep nesting (1 MB)
+    "nested_1MB": _with(4, v=[_deep(200)] * 5000),
     # under the size cap: as many tuples as the bytes allow, in arrays of legal length
     "tuple_bomb_256kB": b"\xdc\x03\xe8" + (b"\xdc\x00\x7f" + b"\x91\x90" * 127) * 1000,
     "tuple_bomb_500kB": b"\xdc\x03\xe8" + (b"\xdc\x00\xfa" + b"\x91\x90" * 250) * 1000,

@@ -1,4 +1,4 @@
-"""Issue 24: a quick fuzz of all 17 targets in every test run, with a seed that changes with the date
+"""A quick fuzz of all 17 targets in every test run, with a seed that changes with the date
 and the commit (so each day and each commit explores new inputs), printed; a crash fails the test with
 the payload in hex and the command that regenerates it. ``IEA_FUZZ_SEED=S`` replays a seed;
 ``IEA_FUZZ_QUICK_N`` sets the inputs per target (default 3,000; ``bench/fuzz_bench.py`` runs 100,000

@@ -1,4 +1,4 @@
-"""Issue 21: presence by liveliness tokens, state by queryables, QoS by message kind, late-joining DDM.
+"""Presence by liveliness tokens, state by queryables, QoS by message kind, late-joining DDM.
 
 In-process cases run on ``LocalBus``; the multi-process ones over real Zenoh on loopback (a router, the
 scripted corridor ``bench/zenoh_corridor_stub.py`` in its own process, a real ``DdmService`` here),

@@ -1,4 +1,4 @@
-"""Issue 24: every number a message carries has a physical range; the decoder refuses what no sensor or
+"""Every number a message carries has a physical range; the decoder refuses what no sensor or
 clock produces and names the field; the crash fuzzing found is refused at the boundary."""
 
 from __future__ import annotations
@@ -18,23 +18,23 @@ from protocol.local_bus import LocalBus
 from protocol.messages import MESSAGE_TYPES, WorldSnapshot
 from protocol.ranges import MAX_COUNT, MAX_SIM_TIME_S
 
-ISSUE_24_CRASH = bytes.fromhex(
+FUZZER_CRASH = bytes.fromhex(
     "8aa46b696e64ad576f726c64536e617073686f74a17601a3737263a373696da373657100a57374616d70cb3ff0000000000000a873"
     "63656e6172696faf72656c6c69735f65765f7969656c64aa73696d5f74696d655f73cb7fefffffffffffffa86c69676874696e67a3"
     "646179a47365656401a66163746f7273929ea3617631a26176cb4059000000000000cb4016333333333333cb0000000000000000cb40"
     "1399999999999acb3ffe666666666666cb3ff8000000000000cb402acccccccccccd0193cc80cc80cc80c2c0009ea3657631a26576cb"
     "4049000000000000cb4016333333333333cb0000000000000000cb4016000000000000cb4000000000000000cb400199999999999acb"
     "40330000000000000193ccffccffccffc294c3ab616c7465726e6174696e67cb4000000000000000cb000000000000000000")
-"""``fuzz_bench.py`` seed 0, rsu_sim_camera input 88,393 (before issue 24): a WorldSnapshot with
-``sim_time_s`` = 1.7976931348623157e308 that decoded, then crashed ``SimCamera.frame_index`` with
-OverflowError (``int(sim_time_s * fps)``) at the next render."""
+"""``fuzz_bench.py`` seed 0, rsu_sim_camera input 88,393: a WorldSnapshot with
+``sim_time_s`` = 1.7976931348623157e308 which, without range checks, decodes and then crashes
+``SimCamera.frame_index`` with OverflowError (``int(sim_time_s * fps)``) at the next render."""
 
 
 # ------------------------------------------------------------------ the crash, as a regression test
-def test_the_issue_24_crash_payload_is_refused_naming_the_field():
-    assert msgpack.unpackb(ISSUE_24_CRASH)["sim_time_s"] == 1.7976931348623157e308
+def test_the_fuzzer_crash_payload_is_refused_naming_the_field():
+    assert msgpack.unpackb(FUZZER_CRASH)["sim_time_s"] == 1.7976931348623157e308
     with pytest.raises(ProtocolError) as info:
-        decode(ISSUE_24_CRASH, WorldSnapshot)
+        decode(FUZZER_CRASH, WorldSnapshot)
     assert "WorldSnapshot.sim_time_s" in str(info.value) and "less than or equal to" in str(info.value)
     assert info.value.reason == "invalid"
 
@@ -46,10 +46,10 @@ def test_the_rsu_sim_camera_never_holds_the_crashing_snapshot():
     corridor = dataclasses.replace(load_corridor(), corridor_id="r24")
     bus = LocalBus()
     camera = SimCamera(corridor, "rsu1", transport=bus, seed=0)
-    bus.publish_bytes(keys.sim_world_key("r24"), ISSUE_24_CRASH)
+    bus.publish_bytes(keys.sim_world_key("r24"), FUZZER_CRASH)
     assert camera.newest_held is None and bus.stats.rejected["invalid"] == 1 and bus.stats.handler_errors == 0
     # the latest sim time a message may carry still makes an integer frame counter and a frame
-    body = msgpack.unpackb(ISSUE_24_CRASH)
+    body = msgpack.unpackb(FUZZER_CRASH)
     body["sim_time_s"] = MAX_SIM_TIME_S
     bus.publish_bytes(keys.sim_world_key("r24"), msgpack.packb(body))
     assert camera.newest_held is not None and camera.frames_held == 1

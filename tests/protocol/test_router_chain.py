@@ -1,4 +1,4 @@
-"""Issue 21: two routers in a chain on loopback (``iea deploy mesh``): a segment router with the RSUs and the
+"""Two routers in a chain on loopback (``iea deploy mesh``): a segment router with the RSUs and the
 vehicle, a core router with the DDM, the ACL enforced on both.
 
 The scenario crosses both routers every way: the DDM (on the core) sees the RSUs' tokens (on the

@@ -32,7 +32,7 @@ def _started_with_sigint_ignored(mode: str) -> subprocess.Popen:
 @pytest.mark.timeout(60)
 def test_sigint_stops_a_cli_started_with_sigint_ignored():
     """``iea up`` stops its services with SIGINT; a service that inherited SIGINT ignored (make test run as a
-    background job) used to live on until SIGKILL, and ``iea up`` itself ignored the test's Ctrl-C."""
+    background job) stops too, and so does ``iea up`` itself on the test's Ctrl-C."""
     fixed = _started_with_sigint_ignored("fix")
     plain = _started_with_sigint_ignored("plain")
     try:

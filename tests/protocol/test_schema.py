@@ -101,7 +101,7 @@ def _all_field_schemas():
 
 
 def test_every_bound_pydantic_enforces_is_in_the_wire_schema():
-    """Ranges (e.g. issue 24's physical bounds) carry over: each constraint keyword of pydantic's schema of a
+    """Ranges (e.g. protocol/ranges.py's physical bounds) carry over: each constraint keyword of pydantic's schema of a
     field is in the wire schema of the field, with the same value (bytes and dict keys aside, rewritten)."""
     checked = 0
 

@@ -262,11 +262,12 @@ def test_every_message_of_an_iea_demo_run_validates(tmp_path, spawn):
     assert time.monotonic() - t0 < 150
 
 
-# ------------------------------------------------------------------ the README example
-def test_readme_shows_the_object_list_example_verbatim():
+# ------------------------------------------------------------------ the documented example
+def test_protocol_doc_shows_the_object_list_example_verbatim():
     code = CLIENTS[1].read_text()
     body = code[code.index("import json"):]
-    assert body.strip() in (ROOT / "README.md").read_text(), "README's ObjectList example differs from the file"
+    doc = ROOT / "docs" / "protocol.md"
+    assert body.strip() in doc.read_text(), f"{doc.name}'s ObjectList example differs from the file"
     assert len(body.strip().splitlines()) <= 26
 
 

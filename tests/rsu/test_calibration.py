@@ -1,4 +1,4 @@
-"""Camera commissioning (issue 27): pose from surveyed points on a simulator render, flags, refusals, error
+"""Camera commissioning: pose from surveyed points on a simulator render, flags, refusals, error
 table, corridor write-back, the check image, and `iea calibrate` on a real frame (skips without ../shared)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""An RSU's detector searches only where its zone of responsibility lies in the frame (rsu.detect_roi, issue 19):
+"""An RSU's detector searches only where its zone of responsibility lies in the frame (rsu.detect_roi):
 the window holds the road within range from the ground to a truck's roof, keeps the detector's pixel scale, and
 finds the vehicles in it where the whole frame finds them."""
 

@@ -1,4 +1,4 @@
-"""bench/ev_bench.py --quick runs and its last line is the JSON of the issue's figures."""
+"""bench/ev_bench.py --quick runs and its last line is the JSON of the bench's figures."""
 
 from __future__ import annotations
 

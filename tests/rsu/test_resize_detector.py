@@ -1,4 +1,4 @@
-"""models/resize_detector.py (issue 19, point 3, bench/detector_size_bench.py): the project detector re-declared at
+"""models/resize_detector.py (bench/detector_size_bench.py): the project detector re-declared at
 another input size runs through the RSU's OnnxDetector; at the shipped size it is the shipped model."""
 
 import numpy as np

@@ -16,7 +16,7 @@ def test_rsu_bench_quick_json():
     assert proc.returncode == 0, proc.stderr
     figures = json.loads(proc.stdout.strip().splitlines()[-1])
     assert figures["tracker_speedup_vs_reference"] > 1.0
-    # issue 19: the densities an RSU sees as well as the stress case, with the same tracks as the reference
+    # the densities an RSU sees as well as the stress case, with the same tracks as the reference
     assert figures["tracker_speedup_min"] == min(figures[f"tracker_{n}_targets"]["speedup"] for n in (5, 10, 20, 100))
     assert figures["tracker_same_tracks"] is True
     assert 0.0 < figures["mota"] <= 1.0 and 0.0 < figures["idf1"] <= 1.0

@@ -1,4 +1,4 @@
-"""EV alerts on real footage (issue 17), as an operator's ``iea-rsu scan`` runs it: COCO YOLOX-Nano, SORT,
+"""EV alerts on real footage, as an operator's ``iea-rsu scan`` runs it: COCO YOLOX-Nano, SORT,
 per-track lamp evidence fused with the EV-body classifier (``models/ev_body.onnx``). Skips without
 ``../shared/data/real``.
 
@@ -10,10 +10,9 @@ same figures with the alert times; the annotated video of ``iea-rsu scan CLIP --
 which box each alert is on.
 
 The escort, Japanese-ambulance and NYC-police clips were used to set the light-bar colour test
-(:mod:`rsu.classify.lamps`): they are tuning clips for it. The Florence clip was traced frame by frame to
-find why it alerted late (a far ambulance whose blue bar flashed regularly while the body classifier could
-not judge it yet), which led to the strong light-bar flash rule (``EvidenceConfig.strong_bar_flashes``): it
-is a tuning clip since. The night, roadside and traffic clips were not used to set anything.
+(:mod:`rsu.classify.lamps`): they are tuning clips for it. The Florence clip (a far ambulance whose blue bar flashes
+regularly while the body classifier cannot judge it yet) set the strong light-bar flash rule
+(``EvidenceConfig.strong_bar_flashes``): it is a tuning clip too. The night, roadside and traffic clips were not used to set anything.
 """
 
 from __future__ import annotations
@@ -40,9 +39,9 @@ MAX_DELAY_S = 2.0
 KNOWN_MISSES = {
     "elevated_police_nyc_redbars.mp4": "its sunlit red domes never read as lamp activity, so no track becomes a "
                                        "candidate and the body classifier never runs on the police cars "
-                                       "(iea-rsu scan --json, 2026-11-27: 0 candidate tracks)",
+                                       "(iea-rsu scan --json: 0 candidate tracks)",
 }
-"""Issue 17 is open: these clips do not meet the requirement yet (measured 2026-11-25, bench/ev_real_bench.py)."""
+"""Clips that do not meet the requirement (bench/ev_real_bench.py), with the reason: docs/models.md."""
 
 
 def _scan(path: Path, max_s: float | None = None):

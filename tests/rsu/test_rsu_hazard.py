@@ -108,7 +108,7 @@ def test_debris_appears_persists_and_clears(scene):
 
 
 def test_looks_at_3_frames_a_second_with_the_same_timing_as_every_frame(scene):
-    """Issue 19: the detector passes over frames sooner than 1 / rate_hz after the last it looked at; evidence and
+    """The detector passes over frames sooner than 1 / rate_hz after the last it looked at; evidence and
     learning rates count seconds, so the object appears and clears at about the same times as at 15 fps."""
     corridor, rsu, base, loc = scene
     y = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
@@ -128,7 +128,7 @@ def test_looks_at_3_frames_a_second_with_the_same_timing_as_every_frame(scene):
 
 
 def test_a_corridors_rsus_look_in_turn(scene):
-    """Issue 19: RSU k of the corridor first looks k / 4 of a period after its first frame, then once a period, so
+    """RSU k of the corridor first looks k / 4 of a period after its first frame, then once a period, so
     four RSUs on one machine do not all look (~10 ms of CPU each) at the same frames."""
     corridor, rsu, base, loc = scene
     from rsu.build import PipelineConfig, build_hazards
@@ -181,7 +181,7 @@ def test_untracked_static_object_on_the_shoulder_is_not_a_hazard(scene):
 
 def test_static_object_cut_by_the_bottom_edge_is_not_placed(scene):
     """An object whose image reaches the bottom border (a vehicle stopped half in view) has its ground contact out
-    of view: not a hazard, however long it stands; the same object fully in view is one (issue 19)."""
+    of view: not a hazard, however long it stands; the same object fully in view is one."""
     corridor, rsu, base, loc = scene
     h = rsu.camera.height_px
     rng = np.random.default_rng(5)

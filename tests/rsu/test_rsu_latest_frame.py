@@ -1,4 +1,4 @@
-"""Latest frame, not a queue (issue 19): an RSU that falls behind its simulated camera processes the newest frame
+"""Latest frame, not a queue: an RSU that falls behind its simulated camera processes the newest frame
 and counts the ones it passed over; Health reports the processed rate beside the camera's, CPU per stage, the
 dropped frames and the frames' age at publication."""
 

@@ -245,7 +245,7 @@ def _rendered_vehicles_at_60_m(n_wanted=24):
 
 
 def test_localisation_of_rendered_vehicles_at_60_m_and_with_a_pose_error():
-    """Issue 4: within 0.5 m median at 60 m on sim frames with both methods; reference interpolation is
+    """Within 0.5 m median at 60 m on sim frames with both methods; reference interpolation is
     the tighter one once the camera pose used by the ray-plane method is off by 0.15 deg of pitch (it
     needs only the surveyed pairs, not the pose)."""
     from dataclasses import replace

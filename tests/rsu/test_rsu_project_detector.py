@@ -47,8 +47,8 @@ def test_model_has_the_project_layout():
 
 
 @needs_model
-def test_reaches_the_issue_target_in_the_rsu_zone(held_out):
-    """Issue 4: mAP@0.5 >= 0.9 on held-out renders of the default scenario (every vehicle one class),
+def test_reaches_the_target_in_the_rsu_zone(held_out):
+    """mAP@0.5 >= 0.9 on held-out renders of the default scenario (every vehicle one class),
     counting the vehicles of the RSU's 100 m zone (models/iea_det_tiny.md has the full-set figures)."""
     res = evaluate(MODEL, restrict(held_out, max_range_m=ZONE_M))
     assert res["gt_all_vehicles"] >= 40, res

@@ -58,7 +58,7 @@ def test_same_tracks_as_reference(seed, max_age, min_hits, iou_threshold):
 @pytest.mark.parametrize("seed", [3, 4])
 def test_scalar_and_array_steps_give_the_reference_tracks(monkeypatch, seed, scalar_max_rows):
     """Every frame on arrays (0), on Python floats (10**6), or switching between them as the density crosses 12
-    live tracks + detections (issue 19: the scalar step for the densities an RSU sees)."""
+    live tracks + detections (the scalar step for the densities an RSU sees)."""
     import rsu.track.sort as track
 
     monkeypatch.setattr(track, "SCALAR_MAX_ROWS", scalar_max_rows)

@@ -1,4 +1,4 @@
-"""bench/security_bench.py --quick --no-e2e runs and its last line is the JSON of the issue's figures."""
+"""bench/security_bench.py --quick --no-e2e runs and its last line is the JSON of the bench's figures."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 9 on the DDM and RSU side: commands leave signed, alerts are verified, peers cannot grow state."""
+"""Security on the DDM and RSU side: commands leave signed, alerts are verified, peers cannot grow state."""
 
 from __future__ import annotations
 
@@ -174,8 +174,7 @@ def _with_field(msg, path: tuple, value) -> bytes:
 
 
 def test_implausible_numbers_are_kept_from_the_fusion():
-    """1e16 m/s once passed the codec (finite) and made every DDM step raise in the KD-tree merge. Since
-    issue 24 the codec refuses numbers outside their physical range (the bus counts the whole message as
+    """1e16 m/s is finite, and would make every DDM step raise in the KD-tree merge. The codec refuses numbers outside their physical range (the bus counts the whole message as
     ``invalid``, the DDM never sees it); the DDM's own limits still drop an object the codec lets through
     but the fusion cannot use (a variance beyond ``MAX_POS_VAR_M2``), and keep a runaway SORT track."""
     r = Rig()
@@ -206,8 +205,8 @@ def test_implausible_numbers_are_kept_from_the_fusion():
 
 
 def test_seq_jumps_cannot_make_the_ddm_health_unpublishable():
-    """Found by fuzzing (issue 24): acks whose seq jump by 2**53 on two vehicles' keys summed past the
-    largest Count a Health may carry, and every health beat of the DDM raised."""
+    """Found by fuzzing: acks whose seq jump by 2**53 on two vehicles' keys would sum past the largest Count a
+    Health may carry and make every health beat of the DDM raise."""
     from protocol.enums import AckStatus
     from protocol.messages import CommandAck
     from protocol.ranges import MAX_COUNT

@@ -1,4 +1,4 @@
-"""Only authenticated evidence moves a car (issue 18, point 5), over real Zenoh: a DDM process on a signed
+"""Only authenticated evidence moves a car, over real Zenoh: a DDM process on a signed
 corridor hears an unsigned ObjectList that marks a car behind the AV as a confirmed EV, and sends no
 command; the same car named by an EvAlert signed with the RSU's trusted key gets the AV its pull-over."""
 

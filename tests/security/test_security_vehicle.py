@@ -1,4 +1,4 @@
-"""Issue 9: the vehicle only obeys commands signed by a trusted DDM key, in time, in scope, not replayed.
+"""The vehicle only obeys commands signed by a trusted DDM key, in time, in scope, not replayed.
 
 Each refused command is counted in Health ``rejected`` (``auth_<reason>``) and the car's trajectory is
 exactly that of a twin car that received nothing (same seed, same clock: the simulation is
@@ -214,7 +214,7 @@ def test_inbox_is_bounded():
 @pytest.mark.parametrize("signer, reason", [(None, "unsigned"), (ROGUE, "bad_signature"), (STRANGER, "unknown_key"),
                                             (RSU, "out_of_scope")])
 def test_only_a_signed_ddm_heartbeat_feeds_the_link_watchdog(signer, reason):
-    """Issue 18: in a signed corridor an unsigned, forged, unknown or RSU-signed DDM Health is no heartbeat:
+    """In a signed corridor an unsigned, forged, unknown or RSU-signed DDM Health is no heartbeat:
     the cruising car goes degraded after 3.5 s (Health status degraded, speed capped) and stops at the curb
     after 10 s; with the DDM's signed beats it cruises on."""
     good = Car()

@@ -321,8 +321,8 @@ def test_iea_up_starts_the_vehicle_and_the_world_once_its_rsus_are_up(tmp_path):
 
 
 def test_the_corridors_cameras_run_out_of_step(corridor):
-    """Each camera exposes 15 fps, but not on the same 20 Hz snapshots as the others (issue 19: in step, every RSU's
-    frame work arrived at once on three snapshots in four, and none on the fourth)."""
+    """Each camera exposes 15 fps, but not on the same 20 Hz snapshots as the others (in step, every RSU's
+    frame work would arrive at once on three snapshots in four, and none on the fourth)."""
     cams = [SimCamera(corridor, r.rsu_id, seed=0) for r in corridor.rsus]
     assert len(cams) == 4
     starts = {k: [] for k in range(40)}  # snapshot slot -> the cameras that start a frame there

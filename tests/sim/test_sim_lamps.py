@@ -1,4 +1,4 @@
-"""Decoy lamps of ordinary vehicles (issue 17): hazard flashers and red rear turn signals blink at 1-2 Hz
+"""Decoy lamps of ordinary vehicles: hazard flashers and red rear turn signals blink at 1-2 Hz
 at the body's corners, a seeded fraction of the traffic has them, and they are never EVs."""
 
 from dataclasses import replace

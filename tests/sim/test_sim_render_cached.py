@@ -1,6 +1,6 @@
-"""The renderer's cached fast path (issue 19: body models built once per look, posed and shaded with array
+"""The renderer's cached fast path (body models built once per look, posed and shaded with array
 operations, shadows darkened by a scale, the static scene kept exposed at unit gain with each noise slot's noise and
-scaled per frame) draws the same pixels as issue 17's straightforward renderer (``bench.render_reference.
+scaled per frame) draws the same pixels as the straightforward renderer (``bench.render_reference.
 ReferenceRenderer``) within noise, and the static scene is rendered once per lighting."""
 
 import cv2

@@ -1,4 +1,4 @@
-"""The renderer's effect numbers computed with array operations (issue 19) equal issue 17's per-tap and per-lamp
+"""The renderer's effect numbers computed with array operations equal the straightforward per-tap and per-lamp
 loops (``bench.render_reference``'s arithmetic, restated here)."""
 
 import cv2
@@ -38,7 +38,7 @@ def test_halo_numbers_match_the_per_lamp_loop():
              (np.full((4, 2), 5.0), (0, 160, 255), 0.8)]
     scale = 1.6
     expected = set()
-    for puv, colour, strength in glows:  # issue 17's loop
+    for puv, colour, strength in glows:  # the straightforward loop
         cx, cy = puv.mean(axis=0)
         size = max(2.0, float(np.ptp(puv[:, 0])), float(np.ptp(puv[:, 1])))
         r = int(min(60, max(3, size * 0.55 * scale)))
@@ -73,7 +73,7 @@ def test_shade_faces_of_several_actors_equal_each_actors_own():
     vis, colours = shade_faces(batch, rots, np.array([(a.pos_x_m, a.pos_y_m, 0.0) for a in actors]), cam_c, L, sun)
     first = batch.part_start
     assert first[-1] == len(vis) == sum(len(md.parts) for md in models)
-    for k, (model, rot, a) in enumerate(zip(models, rots, actors, strict=True)):  # one at a time, as issue 17's
+    for k, (model, rot, a) in enumerate(zip(models, rots, actors, strict=True)):  # one at a time, as the reference
         x, y = a.pos_x_m, a.pos_y_m
         n_w = model.normals @ rot.T
         fc_w = model.centres @ rot.T + (x, y, 0.0)
@@ -152,7 +152,7 @@ def test_inside_convex_hulls_agrees_with_the_hull_and_point_test():
 
 def test_decal_paint_is_the_per_decal_rule():
     """sim.render.effects.decal_paint (kept per body model and lamp states by the renderer) gives each decal the
-    colour issue 17's per-decal loop drew it in: a lit lamp's colour, else its unlit colour, and no draw at all for
+    colour the straightforward per-decal loop draws it in: a lit lamp's colour, else its unlit colour, and no draw at all for
     a turn signal that is off; and names the lamps it lights."""
     from protocol.enums import ActorKind
     from protocol.messages import Actor, LightBar

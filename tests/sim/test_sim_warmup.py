@@ -1,4 +1,4 @@
-"""No ground truth in perception (issue 18, point 7): background models learn from the camera's own frames.
+"""No ground truth in perception: background models learn from the camera's own frames.
 
 The lockstep corridor (and the benches built on it) warm the RSUs' motion and hazard detectors up on
 ``sim.warmup`` frames: the road with moving traffic before the scenario, never a render of the world with

@@ -1,4 +1,4 @@
-"""vehicle/build.py (issue 20, item 3): the one place a vehicle process is assembled, used by ``iea-vehicle run``."""
+"""vehicle/build.py: the one place a vehicle process is assembled, used by ``iea-vehicle run``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 18: a car acts on a signed EvAlert it hears itself when its command is late (vehicle/ev_direct.py).
+"""A car acts on a signed EvAlert it hears itself when its command is late (vehicle/ev_direct.py).
 
 Pure rule first (who is behind, how soon it reaches the car, whether the DDM has spoken), then the service
 on a LocalBus + SimClock in a signed corridor: a signed alert with no command moves the car to the curb; an

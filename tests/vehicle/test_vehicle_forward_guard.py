@@ -1,6 +1,6 @@
 """The car never drives into the vehicle ahead (vehicle.forward_guard): it brakes as hard as constant-deceleration
-kinematics need to match the lead's speed 2 m behind it, whatever its command planned (e2e_bench process seed 9,
-ninth session: the AV pulled over behind a car braking for the EV and ran into it at 1 m/s)."""
+kinematics need to match the lead's speed 2 m behind it, whatever its command planned (e2e_bench process seed 9:
+without the guard the AV pulls over behind a car braking for the EV and runs into it at 1 m/s)."""
 
 import math
 

@@ -92,7 +92,7 @@ def test_failsafe_stop_when_the_ddm_goes_silent():
     assert r.acks[1].reason.startswith("aborted: link lost")
     assert c["speed_mps"][-1] < 0.01  # stopped
     assert -c["accel_mps2"].min() <= 3.0  # controlled, not an emergency stop
-    # stopped at the curb (issue 18): on the shoulder (2.5 m wide: its middle, d = -1.25 m), out of every lane
+    # stopped at the curb: on the shoulder (2.5 m wide: its middle, d = -1.25 m), out of every lane
     y_end = c["y_m"][-1]
     assert abs(y_end - core.curb_offset_m()) < 0.3 and core.curb_offset_m() == pytest.approx(-1.25)
     assert "at the curb" in core.detail
@@ -119,7 +119,7 @@ def test_no_failsafe_in_normal_driving():
 
 
 def test_cruising_without_a_ddm_heartbeat_degrades_then_stops_at_the_curb():
-    """Issue 18: the link watchdog runs while cruising too. 3.5 s without a DDM heartbeat: degraded (speed
+    """The link watchdog runs while cruising too. 3.5 s without a DDM heartbeat: degraded (speed
     capped at 8 m/s, said in the VehicleState detail); 10 s: minimal-risk stop at the curb."""
     fs = FailsafeConfig()
     sc = replace(field_test_scenario(13.4), make_command=None, duration_s=25.0, ddm_silent_from_s=2.0)
