@@ -6,7 +6,7 @@
 With ``--run`` each bench of ``bench/suite.py`` (or those of ``--only``) runs as ``python bench/<name>.py --json``
 (``--quick``: with its quick run's arguments), one after the other, and its record is saved in ``--outputs`` as
 ``<name>.json``: the command, the mode (quick or full), the date (UTC), the machine (cores, CPU model), the wall
-time, the exit status and the figures (its last line of output; the whole output beside it in ``<name>.log``). A
+and CPU time, the exit status and the figures (its last line of output; the whole output beside it in ``<name>.log``). A
 bench that needs ``../shared`` or a program the machine lacks is recorded as skipped, with the reason. Without
 ``--run`` the records already in ``--outputs`` are used. Then the page is written: per bench its key figures, every
 other figure, the exact command that reproduces them, the mode, the machine and the date. Exit status 1 when a
@@ -19,6 +19,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -63,6 +64,12 @@ def last_json_object(stdout: str) -> dict | None:
     return figures if isinstance(figures, dict) else None
 
 
+def _children_cpu_s() -> float:
+    """CPU seconds (user + system) of this process's finished children and the descendants they waited for."""
+    u = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return u.ru_utime + u.ru_stime
+
+
 def run_bench(bench: Bench, quick: bool, outputs: Path) -> dict:
     """Run ``bench`` (a process of its own, from the repository root) and save its record and output in ``outputs``."""
     args = bench.command(quick)
@@ -72,10 +79,11 @@ def run_bench(bench: Bench, quick: bool, outputs: Path) -> dict:
     if reason is not None:
         record.update(skipped=reason)
     else:
-        t0 = time.monotonic()
+        t0, cpu0 = time.monotonic(), _children_cpu_s()
         r = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True,
                            env=dict(os.environ, PYTHONPATH=str(ROOT)))
-        record.update(wall_s=round(time.monotonic() - t0, 1), exit=r.returncode, figures=last_json_object(r.stdout))
+        record.update(wall_s=round(time.monotonic() - t0, 1), cpu_s=round(_children_cpu_s() - cpu0, 1),
+                      exit=r.returncode, figures=last_json_object(r.stdout))
         (outputs / f"{bench.name}.log").write_text(r.stdout + ("\n--- stderr\n" + r.stderr if r.stderr else ""))
     (outputs / f"{bench.name}.json").write_text(json.dumps(record, indent=1) + "\n")
     return record
@@ -117,12 +125,13 @@ def render_markdown(records: list[dict]) -> str:
              "`python -m bench.report --run --quick` does the same with the quick runs (a small but real run of "
              "each bench's code path: fewer seeds, frames, clips, iterations; its figures are not the full run's).",
              "", "Each figure's bench, mode, date and machine are given with it; the command reproduces it from the "
-             "repository root.", "", "| bench | measures | mode | date | wall s | status |", "|---|---|---|---|---|---|"]
+             "repository root.", "", "| bench | measures | mode | date | wall s | CPU s | status |",
+             "|---|---|---|---|---|---|---|"]
     for r in records:
         b = suite.get(r["bench"])
         status = ("skipped" if "skipped" in r else "failed" if failed(r) else "ok")
         lines.append(f"| [{r['bench']}](#{r['bench']}) | {b.title if b else ''} | {r['mode']} | "
-                     f"{r['date']} | {r.get('wall_s', '')} | {status} |")
+                     f"{r['date']} | {r.get('wall_s', '')} | {r.get('cpu_s', '')} | {status} |")
     for r in records:
         b = suite.get(r["bench"])
         lines += ["", f"## {r['bench']}", ""]
@@ -133,7 +142,7 @@ def render_markdown(records: list[dict]) -> str:
         if "skipped" in r:
             lines += [f"- skipped: {r['skipped']}"]
             continue
-        lines += [f"- wall time: {r.get('wall_s')} s, exit status {r.get('exit')}"]
+        lines += [f"- wall time: {r.get('wall_s')} s (CPU {r.get('cpu_s')} s), exit status {r.get('exit')}"]
         figures = r.get("figures")
         if figures is None:
             lines += ["", f"No figures: the run failed (its output: `{r['bench']}.log` in the outputs folder)."]
