@@ -35,14 +35,15 @@ SHARED_REAL = ROOT.parent / "shared" / "data" / "real"
 
 
 def machine() -> dict[str, object]:
-    """The machine a bench ran on: cores, CPU model, OS and Python."""
+    """The machine a bench ran on: cores, CPU model, OS, Python and its load (1-minute average) now: on a machine
+    shared with other jobs the load moves every timing figure."""
     model = platform.processor() or "unknown"
     cpuinfo = Path("/proc/cpuinfo")
     if cpuinfo.is_file():
         model = next((line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines()
                       if line.startswith("model name")), model)
     return {"cores": os.cpu_count(), "cpu": model, "os": platform.platform(terse=True),
-            "python": platform.python_version()}
+            "python": platform.python_version(), "load_1min": round(os.getloadavg()[0], 1)}
 
 
 def skip_reason(bench: Bench) -> str | None:
@@ -113,7 +114,8 @@ def _value(v: object) -> str:
 
 
 def _machine_line(m: dict) -> str:
-    return f"{m.get('cores')} cores, {m.get('cpu')}; {m.get('os')}, Python {m.get('python')}"
+    load = "" if m.get("load_1min") is None else f"; load {m['load_1min']} when it started"
+    return f"{m.get('cores')} cores, {m.get('cpu')}; {m.get('os')}, Python {m.get('python')}{load}"
 
 
 def render_markdown(records: list[dict]) -> str:

@@ -8,7 +8,7 @@ import json
 from bench import report
 from bench.suite import by_name
 
-MACHINE = {"cores": 2, "cpu": "Test CPU @ 2.0GHz", "os": "Linux-6", "python": "3.11.9"}
+MACHINE = {"cores": 2, "cpu": "Test CPU @ 2.0GHz", "os": "Linux-6", "python": "3.11.9", "load_1min": 7.5}
 
 
 def record(name: str, **kw) -> dict:
@@ -26,7 +26,7 @@ def test_the_page_gives_each_figure_with_its_command_mode_machine_and_date():
     assert "| **updates_per_s** | 56552 |" in page  # a key figure, in bold
     assert "| **decision_latency_p99_ms** | 5.981 |" in page
     assert "| rsus | 8 |" in page and "| tracks | [1, 2] |" in page  # the other figures too
-    assert "2 cores, Test CPU @ 2.0GHz" in page and "2026-01-02 03:04 UTC" in page and "- mode: quick" in page
+    assert "2 cores, Test CPU @ 2.0GHz" in page and "load 7.5 when it started" in page and "2026-01-02 03:04 UTC" in page and "- mode: quick" in page
     assert "- skipped: needs ../shared/data/real, absent here" in page
     assert "| [ev_photos_bench](#ev_photos_bench) |" in page and "| skipped |" in page
 
