@@ -5,7 +5,7 @@
 
 With ``--run`` each bench of ``bench/suite.py`` (or those of ``--only``) runs as ``python bench/<name>.py --json``
 (``--quick``: with its quick run's arguments), one after the other, and its record is saved in ``--outputs`` as
-``<name>.json``: the command, the mode (quick or full), the date (UTC), the machine (cores, CPU model), the wall
+``<name>.json``: the command, the mode (quick or full), the date (UTC), the commit, the machine (cores, CPU model), the wall
 and CPU time, the exit status and the figures (its last line of output; the whole output beside it in ``<name>.log``). A
 bench that needs ``../shared`` or a program the machine lacks is recorded as skipped, with the reason. Without
 ``--run`` the records already in ``--outputs`` are used. Then the page is written: per bench its key figures, every
@@ -46,6 +46,20 @@ def machine() -> dict[str, object]:
             "python": platform.python_version(), "load_1min": round(os.getloadavg()[0], 1)}
 
 
+def commit() -> str | None:
+    """The repository's commit (short hash, ``+`` when the tree has changes), or None outside a git checkout."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if head.returncode != 0:
+        return None
+    return head.stdout.strip() + ("+" if dirty.stdout.strip() else "")
+
+
 def skip_reason(bench: Bench) -> str | None:
     """Why ``bench`` cannot run on this machine, or None."""
     if bench.needs_shared and not SHARED_REAL.is_dir():
@@ -75,7 +89,8 @@ def run_bench(bench: Bench, quick: bool, outputs: Path) -> dict:
     """Run ``bench`` (a process of its own, from the repository root) and save its record and output in ``outputs``."""
     args = bench.command(quick)
     record: dict = {"bench": bench.name, "mode": "quick" if quick else "full", "command": "python " + " ".join(args),
-                    "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "machine": machine()}
+                    "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "commit": commit(),
+                    "machine": machine()}
     reason = skip_reason(bench)
     if reason is not None:
         record.update(skipped=reason)
@@ -141,6 +156,8 @@ def render_markdown(records: list[dict]) -> str:
             lines += [b.title + ".", ""]
         lines += [f"- command: `{r['command']}`", f"- mode: {r['mode']}", f"- date: {r['date']}",
                   f"- machine: {_machine_line(r['machine'])}"]
+        if r.get("commit"):
+            lines += [f"- commit: {r['commit']}"]
         if "skipped" in r:
             lines += [f"- skipped: {r['skipped']}"]
             continue

@@ -4,6 +4,9 @@ command that reproduces it, the mode, the machine and the date."""
 from __future__ import annotations
 
 import json
+import subprocess
+
+import pytest
 
 from bench import report
 from bench.suite import by_name
@@ -14,7 +17,7 @@ MACHINE = {"cores": 2, "cpu": "Test CPU @ 2.0GHz", "os": "Linux-6", "python": "3
 def record(name: str, **kw) -> dict:
     b = by_name()[name]
     return {"bench": name, "mode": "quick", "command": "python " + " ".join(b.command(quick=True)),
-            "date": "2026-01-02 03:04 UTC", "machine": MACHINE, **kw}
+            "date": "2026-01-02 03:04 UTC", "commit": "abc1234", "machine": MACHINE, **kw}
 
 
 def test_the_page_gives_each_figure_with_its_command_mode_machine_and_date():
@@ -27,6 +30,7 @@ def test_the_page_gives_each_figure_with_its_command_mode_machine_and_date():
     assert "| **decision_latency_p99_ms** | 5.981 |" in page
     assert "| rsus | 8 |" in page and "| tracks | [1, 2] |" in page  # the other figures too
     assert "2 cores, Test CPU @ 2.0GHz" in page and "load 7.5 when it started" in page and "2026-01-02 03:04 UTC" in page and "- mode: quick" in page
+    assert "- commit: abc1234" in page
     assert "- skipped: needs ../shared/data/real, absent here" in page
     assert "| [ev_photos_bench](#ev_photos_bench) |" in page and "| skipped |" in page
 
@@ -64,3 +68,10 @@ def test_a_bench_that_needs_the_shared_data_is_skipped_without_it(monkeypatch, t
     monkeypatch.setattr(report, "SHARED_REAL", tmp_path / "absent")
     assert "absent here" in report.skip_reason(by_name()["ev_real_bench"])
     assert report.skip_reason(by_name()["ddm_bench"]) is None
+
+
+def test_the_commit_is_this_checkouts():
+    if not (report.ROOT / ".git").exists():
+        pytest.skip("not a git checkout: no commit to record")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=report.ROOT, capture_output=True, text=True)
+    assert report.commit().rstrip("+") == head.stdout.strip()
