@@ -34,10 +34,6 @@ class Bench:
     processes: bool = False
     """It starts processes (services over Zenoh): its smoke run is marked ``slow`` as well as ``serial``."""
 
-    @property
-    def script(self) -> Path:
-        return BENCH_DIR / f"{self.name}.py"
-
     def command(self, quick: bool) -> list[str]:
         """The arguments after ``python``: the script, the quick run's arguments if ``quick``, and ``--json``."""
         return [f"bench/{self.name}.py", *(self.quick if quick else ()), "--json"]
