@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 help:
 	@echo "make demo    set up and run the main scenario (rellis_ev_yield) end to end"
 	@echo "make test    set up and run the whole test suite"
-	@echo "make bench   run every benchmark in bench/ and print its figures"
+	@echo "make bench   run every benchmark in bench/ and write docs/benchmarks.md (BENCH_ARGS=--quick: quick runs)"
 	@echo "make lint    ruff"
 	@echo "make schema  regenerate protocol/schema/*.json from the message models"
 	@echo "make models  train the project's models (needs the optional 'train' extra)"
@@ -42,8 +42,11 @@ test: $(STAMP)
 test-fast: $(STAMP)
 	@$(call test_phases,not slow and )
 
+# Every bench in full, one after the other (hours on 2 cores), then docs/benchmarks.md from their --json records
+# (kept in runs/bench). BENCH_ARGS=--quick: the quick runs instead (minutes); BENCH_ARGS="--only NAME ...": some.
+BENCH_ARGS ?=
 bench: $(STAMP)
-	@for b in bench/*_bench.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+	$(PY) -m bench.report --run $(BENCH_ARGS) --outputs runs/bench --out docs/benchmarks.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

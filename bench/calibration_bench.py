@@ -1,4 +1,4 @@
-"""Camera commissioning on simulator renders (issue 27): pose and ground error from 8 surveyed points, 1-px noise.
+"""Camera commissioning on simulator renders: pose and ground error from 8 surveyed points, 1-px noise.
 
 The simulator's rsu1 camera (deploy/corridors/rellis.toml) is the truth. Per seed: 8 ground points spread
 over its view (two per image row at about 22, 35, 62 and 95 m, left and right: the layout the `iea calibrate`

@@ -5,7 +5,7 @@ noise and latency, the stability margin of the gain schedule, and the controller
     python bench/control_bench.py --quick    # a few cells (smoke)
     python bench/control_bench.py --json     # last line: one JSON object of the reference-case figures
 
-Reference case (the issue's): 13.4 m/s, left lane, change one lane right (3.7 m) and stop; GNSS
+Reference case: 13.4 m/s, left lane, change one lane right (3.7 m) and stop; GNSS
 sigma 0.2 m at 10 Hz with 100 ms latency. Baseline measured in the same run: the plain thesis
 controller (eqs. 4.13-4.15 with the curvature at the car, no preview, no sideslip or acceleration
 term).

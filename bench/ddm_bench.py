@@ -1,6 +1,6 @@
 """DDM benchmark: object updates absorbed per second on one core, and EV decision latency.
 
-Scenario (issue 7): 64 RSUs x 30 objects at 10 Hz = 19,200 object updates/s. A synthetic straight
+Scenario: 64 RSUs x 30 objects at 10 Hz = 19,200 object updates/s. A synthetic straight
 4-lane corridor with an RSU every 50 m; dense traffic; each RSU reports the 30 cars nearest to it
 (neighbouring RSUs overlap, so the DDM fuses duplicates), with its own object ids, position noise
 0.3 m and velocity noise 0.3 m/s. Frames are pre-encoded; the DDM receives bytes through LocalBus,

@@ -1,11 +1,11 @@
-"""The project detector's accuracy and cost against its input size (issue 19, point 3).
+"""The project detector's accuracy and cost against its input size.
 
     python bench/detector_size_bench.py [--quick] [--json] [--scales 0.5 0.45 0.4 0.35 0.3 0.25] [--model PATH]
 
 ``models/iea_det_tiny.onnx`` is fully convolutional (its shapes come from ``Shape`` nodes) but saved with a fixed
 input: trained at [1, 3, 384, 640] (the 1280x720 frame letterboxed at scale 0.5); shipped at any input size, each RSU
-searching its zone of responsibility at scale 0.5 (``rsu.detect_roi``; the eighth session had chosen 288x512, scale
-0.4, here, which missed falling debris in ``bench/hazard_bench.py``). For each scale s the same weights are saved with the input
+searching its zone of responsibility at scale 0.5 (``rsu.detect_roi``; at 288x512, scale 0.4, it misses falling
+debris in ``bench/hazard_bench.py``). For each scale s the same weights are saved with the input
 ceil(1280 s / 32) 32 x ceil(720 s / 32) 32 (strides 8/16/32 need multiples of 32) and its anchor count, in a
 temporary folder (``models.resize_detector.resized_model``: the ``onnx`` package edits the graph's declared shapes;
 nothing else changes), and run exactly as an RSU runs the shipped model (``rsu.build``: Framework B, score threshold
@@ -20,14 +20,14 @@ nothing else changes), and run exactly as an RSU runs the shipped model (``rsu.b
 - ``loc_err_60m_median_m``: median distance between the position the RSU publishes for a track (ray-plane
   back-projection of its box) and the vehicle's centre, for vehicles 55-65 m from the camera (``sim_mot``): MOTA and
   mAP count a box as right at IoU 0.5 and do not see a box that sits a little off, which the DDM's gap checks do
-  (model card, thirteenth session);
+  (the detector's model card);
 - ``cpu_ms``: CPU time (process time: what other processes on a shared machine do does not count) per frame of
   ``OnnxDetector.detect`` (letterbox + inference + decode + NMS) on one thread, mean over the first 60 held-out
   frames.
 
 ``chosen_input``: the smallest input whose MOTA is >= ``--mota-min`` (0.9); ``--write PATH`` saves that model;
 ``cpu_ms_saved_vs_trained``: its CPU per frame against the training size, 384x640. ``--quick``: rsu1 only, 6 s, mAP on
-40 frames.
+40 frames, scales 0.5 and 0.25 (unless ``--scales`` says otherwise).
 With ``--json`` the last line is one JSON object of the figures. Needs the ``onnx`` package (dev extra).
 """
 
@@ -55,6 +55,8 @@ from rsu.detect import PROJECT_MODEL  # noqa: E402
 MOT_SCENARIO, MOT_SEED = "rellis_ev_yield", 900_003
 """As ``bench/rsu_bench.py``: held out (never used to train the detector)."""
 SCALES = (0.5, 0.45, 0.4, 0.35, 0.3, 0.25)
+QUICK_SCALES = (0.5, 0.25)
+"""The training size and the smallest: a ``--quick`` run's."""
 def measure(model: Path, clips, held_out, corridor, latency_frames: int) -> dict:
     mot = sim_mot(clips, PipelineConfig(detector=str(model), ev_classifier=False), corridor)
     ap = evaluate(model, restrict(held_out, max_range_m=ZONE_M))
@@ -68,10 +70,11 @@ def measure(model: Path, clips, held_out, corridor, latency_frames: int) -> dict
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scales", type=float, nargs="+", default=list(SCALES),
-                    help="letterbox scales of the 1280x720 frame to measure (0.5: 384x640, the training size; 0.4: 288x512, shipped)")
+    ap.add_argument("--scales", type=float, nargs="+", default=None,
+                    help="letterbox scales of the 1280x720 frame to measure (default 0.5 0.45 0.4 0.35 0.3 0.25; "
+                         "0.5: 384x640, the training size)")
     ap.add_argument("--mota-min", type=float, default=0.9, help="MOTA the chosen input must keep")
-    ap.add_argument("--quick", action="store_true", help="rsu1 only, 6 s, mAP on 40 frames (smoke run)")
+    ap.add_argument("--quick", action="store_true", help="rsu1 only, 6 s, mAP on 40 frames, scales 0.5 and 0.25 (a smoke run)")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
     ap.add_argument("--model", type=Path, default=PROJECT_MODEL, metavar="PATH",
                     help="the detector to measure (default: the shipped models/iea_det_tiny.onnx): a candidate is "
@@ -81,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     corridor = load_corridor()
+    scales = args.scales or (QUICK_SCALES if args.quick else SCALES)
     cams = ["rsu1"] if args.quick else [r.rsu_id for r in corridor.rsus]
     duration_s = 6.0 if args.quick else 20.0
     t0 = time.perf_counter()
@@ -91,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{duration_s:g} s) and {len(held_out.images)} mAP frames in {time.perf_counter() - t0:.0f} s", flush=True)
     sizes: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="iea_det_size_") as tmp:
-        for scale in sorted(set(args.scales), reverse=True):
+        for scale in sorted(set(scales), reverse=True):
             hw = input_hw(scale)
             model = resized_model(args.model, hw, Path(tmp))
             r = measure(model, clips, held_out, corridor, 60)

@@ -1,4 +1,4 @@
-"""What each RSU kept up with in a process run of ``bench/e2e_bench.py`` (issue 19), from the run's recording
+"""What each RSU kept up with in a process run of ``bench/e2e_bench.py``, from the run's recording
 (``iea up`` records every key of the corridor into ``<run folder>/run.mcap``, ``deploy/record.py``):
 
 - per RSU, from its 1 Hz ``Health``: of the camera's frames per second (``rates_hz.camera``), those processed
@@ -152,7 +152,7 @@ SPEED_BANDS = (1.15, 1.3, 1.5)
 """Bands of a period's detector CPU per frame over the detector's uncontended time (``detector_reference_ms``). The
 detector's work per frame is fixed (one inference on the RSU's window, a few boxes decoded), so the ratio is how much
 slower the machine ran that work in the period. The corridor's own contention alone: 7.22 -> 7.88 ms with ``iea up``
-running beside the reference loop (1.09 x, 2-core Xeon, 2026-11-28), hence the first band's 1.15."""
+running beside the reference loop (1.09 x on a 2-core Xeon), hence the first band's 1.15."""
 
 
 def fps_by_machine_speed(runs: list[dict[str, Any]], reference_ms: dict[str, float]) -> list[dict[str, Any]]:

@@ -1,4 +1,4 @@
-"""EV classification on real whole-scene photos (issue 5): detect the vehicles first, then classify.
+"""EV classification on real whole-scene photos: detect the vehicles first, then classify.
 
     python bench/ev_photos_bench.py [--folder ../shared/data/real/ev_images] [--json] [--quick]
 
@@ -20,6 +20,7 @@ from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -27,9 +28,13 @@ import numpy as np  # noqa: E402
 
 from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.classifiers import load_classifier  # noqa: E402
-from rsu.classify.evaluation import evaluate_scenes, load_scene_crops  # noqa: E402
+from rsu.classify.evaluation import SCENE_CLASSES, evaluate_scenes, load_scene_crops  # noqa: E402
 from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
 from rsu.classify.lamps import measure_lamps  # noqa: E402
+from rsu.classify.ravev import IMAGE_SUFFIXES  # noqa: E402
+
+QUICK_PER_CLASS = 8
+"""Photos of each class in a ``--quick`` run."""
 
 
 class LampRule:
@@ -52,16 +57,36 @@ def main(argv=None) -> int:
     ap.add_argument("--score-threshold", type=float, default=0.3)
     ap.add_argument("--cv", action="store_true",
                     help="also 5-fold cross-validate feature x classifier pairs fitted on the real crops (train extra)")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"the first {QUICK_PER_CLASS} photos of each class only (a smoke run)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if not Path(args.folder).is_dir() or not Path(args.detector).is_file():
         print(f"ev_photos_bench: {args.folder} or {args.detector} absent", file=sys.stderr)
         return 2
+    if not args.quick:
+        return measure(args, Path(args.folder))
+    with tempfile.TemporaryDirectory(prefix="ev_photos-") as tmp:
+        return measure(args, first_photos(Path(args.folder), QUICK_PER_CLASS, Path(tmp)))
+
+
+def first_photos(folder: Path, per_class: int, out: Path) -> Path:
+    """A folder under ``out`` with the first ``per_class`` photos (by name) of each class folder of ``folder``
+    (symbolic links): the same layout, fewer photos."""
+    for d in sorted(p for p in folder.iterdir() if p.is_dir() and p.name in SCENE_CLASSES):
+        (out / d.name).mkdir()
+        for f in sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)[:per_class]:
+            (out / d.name / f.name).symlink_to(f.resolve())
+    return out
+
+
+def measure(args: argparse.Namespace, folder: Path) -> int:
+    """The figures of the photos of ``folder`` (module docstring)."""
     t0 = time.perf_counter()
     det = build_detector(PipelineConfig(detector=str(args.detector), score_threshold=args.score_threshold))
     models = [load_classifier("cnn"), load_classifier("hsv8-gb"), LampRule()]
-    scene_crops = load_scene_crops(args.folder, det)
-    scores, counts = evaluate_scenes(args.folder, det, models, scene_crops=scene_crops)
+    scene_crops = load_scene_crops(folder, det)
+    scores, counts = evaluate_scenes(folder, det, models, scene_crops=scene_crops)
     best = max(scores, key=lambda s: s.f_measure)
     cv = []
     if args.cv:

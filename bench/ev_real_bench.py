@@ -1,4 +1,4 @@
-"""EV identification on real footage and photos (issue 17): clips, photos, the held-out split, cost per crop.
+"""EV identification on real footage and photos: clips, photos, the held-out split, cost per crop.
 
     python bench/ev_real_bench.py [--json] [--clips-only] [--max-s S] [--ev-body default|none|PATH]
 
@@ -25,12 +25,9 @@ With ``--json`` the last line is one JSON object: ``real_ev_clips_alerted``, ``r
 ``real_traffic_false_alerts``, ``photo_*``, ``split_*``, ``crop_ms``, ``per_clip``, ... (photo, split and
 crop figures are null with ``--clips-only`` or ``--ev-body none``).
 
-Measured 2026-11-25, lamps only (``--ev-body none``, every frame of every clip, 51 s on a shared 2-core
-machine, 8.5-14 ms per frame): EV clips alerted 2/6 (handheld_ambulance_florence_blue at 5.6 s on flash,
-night_ambulance_india_blue at 1.0 s on alternation), 0 alerted tracks on the 4 traffic clips. The clips
-are scanned with an image-only localiser (``rsu.scan``): the corridor localiser of ``rsu1`` drops what it
-cannot place in its zone (88 % of the track-frames of ambdet_video_3, 32 % of night_ambulance_india_blue),
-so those figures count every track, not only the ones another camera's geometry would report.
+The clips are scanned with an image-only localiser (``rsu.scan``): the corridor localiser of ``rsu1`` drops what it
+cannot place in its zone (most of the track-frames of a clip filmed elsewhere), so these figures count every track,
+not only the ones another camera's geometry would report.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Fuzz every decoder and every service message handler with several seeds (issues 9 and 24).
+"""Fuzz every decoder and every service message handler with several seeds.
 
 Inputs (``bench/fuzz_mutator.py``) are valid encodings of each message kind mutated at the msgpack
 tree and byte level, on right and wrong keys; 17 targets (``bench/fuzz_targets.py``,

@@ -1,4 +1,4 @@
-"""The mutation engine of ``bench/fuzz_bench.py`` (issues 9 and 24): fuzz payloads from valid seeds.
+"""The mutation engine of ``bench/fuzz_bench.py``: fuzz payloads from valid seeds.
 
 - structure-aware mutations of the msgpack tree: a field replaced by NaN/inf/huge/negative/zero
   numbers, wrong types, over-long strings, deep nesting, a list grown past its cap or to thousands of

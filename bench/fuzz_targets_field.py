@@ -1,4 +1,4 @@
-"""Fuzz targets of ``bench/fuzz_bench.py`` (issues 9 and 24), vehicle, simulator and RSU side: the
+"""Fuzz targets of ``bench/fuzz_bench.py``, vehicle, simulator and RSU side: the
 vehicle's ``_on_cmd`` (signature checking on; half the mutated commands re-signed with the trusted key
 so they reach the command book), ``_on_rsu`` (RSU localisation) and DDM-health watchdog; the
 simulator's ``_on_state``; the RSU side's ``SimCamera._on_snapshot`` + render.

@@ -1,4 +1,4 @@
-"""Road-hazard benchmark on simulator renders (issue 10): detection recall / false alarms and, end to end,
+"""Road-hazard benchmark on simulator renders: detection recall / false alarms and, end to end,
 the AV's clearance from the hazard.
 
     python bench/hazard_bench.py [--quick] [--json] [--seeds 101 102] [--scenarios ...] [--clean ...]

@@ -1,11 +1,11 @@
-"""Protocol benchmark (issue 2): codec cost per message and Zenoh loopback throughput and latency.
+"""Protocol benchmark: codec cost per message and Zenoh loopback throughput and latency.
 
-    python bench/protocol_bench.py [--json] [--duration-s 10]
+    python bench/protocol_bench.py [--quick] [--json] [--duration-s 10]
 
 Prints the encode+decode time of every message kind (an ObjectList of 30 objects is the headline
 figure; target <= 100 us), the same ObjectList with its records sent as maps instead of positional
-arrays (the layout issue 26 weighed: size and round trip both ways), then runs two separate processes over Zenoh on loopback (peer mode, no
-router): a publisher streaming 30-object ObjectLists as fast as it can (messages/s received), and
+arrays (the alternative layout: size and round trip both ways), then runs two separate processes over Zenoh on
+loopback (peer mode, no router): a publisher streaming 30-object ObjectLists as fast as it can (messages/s received), and
 the same at 1,000 msg/s for the one-way latency p50/p99 (target p99 <= 2 ms).
 """
 
@@ -52,7 +52,7 @@ def codec_us(message, repeat: int) -> tuple[float, float, float]:
 
 @contextlib.contextmanager
 def records_as_maps():
-    """The codec with nested records sent as maps {field: value} instead of arrays (issue 26's alternative)."""
+    """The codec with nested records sent as maps {field: value} instead of arrays (the alternative layout)."""
 
     def to_map(plan, obj):
         row = plan.getter(obj)
@@ -112,7 +112,10 @@ def main() -> int:
     ap.add_argument("--duration-s", type=float, default=10.0, help="length of each Zenoh run")
     ap.add_argument("--repeat", type=int, default=2000, help="codec iterations per measurement")
     ap.add_argument("--skip-zenoh", action="store_true", help="codec figures only")
+    ap.add_argument("--quick", action="store_true", help="200 codec iterations, 2 s Zenoh runs (a smoke run)")
     args = ap.parse_args()
+    if args.quick:
+        args.repeat, args.duration_s = 200, 2.0
 
     print("codec (msgpack + strict pydantic validation), best of 5, microseconds per message")
     print(f"{'kind':<20}{'bytes':>8}{'encode':>10}{'decode':>10}{'round trip':>12}")

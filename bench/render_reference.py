@@ -1,7 +1,6 @@
-"""The straightforward renderer (each actor's parts built, transformed and shaded from scratch per
-frame, each cast shadow darkened with numpy), kept as the reference that ``sim.render.renderer.Renderer``'s cached fast path
-is tested and benchmarked against (same pixels within noise), headlight pools and lamp halos included.
-Not used by the corridor."""
+"""The straightforward renderer (each actor's parts built, transformed and shaded from scratch per frame, each cast
+shadow darkened with numpy): the reference that ``sim.render.renderer.Renderer``'s cached fast path is tested and
+benchmarked against (same pixels within noise), headlight pools and lamp halos included. Not used by the corridor."""
 
 from __future__ import annotations
 
@@ -21,9 +20,9 @@ from sim.sensor import exposure_lut
 
 
 class ReferenceRenderer(Renderer):
-    """``Renderer`` with the straightforward per-frame drawing: the reference for the fast path's tests and bench."""
+    """``Renderer`` with per-frame drawing from scratch: the reference for the fast path's tests and bench."""
 
-    keeps_noisy_scene = False  # the exposure table over the whole frame, then the noise (``sim.sensor``'s direct form)
+    keeps_noisy_scene = False  # the exposure table over the whole frame, then the noise (the plain sensor model)
 
     @staticmethod
     def _visible_faces(parts, corners, C) -> list[dict[str, np.ndarray]]:

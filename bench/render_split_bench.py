@@ -1,7 +1,7 @@
-"""Where a rendered frame's CPU goes (issue 19): the sim bench's scene (``bench/sim_bench.py``: rsu1, 1280x720, 20
+"""Where a rendered frame's CPU goes: the sim bench's scene (``bench/sim_bench.py``: rsu1, 1280x720, 20
 vehicles in view) per lighting, split by stage, and the frame without its per-frame geometry.
 
-    python bench/render_split_bench.py [--frames N] [--rounds R] [--json]
+    python bench/render_split_bench.py [--frames N] [--rounds R] [--quick] [--json]
 
 Per lighting:
 - ``render_ms_<lighting>``: CPU per full frame (process time, best of the rounds), as the sim bench measures it.
@@ -115,8 +115,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=60, help="frames a round (default 60)")
     ap.add_argument("--rounds", type=int, default=5, help="rounds, each full, geometry-free and split (default 5)")
+    ap.add_argument("--quick", action="store_true", help="4 frames, 1 round (a smoke run)")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames, args.rounds = 4, 1
     if args.frames < 2 or args.rounds < 1:
         ap.error("--frames must be at least 2 and --rounds at least 1")
     cv2.setNumThreads(1)

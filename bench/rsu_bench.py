@@ -76,7 +76,7 @@ MOT_SCENARIO = "rellis_ev_yield"
 """MOTA/IDF1 and localisation error: the default scenario, held-out seed (never used to train the detector)."""
 MOT_SEED = 900_003
 TRACKER_DENSITIES = (5, 10, 20, 100)
-"""Targets per frame of the tracker comparison (issue 19: an RSU sees 5-20; 100 is the stress case)."""
+"""Targets per frame of the tracker comparison (an RSU sees 5-20; 100 is the stress case)."""
 
 
 def _best_rates(runs: dict[str, Callable[[], None]], n_calls: int, repeats: int) -> dict[str, float]:
@@ -185,7 +185,7 @@ def body_crop_ms(body: EvBodyClassifier, n: int, seed: int = 0) -> float:
 def ev_classifier_cost(frames: list, config: PipelineConfig, corridor, rsu_id: str,
                        repeats: int = 3) -> dict[str, float]:
     """Processed fps (CPU time, one core) of detect -> SORT -> EV classifier -> localise on the dense clip,
-    with the lamp evidence alone and with the EV-body classifier fused in (issue 17), and the drop. The two are run
+    with the lamp evidence alone and with the EV-body classifier fused in, and the drop. The two are run
     ``repeats`` times in turn, each from a fresh pipeline, and each keeps its best pass: a single pass of each read
     drops of -0.4 % to 12.8 % on one machine within the hour (the machine's slow spells, not the classifier)."""
     out: dict[str, float] = {}
@@ -276,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     figures["pipeline_frames"] = f"{clip.name}: {len(clip.frames)} sim renders 1280x720, " \
                                  f"{n_vehicles:.1f} labelled vehicles per frame"
 
-    # ---------------------------------------------------------------- EV-body classifier cost (issue 17)
+    # ---------------------------------------------------------------- EV-body classifier cost
     if DEFAULT_BODY_MODEL.is_file():
         body = EvBodyClassifier(DEFAULT_BODY_MODEL, threads=1)
         figures["crop_ms"] = body_crop_ms(body, 30 if quick else 300)

@@ -6,9 +6,9 @@
 The scene: rsu1 of the RELLIS corridor, 20 vehicles (cars, vans, trucks, a bus, an EV with its light
 bar on, brake lights) spread over 25..120 m in both lanes, moving between frames. Figures: full
 pipeline (vehicles, lamps with glow, motion blur, exposure, sensor noise) per lighting, and the same
-without the per-frame effects as the in-run baseline. render_ms (issue 19, target <= 5): CPU time (process time,
+without the per-frame effects as the in-run baseline. render_ms (target <= 5): CPU time (process time,
 so other processes on a shared machine do not count) per full-pipeline day frame, best of three runs, and the same
-for dusk and night (``render_ms_max``: the most of the three) and for issue 17's straightforward renderer
+for dusk and night (``render_ms_max``: the most of the three) and for the straightforward reference renderer
 (``bench.render_reference``) in the same run. World
 steps: the ev_two_lanes_dense scenario.
 """
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  baseline, no effects : {figures['render_fps_1280x720_no_effects']:7.1f} fps  "
           f"(effects cost x{figures['render_fps_1280x720_no_effects'] / figures['render_fps_1280x720']:.2f})")
     print(f"  CPU per frame        : {figures['render_ms']:.2f} ms day, {figures['render_ms_dusk']:.2f} dusk, "
-          f"{figures['render_ms_night']:.2f} night (max {figures['render_ms_max']:.2f}, target <= 5); issue 17's "
+          f"{figures['render_ms_night']:.2f} night (max {figures['render_ms_max']:.2f}, target <= 5); reference "
           f"renderer {figures['render_ms_reference']:.2f} ms day")
     print(f"  labels (id buffer)   : {figures['labels_per_s']:7.1f} frames/s")
     print(f"  static background    : {figures['background_build_s']:7.2f} s once per camera and lighting")

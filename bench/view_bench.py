@@ -1,4 +1,4 @@
-"""The cost of `iea view` during the demo (issue 22): its CPU, and the page's update rate in a real browser.
+"""The cost of `iea view` during the demo: its CPU, and the page's update rate in a real browser.
 
 Runs `iea demo` (every service a process over Zenoh on loopback, the project's detector, signed) under a
 corridor id of its own, with `iea view` (a process of its own) subscribed to that corridor and Debian's

@@ -1,6 +1,6 @@
-"""Wire conformance bench (issue 26): an outside client validates every message of an `iea demo` run.
+"""Wire conformance bench: an outside client validates every message of an `iea demo` run.
 
-    python bench/wire_conformance_bench.py [--json] [--duration-s 30] [--scenario rellis_ev_yield ...]
+    python bench/wire_conformance_bench.py [--quick] [--json] [--duration-s 30] [--scenario rellis_ev_yield ...]
 
 Starts examples/validate_wire.py (zenoh + msgpack + jsonschema, none of the project's code) subscribed
 to iea/**, then runs `iea demo` (every service a separate process over Zenoh on loopback, signed
@@ -16,6 +16,7 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -61,15 +62,28 @@ def main() -> int:
     ap.add_argument("--duration-s", type=float, default=30.0, help="scenario time of each run (iea demo: 30)")
     ap.add_argument("--scenario", action="append", default=None,
                     help="scenario to run (repeatable; default rellis_ev_yield, the demo's)")
-    ap.add_argument("--runs", default=str(ROOT / "runs"), help="where the demo's run folders go")
+    ap.add_argument("--runs", default=None,
+                    help="where the demo's run folders go (default runs/; with --quick a temporary folder)")
+    ap.add_argument("--quick", action="store_true", help="a 10 s demo, its run folder removed after (a smoke run)")
     args = ap.parse_args()
     scenarios = args.scenario or ["rellis_ev_yield"]
+    if args.quick:
+        args.duration_s = 10.0
+    if args.runs is not None or not args.quick:
+        return measure(args, scenarios, Path(args.runs or ROOT / "runs"))
+    with tempfile.TemporaryDirectory(prefix="wire-") as tmp:
+        return measure(args, scenarios, Path(tmp))
+
+
+def measure(args: argparse.Namespace, scenarios: list[str], runs: Path) -> int:
+    """The demo runs of ``scenarios`` observed by the outside client; prints the figures; 0 when every message
+    validated."""
     figures: dict = {"runs": []}
     total = valid = 0
     for scenario in scenarios:
         print(f"[wire] iea demo --scenario {scenario} --duration-s {args.duration_s:g}, outside client on iea/** ...",
               flush=True)
-        r = demo_with_outside_client(scenario, args.duration_s, Path(args.runs))
+        r = demo_with_outside_client(scenario, args.duration_s, runs)
         total, valid = total + r["messages"], valid + r["valid"]
         print(f"  corridor {r['corridor']}: {r['valid']} of {r['messages']} messages valid "
               f"({r['demo_wall_s']:.0f} s; {r['demo_verdict']})")

@@ -1,4 +1,4 @@
-"""Zenoh as the corridor's nervous system (issue 21): priorities under a flood, presence, late joiners.
+"""Zenoh as the corridor's nervous system: priorities under a flood, presence, late joiners.
 
 Every figure is measured over real Zenoh on loopback, services in client mode around one router
 (``iea router``, as ``iea up`` and the compose file deploy them):
@@ -11,15 +11,15 @@ Every figure is measured over real Zenoh on loopback, services in client mode ar
    its start-up heap once started (``protocol.runtime.freeze_startup_heap``). Run three times in the same
    bench run: ``prio``, the per-kind QoS of ``protocol.qos`` (commands REAL_TIME, BLOCK, express) with
    bulk kinds received through a ring off the network thread; ``noprio``, every kind sent the same way
-   (``qos.FLAT``: DATA, DROP, express) and decoded on the network thread (the transport before issue
-   21); ``flat_ring``, one QoS for all but the receiving ring kept (which of the two parts does what).
+   (``qos.FLAT``: DATA, DROP, express) and decoded on the network thread (a transport without priorities);
+   ``flat_ring``, one QoS for all but the receiving ring kept (which of the two parts does what).
    And once without a flood (``idle``, per-kind QoS): the floor this machine gives the same measurement.
 2. stale: a scripted corridor (``bench/zenoh_corridor_stub.py``: 4 RSUs and an AV, each with its token)
    runs beside a real ``DdmService``; the stub is SIGKILLed and the time until the DDM marks the RSUs
    lost (liveliness token) is taken, ``--repeats`` times.
 3. restart: with the stub running, a DDM is started (session open, service construction) and the time
    until its first decision made with the EV in the picture is taken, with the start-up catch-up
-   (queries of the RSUs' and the vehicle's latest state) and without it (the previous behaviour).
+   (queries of the RSUs' and the vehicle's latest state) and without it (the live streams alone).
 
     python bench/zenoh_bench.py [--quick] [--json]
 
@@ -295,13 +295,13 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("role", nargs="?", default="bench", choices=["bench", "_flood", "_cmd", "_sink"],
                     help=argparse.SUPPRESS)
-    ap.add_argument("--quick", action="store_true", help="short flood, fewer repeats (development)")
+    ap.add_argument("--quick", action="store_true", help="1.5 s floods, one kill and restart (a smoke run)")
     ap.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
-    ap.add_argument("--flood-s", type=float, default=None, help="seconds of flood per mode (default 8, quick 3)")
+    ap.add_argument("--flood-s", type=float, default=None, help="seconds of flood per mode (default 8, quick 1.5)")
     ap.add_argument("--actors", type=int, default=200, help="actors per flooded world snapshot (size: 200 is ~20 kB)")
     ap.add_argument("--snapshot-hz", type=float, default=1000.0, help="flooded world snapshots per second")
     ap.add_argument("--objects-hz", type=float, default=3000.0, help="flooded object lists per second")
-    ap.add_argument("--repeats", type=int, default=None, help="kills and restarts measured (default 5, quick 2)")
+    ap.add_argument("--repeats", type=int, default=None, help="kills and restarts measured (default 5, quick 1)")
     ap.add_argument("--corridor-id", default="b")
     ap.add_argument("--connect", default=None)
     ap.add_argument("--duration-s", type=float, default=5.0)
@@ -320,8 +320,8 @@ def main(argv: list[str] | None = None) -> int:
     bad = set(args.modes.split(",")) - {"idle", "prio", "noprio", "flat_ring"}
     if bad:
         ap.error(f"--modes: unknown {sorted(bad)}; choose from idle, prio, noprio, flat_ring")
-    flood_s = args.flood_s or (3.0 if args.quick else 8.0)
-    repeats = args.repeats or (2 if args.quick else 5)
+    flood_s = args.flood_s or (1.5 if args.quick else 8.0)
+    repeats = args.repeats or (1 if args.quick else 5)
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = start_router(port)

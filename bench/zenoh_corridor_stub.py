@@ -1,4 +1,4 @@
-"""A scripted corridor in one process, for bench/zenoh_bench.py and the Zenoh tests (issue 21).
+"""A scripted corridor in one process, for bench/zenoh_bench.py and the Zenoh tests.
 
 It plays the RSUs of the corridor file and one autonomous vehicle as the real services do on the wire:
 each declares its liveliness token, publishes (RSU object lists at 15 Hz, an active EvAlert refreshed

@@ -33,7 +33,7 @@ CASES = (1, 2, 3)
 STEER_LIMIT_RAD = 0.2
 """Eq. 5's theta_max (= -theta_min): road-wheel angles beyond it are clipped (the teacher stays under 0.1)."""
 SEGMENTED_BGR = (255, 0, 255)
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 log = logging.getLogger("studies.clemson.learned_steering")
 INPUT_SHAPE = (66, 200, 3)
 
