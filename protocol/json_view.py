@@ -1,0 +1,127 @@
+"""The JSON view of a wire payload, and back: what ``protocol/schema/*.json`` validates (``JSON_VIEW``).
+
+A payload (``protocol.codec``) is one msgpack map. Its JSON view (RFC 8259) keeps the map's keys in
+order, arrays as arrays, numbers as numbers (a float keeps its fraction or exponent: ``1.0`` stays a
+float), and writes msgpack bin (only ``Signature.sig``) as base64 text (RFC 4648 section 4), as
+``protocol.schema_export`` states. ``to_wire`` goes back: the strings the kind's schema marks
+``x-msgpack: bin`` become bin again, and msgpack packs the result as ``protocol.codec.encode`` does,
+so for a payload this project encoded the view carries the very wire bytes (``view_roundtrips``:
+signatures still verify after a JSON round trip).
+
+Pure functions: recordings (``deploy.record``) and the Foxglove bridge use them.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from functools import cache
+from typing import Any
+
+import msgpack
+
+from protocol.schema_export import SCHEMA_DIR
+
+_UNPACK = dict(raw=False, use_list=True, strict_map_key=True, max_ext_len=0)
+
+
+class JsonViewError(ValueError):
+    """A payload with no JSON view (not a msgpack map, an extension type, NaN/inf, non-UTF-8 text)."""
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    if isinstance(value, list):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    return value
+
+
+def to_view(payload: bytes) -> dict[str, Any]:
+    """The JSON view of one payload as Python data; ``JsonViewError`` when it has none."""
+    try:
+        body = msgpack.unpackb(payload, **_UNPACK)
+    except Exception as exc:  # msgpack raises many kinds (ExtraData, FormatError, ValueError, ...)
+        raise JsonViewError(f"not a msgpack payload: {exc.__class__.__name__}: {exc}") from None
+    if not isinstance(body, dict):
+        raise JsonViewError(f"a payload is a map, got {type(body).__name__}")
+    return _jsonable(body)
+
+
+def to_json(payload: bytes) -> bytes:
+    """The JSON view of one payload as UTF-8 JSON text (compact); ``JsonViewError`` when it has none."""
+    view = to_view(payload)
+    try:
+        return json.dumps(view, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
+    except ValueError as exc:  # NaN or infinity: no JSON form
+        raise JsonViewError(f"no JSON form: {exc}") from None
+
+
+@cache
+def kind_schema(kind: str) -> dict[str, Any]:
+    """The committed JSON Schema of a message kind (``protocol/schema/<kind>.json``)."""
+    path = SCHEMA_DIR / f"{kind}.json"
+    if not path.is_file():
+        raise JsonViewError(f"no schema for message kind {kind!r} in {SCHEMA_DIR}")
+    return json.loads(path.read_text())
+
+
+def _resolve(node: Any, root: dict[str, Any]) -> Any:
+    while isinstance(node, dict) and "$ref" in node:
+        ref = node["$ref"]
+        if not ref.startswith("#/$defs/"):
+            raise JsonViewError(f"unsupported $ref {ref!r}")
+        node = root["$defs"][ref.removeprefix("#/$defs/")]
+    return node
+
+
+def _unview(value: Any, node: Any, root: dict[str, Any]) -> Any:
+    """``value`` with every string the schema marks ``x-msgpack: bin`` decoded to bytes."""
+    node = _resolve(node, root)
+    if not isinstance(node, dict) or value is None:
+        return value
+    if isinstance(value, str):
+        if node.get("x-msgpack") == "bin":
+            try:
+                return base64.b64decode(value, validate=True)
+            except ValueError as exc:
+                raise JsonViewError(f"bin field is not base64: {exc}") from None
+        return value
+    if "anyOf" in node:
+        for branch in node["anyOf"]:
+            b = _resolve(branch, root)
+            if isinstance(b, dict) and b.get("type") != "null":
+                return _unview(value, b, root)
+        return value
+    if isinstance(value, list):
+        prefix = node.get("prefixItems", [])
+        items = node.get("items")
+        return [_unview(v, prefix[i] if i < len(prefix) else items, root) for i, v in enumerate(value)]
+    if isinstance(value, dict):
+        props = node.get("properties", {})
+        return {k: _unview(v, props.get(k), root) for k, v in value.items()}
+    return value
+
+
+def to_wire(view: dict[str, Any] | bytes | str) -> bytes:
+    """The msgpack payload of a JSON view (data, or JSON text); its ``kind`` selects the schema that says
+    which strings are bin. ``JsonViewError`` for a view of no known kind."""
+    if isinstance(view, bytes | str):
+        try:
+            view = json.loads(view)
+        except ValueError as exc:
+            raise JsonViewError(f"not JSON: {exc}") from None
+    if not isinstance(view, dict) or not isinstance(view.get("kind"), str):
+        raise JsonViewError("a JSON view is an object with a 'kind'")
+    schema = kind_schema(view["kind"])
+    return msgpack.packb(_unview(view, schema, schema), use_bin_type=True)
+
+
+def view_roundtrips(payload: bytes, view_json: bytes) -> bool:
+    """True when ``view_json`` gives back exactly ``payload`` (the view can stand for the wire bytes)."""
+    try:
+        return to_wire(view_json) == bytes(payload)
+    except JsonViewError:
+        return False
