@@ -62,9 +62,11 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
     recorder = None
     if record:  # every key as it went on the wire, for `iea replay` and log viewers (issue 22)
+        from deploy.foxglove_scene import CorridorScene
         from deploy.record import McapRecorder
 
-        recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario})
+        recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario},
+                                derive=CorridorScene(corridor).feed)  # and the Foxglove scene, map and log
         transport.subscribe_bytes(keys.corridor_expr(cid), recorder.on_bytes)
         say(f"[demo] recording every key to {run_dir / 'run.mcap'} (--no-record: off)")
     common: list[str] = []

@@ -135,9 +135,11 @@ class Up:
             readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:
+                from deploy.foxglove_scene import CorridorScene
                 from deploy.record import McapRecorder
 
-                self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id})
+                self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id},
+                                             derive=CorridorScene(self.corridor).feed)  # and the Foxglove scene
                 self.transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         # the AV and the world start together once every RSU is up (its token), or the scenario would measure
         # the RSUs' start-up (7-9 s for four on a slow 2-core host) instead of the corridor
