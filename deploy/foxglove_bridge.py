@@ -225,10 +225,8 @@ class FoxgloveBridge:
         self.server.stop()
 
 
-def main(argv: list[str] | None = None) -> int:
-    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
-    from protocol.corridor import CorridorError, load_corridor
-    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
+def build_parser() -> argparse.ArgumentParser:
+    from protocol.zenoh_transport import ZenohSettings
 
     ap = argparse.ArgumentParser(prog="iea foxglove", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -241,6 +239,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-camera", action="store_true", help="do not forward the RSUs' camera frames")
     ap.add_argument("--duration-s", type=float, default=None, help="stop after this long (default: Ctrl-C)")
     ZenohSettings.add_arguments(ap)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    stop_on_ctrl_c()  # SIGINT stops it even when started with SIGINT ignored (protocol.runtime)
+    from protocol.corridor import CorridorError, load_corridor
+    from protocol.zenoh_transport import ZenohSettings, ZenohTransport
+
+    ap = build_parser()
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
