@@ -28,6 +28,7 @@ import time
 from typing import Any
 
 from deploy.foxglove_scene import (
+    ALIASES,
     SCENE_KINDS,
     SCHEMA_FIX,
     SCHEMA_LOG,
@@ -39,6 +40,7 @@ from deploy.foxglove_scene import (
     TOPIC_ROAD,
     TOPIC_TF,
     CorridorScene,
+    alias,
 )
 from deploy.record import CAMERA_KIND, SCHEMA_ENCODING, WIRE_KIND, WIRE_SCHEMA, foxglove_schema, json_record
 from protocol import keys
@@ -76,6 +78,8 @@ def corridor_channels(corridor: Any, corridor_id: str) -> list[tuple[str, str]]:
     out += [(TOPIC_ROAD, SCHEMA_SCENE), (TOPIC_OBJECTS, SCHEMA_SCENE), (TOPIC_TF, SCHEMA_TF), (TOPIC_LOG, SCHEMA_LOG),
             (TOPIC_EV_FIX, SCHEMA_FIX)]
     out += [(f"/map/{v.vehicle_id}", SCHEMA_FIX) for v in corridor.vehicles]
+    for kind, pattern in ALIASES.items():
+        out += sorted({(pattern.format(id=v.vehicle_id), kind) for v in corridor.vehicles})
     return out
 
 
@@ -174,7 +178,7 @@ class FoxgloveBridge:
             msg = decode(payload, mtype)
         except (ProtocolError, keys.KeyError_):
             return []
-        return self.scene.on_message(key, msg, now)
+        return self.scene.on_message(key, msg, now) + alias(msg, payload, now)
 
     def tick(self, now: float | None = None) -> int:
         """Send the derived messages due now; returns how many."""

@@ -15,6 +15,9 @@ channels in Foxglove's own schemas (JSON encoding), which its 3D, Map and Log pa
 | ``/map/<vehicle>`` | ``foxglove.LocationFix``  | each AV in WGS84 (``Corridor.to_latlon``)                    |
 | ``/map/ev``        | ``foxglove.LocationFix``  | the EV of the newest active alert, in WGS84                  |
 | ``/log``           | ``foxglove.Log``          | alerts, hazards, commands and acks as they happen            |
+| ``/vehicle/<id>/state``, ``/vehicle/<id>/cmd``, ``/alerts/ev`` | the kind's | each AV's state and commands and  |
+|                    |                           | every RSU's EV alerts under names that do not hold the       |
+|                    |                           | corridor id (a layout's plots and logs work on any corridor) |
 
 Every pose is in the corridor frame (``frame_id`` ``corridor``: east/north metres from the corridor's
 origin). The fused tracks are the DDM's (its state document, ``on_ddm_state``) while one is fresh,
@@ -66,6 +69,24 @@ COLOURS: dict[str, fx.RGBA] = {
 }
 SIZE_M = {"vehicle": (4.6, 1.9, 1.6), "pedestrian": (0.6, 0.6, 1.8), "cyclist": (1.8, 0.6, 1.7),
           "other": (2.0, 1.5, 1.5)}
+ALIASES = {"VehicleState": "/vehicle/{id}/state", "PathSwitchCommand": "/vehicle/{id}/cmd", "EvAlert": "/alerts/ev"}
+"""Kinds also sent under a topic without the corridor id (their JSON view, their schema)."""
+
+
+def alias(msg: Any, payload: bytes, now_s: float) -> list[Derived]:
+    """A message's JSON view under its alias topic (``ALIASES``), if its kind has one."""
+    from protocol.json_view import JsonViewError, to_json
+
+    pattern = ALIASES.get(msg.KIND)
+    if pattern is None:
+        return []
+    try:
+        view = to_json(payload)
+    except JsonViewError:
+        return []
+    return [(pattern.format(id=getattr(msg, "vehicle_id", "")), msg.KIND, view, now_s)]
+
+
 SCENE_KINDS = frozenset({"ObjectList", "EvAlert", "HazardAlert", "VehicleState", "PathSwitchCommand", "CommandAck"})
 """What the scene draws from (world snapshots and health are not decoded for it)."""
 Derived = tuple[str, str, bytes, float]
@@ -336,6 +357,6 @@ class CorridorScene:
         except (ProtocolError, KeyError_):
             msg = None
         if msg is not None:
-            out += self.on_message(key, msg, now_s)
+            out += self.on_message(key, msg, now_s) + alias(msg, payload, now_s)
         out += self.tick(now_s)
         return out

@@ -192,3 +192,41 @@ def test_log_and_location_builders_validate():
     fix = _validate("foxglove.LocationFix", fx.location_fix(2.0, "av/av1", 30.6, -96.4, sigma_m=1.0))
     assert fix["position_covariance"][0] == 1.0 and fix["position_covariance_type"] == 2
     assert fx.time_of(1.25) == {"sec": 1, "nsec": 250_000_000} and fx.time_of(-1.0) == {"sec": 0, "nsec": 0}
+
+
+def test_layout_shows_channels_the_bridge_serves():
+    """deploy/foxglove/corridor_layout.json: the 3D, image, map, plot, log and command panels, each on a
+    channel the bridge advertises (and a recording holds) for the corridor rellis."""
+    from pathlib import Path
+
+    from deploy.foxglove_bridge import corridor_channels
+
+    layout = json.loads((Path(fs.__file__).parent / "foxglove" / "corridor_layout.json").read_text())
+    panels = layout["configById"]
+    assert {p.split("!")[0] for p in panels} == {"3D", "Image", "map", "Plot", "RosOut", "RawMessages"}
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)  # every panel placed, none twice
+    served = dict(corridor_channels(load_corridor(), "rellis"))
+    used = set(panels["3D!corridor"]["topics"]) | {panels["Image!camera"]["imageMode"]["imageTopic"],
+                                                   panels["map!corridor"]["followTopic"],
+                                                   panels["RosOut!log"]["topicToRender"],
+                                                   panels["RawMessages!cmd"]["topicPath"]}
+    used |= {p["value"].split(".")[0] for p in panels["Plot!av"]["paths"]}
+    assert used <= set(served), used - set(served)
+    assert served[panels["Image!camera"]["imageMode"]["imageTopic"]] == "foxglove.CompressedImage"
+    fields = {p["value"].split(".")[1] for p in panels["Plot!av"]["paths"]}
+    assert fields == {"lateral_error_m", "speed_mps"} and served["/vehicle/av1/state"] == "VehicleState"
+    assert panels["3D!corridor"]["followTf"] == "av/av1"  # a frame /tf carries
+
+
+def test_aliases_carry_the_json_view_under_corridor_free_topics(corridor):
+    scene = fs.CorridorScene(corridor)
+    msgs = _messages()
+    for kind, topic in (("VehicleState", "/vehicle/av1/state"), ("PathSwitchCommand", "/vehicle/av1/cmd"),
+                        ("EvAlert", "/alerts/ev")):
+        k, m = msgs[kind]
+        out = {t: (s, d) for t, s, d, _ in scene.feed(k, encode(m), 10.0)}
+        assert out[topic] == (kind, to_json(encode(m)))
