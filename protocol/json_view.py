@@ -29,33 +29,29 @@ class JsonViewError(ValueError):
     """A payload with no JSON view (not a msgpack map, an extension type, NaN/inf, non-UTF-8 text)."""
 
 
-def _jsonable(value: Any) -> Any:
+def _b64(value: Any) -> str:
+    """``json.dumps``'s ``default``: msgpack bin (bytes) as base64 text; anything else has no JSON form."""
     if isinstance(value, bytes):
         return base64.b64encode(value).decode("ascii")
-    if isinstance(value, list):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    return value
+    raise TypeError(f"{type(value).__name__} has no JSON form")
 
 
 def to_view(payload: bytes) -> dict[str, Any]:
     """The JSON view of one payload as Python data; ``JsonViewError`` when it has none."""
+    return json.loads(to_json(payload))
+
+
+def to_json(payload: bytes) -> bytes:
+    """The JSON view of one payload as UTF-8 JSON text (compact); ``JsonViewError`` when it has none."""
     try:
         body = msgpack.unpackb(payload, **_UNPACK)
     except Exception as exc:  # msgpack raises many kinds (ExtraData, FormatError, ValueError, ...)
         raise JsonViewError(f"not a msgpack payload: {exc.__class__.__name__}: {exc}") from None
     if not isinstance(body, dict):
         raise JsonViewError(f"a payload is a map, got {type(body).__name__}")
-    return _jsonable(body)
-
-
-def to_json(payload: bytes) -> bytes:
-    """The JSON view of one payload as UTF-8 JSON text (compact); ``JsonViewError`` when it has none."""
-    view = to_view(payload)
     try:
-        return json.dumps(view, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
-    except ValueError as exc:  # NaN or infinity: no JSON form
+        return json.dumps(body, separators=(",", ":"), ensure_ascii=False, allow_nan=False, default=_b64).encode()
+    except (ValueError, TypeError) as exc:  # NaN or infinity, or a type JSON cannot hold: no JSON form
         raise JsonViewError(f"no JSON form: {exc}") from None
 
 
@@ -77,31 +73,54 @@ def _resolve(node: Any, root: dict[str, Any]) -> Any:
     return node
 
 
-def _unview(value: Any, node: Any, root: dict[str, Any]) -> Any:
-    """``value`` with every string the schema marks ``x-msgpack: bin`` decoded to bytes."""
+Path = tuple[str | int | None, ...]
+"""Where a value sits in a view: object keys, array indexes, ``None`` for every item of an array."""
+
+
+def _bin_paths(node: Any, root: dict[str, Any], here: Path = ()) -> list[Path]:
+    """Every place the schema marks ``x-msgpack: bin`` (walked once per kind)."""
     node = _resolve(node, root)
-    if not isinstance(node, dict) or value is None:
-        return value
-    if isinstance(value, str):
-        if node.get("x-msgpack") == "bin":
+    if not isinstance(node, dict):
+        return []
+    if node.get("x-msgpack") == "bin":
+        return [here]
+    out: list[Path] = []
+    for branch in node.get("anyOf", []):
+        out += _bin_paths(branch, root, here)
+    for name, sub in node.get("properties", {}).items():
+        out += _bin_paths(sub, root, (*here, name))
+    for i, sub in enumerate(node.get("prefixItems", [])):
+        out += _bin_paths(sub, root, (*here, i))
+    if isinstance(node.get("items"), dict):
+        out += _bin_paths(node["items"], root, (*here, None))
+    return out
+
+
+@cache
+def bin_paths(kind: str) -> tuple[Path, ...]:
+    schema = kind_schema(kind)
+    return tuple(dict.fromkeys(_bin_paths(schema, schema)))
+
+
+def _unbase64(value: Any, path: Path) -> Any:
+    """``value`` with the string at ``path`` (if there) decoded from base64."""
+    if not path:
+        if isinstance(value, str):
             try:
                 return base64.b64decode(value, validate=True)
             except ValueError as exc:
                 raise JsonViewError(f"bin field is not base64: {exc}") from None
         return value
-    if "anyOf" in node:
-        for branch in node["anyOf"]:
-            b = _resolve(branch, root)
-            if isinstance(b, dict) and b.get("type") != "null":
-                return _unview(value, b, root)
-        return value
-    if isinstance(value, list):
-        prefix = node.get("prefixItems", [])
-        items = node.get("items")
-        return [_unview(v, prefix[i] if i < len(prefix) else items, root) for i, v in enumerate(value)]
-    if isinstance(value, dict):
-        props = node.get("properties", {})
-        return {k: _unview(v, props.get(k), root) for k, v in value.items()}
+    head, rest = path[0], path[1:]
+    if head is None:
+        if isinstance(value, list):
+            for i, v in enumerate(value):
+                value[i] = _unbase64(v, rest)
+    elif isinstance(head, int):
+        if isinstance(value, list) and head < len(value):
+            value[head] = _unbase64(value[head], rest)
+    elif isinstance(value, dict) and head in value:
+        value[head] = _unbase64(value[head], rest)
     return value
 
 
@@ -115,8 +134,9 @@ def to_wire(view: dict[str, Any] | bytes | str) -> bytes:
             raise JsonViewError(f"not JSON: {exc}") from None
     if not isinstance(view, dict) or not isinstance(view.get("kind"), str):
         raise JsonViewError("a JSON view is an object with a 'kind'")
-    schema = kind_schema(view["kind"])
-    return msgpack.packb(_unview(view, schema, schema), use_bin_type=True)
+    for path in bin_paths(view["kind"]):
+        view = _unbase64(view, path)
+    return msgpack.packb(view, use_bin_type=True)
 
 
 def view_roundtrips(payload: bytes, view_json: bytes) -> bool:
