@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     if states:
         draw_plot(view, series, t)
     view = frame(img, 836, 524, 556, 288, "Log  /log")
-    logs = [(tm, m) for tm, m in data.get("/log", []) if tm <= t + 3.0]
+    logs = [(tm, m) for tm, m in data.get("/log", []) if tm <= t]
     for k, (tm, m) in enumerate(logs[-12:]):
         colour = (60, 170, 255) if m["level"] >= 3 else TEXT
         line = f"{tm:6.2f}  {m['name']:>5}  {m['message']}"
