@@ -94,8 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     if node is None or not (NODE_DIR / "node_modules" / "@foxglove" / "ws-protocol").is_dir():
         print("foxglove_bench: needs Node.js and `npm ci` in tests/node", file=sys.stderr)
         return 2
+    from deploy.demo import run_demo
     from deploy.record import check_recording
-    from scenario.demo import run_demo
 
     duration_s = 12.0 if args.quick else 30.0
     cid = f"fox-{uuid.uuid4().hex[:6]}"

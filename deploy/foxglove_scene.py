@@ -360,3 +360,15 @@ class CorridorScene:
             out += self.on_message(key, msg, now_s) + alias(msg, payload, now_s)
         out += self.tick(now_s)
         return out
+
+
+def scene_recorder(path: Any, corridor: Any, **recorder_options: Any) -> Any:
+    """A ``scenario.lockstep.RecorderFactory``: an MCAP recorder (``deploy.record.McapRecorder``) of ``path``
+    on the run's clock, writing this corridor's Foxglove channels beside the keys."""
+    from deploy.record import McapRecorder
+
+    def factory(now: Any, metadata: dict[str, str]) -> Any:
+        return McapRecorder(path, clock=now, metadata=metadata, derive=CorridorScene(corridor).feed,
+                            **recorder_options)
+
+    return factory

@@ -60,10 +60,13 @@ def live_run(tmp_path_factory):
     node = node_harness()
     pytest.importorskip("foxglove", reason="needs the foxglove-sdk package (extra foxglove)")
     from deploy.foxglove_bridge import FoxgloveBridge, corridor_channels
+    from deploy.foxglove_scene import scene_recorder
+    from protocol.corridor import load_corridor
     from scenario.lockstep import CorridorLockstep, LockstepConfig
 
     path = tmp_path_factory.mktemp("fox") / "run.mcap"
-    runner = CorridorLockstep(LockstepConfig(seed=1, duration_s=5.0, detector="motion", record_mcap=path))
+    runner = CorridorLockstep(LockstepConfig(seed=1, duration_s=5.0, detector="motion"),
+                              recorder=scene_recorder(path, load_corridor()))
     bridge = FoxgloveBridge(runner.corridor, port=0, scene_hz=10.0)
     client = None
     try:
