@@ -83,6 +83,37 @@ def corridor_channels(corridor: Any, corridor_id: str) -> list[tuple[str, str]]:
     return out
 
 
+class DdmStatePoll:
+    """Feeds a ``CorridorScene`` the DDM's fused tracks: its state queryable (``iea/<c>/ddm/state``) asked every
+    ``period_s`` on a transport with ``query_bytes`` (Zenoh), on a thread of its own until ``close()``."""
+
+    def __init__(self, transport: Any, corridor_id: str, scene: CorridorScene, *, period_s: float = DDM_POLL_S,
+                 clock: Any = time.time) -> None:
+        self.transport, self.scene, self.period_s, self.clock = transport, scene, period_s, clock
+        self.key = keys.ddm_state_key(corridor_id)
+        self.answers = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ddm state poll", daemon=True)
+
+    def start(self) -> DdmStatePoll:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                for _k, payload in self.transport.query_bytes(self.key, min(0.4, self.period_s)):
+                    self.scene.on_ddm_state(json.loads(payload), self.clock())
+                    self.answers += 1
+            except Exception:  # the session closed under us, no DDM yet, or a transient query error
+                log.debug("ddm state query failed", exc_info=True)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+
+
 class _Listener:
     """``foxglove.websocket.ServerListener``: counts the clients subscribed to each topic."""
 
@@ -118,6 +149,7 @@ class FoxgloveBridge:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.transport: Any = None
+        self._ddm_poll: DdmStatePoll | None = None
         self.received = 0
         self.sent = 0
         self.bytes_sent = 0
@@ -196,7 +228,7 @@ class FoxgloveBridge:
         transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.on_bytes)
         self._spawn(self._scene_loop, "foxglove scene")
         if poll_ddm:
-            self._spawn(self._poll_ddm_state, "foxglove ddm state")
+            self._ddm_poll = DdmStatePoll(transport, self.corridor_id, self.scene, clock=self.clock).start()
 
     def _spawn(self, fn: Any, name: str) -> None:
         th = threading.Thread(target=fn, name=name, daemon=True)
@@ -210,20 +242,13 @@ class FoxgloveBridge:
             except Exception:  # a bad input must not stop the scene
                 log.exception("scene tick failed")
 
-    def _poll_ddm_state(self) -> None:
-        key = keys.ddm_state_key(self.corridor_id)
-        while not self._stop.wait(DDM_POLL_S):
-            try:
-                for _k, payload in self.transport.query_bytes(key, 0.4):
-                    self.scene.on_ddm_state(json.loads(payload), self.clock())
-            except Exception:
-                log.debug("ddm state query failed", exc_info=True)
-
     def wait(self, duration_s: float | None = None) -> None:
         self._stop.wait(duration_s)
 
     def close(self) -> None:
         self._stop.set()
+        if self._ddm_poll is not None:
+            self._ddm_poll.close()
         for th in self._threads:
             th.join(timeout=2.0)
         self.server.stop()

@@ -119,6 +119,7 @@ class Up:
         self.record = record
         """Record every key to ``<run folder>/run.mcap`` from the monitor's session (issue 22)."""
         self.recorder = None
+        self._ddm_poll = None
 
     # ------------------------------------------------------------------ lifecycle
     def _start_router(self, timeout_s: float = 20.0) -> None:
@@ -143,11 +144,14 @@ class Up:
             readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:
+                from deploy.foxglove_bridge import DdmStatePoll
                 from deploy.foxglove_scene import CorridorScene
                 from deploy.record import McapRecorder
 
+                scene = CorridorScene(self.corridor)  # and the Foxglove scene, with the DDM's fused tracks
                 self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id},
-                                             derive=CorridorScene(self.corridor).feed)  # and the Foxglove scene
+                                             derive=scene.feed)
+                self._ddm_poll = DdmStatePoll(self.transport, self.corridor_id, scene).start()
                 self.transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         # the AV and the world start together once every RSU is up (its token), or the scenario would measure
         # the RSUs' start-up (7-9 s for four on a slow 2-core host) instead of the corridor
@@ -163,6 +167,9 @@ class Up:
 
     def stop(self) -> None:
         """Services first (SIGINT, then SIGKILL), the router last."""
+        if self._ddm_poll is not None:
+            self._ddm_poll.close()
+            self._ddm_poll = None
         if self.transport is not None:
             self.transport.close()
             self.transport = None

@@ -230,3 +230,31 @@ def test_aliases_carry_the_json_view_under_corridor_free_topics(corridor):
         k, m = msgs[kind]
         out = {t: (s, d) for t, s, d, _ in scene.feed(k, encode(m), 10.0)}
         assert out[topic] == (kind, to_json(encode(m)))
+
+
+def test_ddm_state_poll_feeds_the_fused_tracks(corridor):
+    import threading
+
+    from deploy.foxglove_bridge import DdmStatePoll
+
+    asked = threading.Event()
+
+    class Transport:
+        def query_bytes(self, key, timeout_s):
+            asked.set()
+            assert key == "iea/rellis/ddm/state"
+            doc = {"tracks": [{"id": 9, "x_m": 80.0, "y_m": 5.5, "speed_mps": 20.0, "type": "vehicle", "ev": True}]}
+            return [(key, json.dumps(doc).encode())]
+
+    scene = fs.CorridorScene(corridor)
+    poll = DdmStatePoll(Transport(), "rellis", scene, period_s=0.01, clock=lambda: 50.0).start()
+    try:
+        assert asked.wait(5.0)
+        for _ in range(500):
+            if poll.answers:
+                break
+            threading.Event().wait(0.01)
+    finally:
+        poll.close()
+    (track,) = scene.tracks(50.5)
+    assert track["id"] == "ddm/9" and track["ev"]
