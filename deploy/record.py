@@ -318,16 +318,28 @@ def check_recording(path: str | Path) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------- CLI
 def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None = None,
-           keys: str | None = None, say: Callable[[str], None] = print, stop: threading.Event | None = None) -> dict:
-    """Record ``keys`` (default every key of the corridor) over Zenoh until ``stop``, Ctrl-C or ``duration_s``."""
+           keys: str | None = None, say: Callable[[str], None] = print, stop: threading.Event | None = None,
+           corridor: Any = None) -> dict:
+    """Record ``keys`` (default every key of the corridor) over Zenoh until ``stop``, Ctrl-C or ``duration_s``;
+    with ``corridor``, also its Foxglove channels (``deploy.foxglove_scene``, the DDM's fused tracks polled)."""
     from protocol.keys import corridor_expr
     from protocol.zenoh_transport import ZenohTransport
 
     expr = keys or corridor_expr(corridor_id)
     stop = stop or threading.Event()
-    rec = McapRecorder(out, metadata={"corridor_id": corridor_id, "keys": expr})
+    scene = poll = None
+    if corridor is not None:
+        from deploy.foxglove_scene import CorridorScene
+
+        scene = CorridorScene(corridor)
+    rec = McapRecorder(out, metadata={"corridor_id": corridor_id, "keys": expr},
+                       derive=scene.feed if scene is not None else None)
     transport = ZenohTransport(settings, bulk_queue=0)  # every sample on the network thread: none dropped here
     try:
+        if scene is not None:
+            from deploy.foxglove_bridge import DdmStatePoll
+
+            poll = DdmStatePoll(transport, corridor_id, scene).start()
         transport.subscribe_bytes(expr, rec.on_bytes)
         say(f"[record] {expr} -> {out} (Ctrl-C to stop)")
         t0 = time.monotonic()
@@ -339,6 +351,8 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
     except KeyboardInterrupt:
         pass
     finally:
+        if poll is not None:
+            poll.close()
         transport.close()
         rec.close()
     info = check_recording(out)
@@ -358,10 +372,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corridor-id", default=None, help="corridor id (overrides the file's)")
     ap.add_argument("--keys", default=None, help="key expression to record (default iea/<corridor>/**)")
     ap.add_argument("--duration-s", type=float, default=None, help="stop after this long (default: Ctrl-C)")
+    ap.add_argument("--no-scene", action="store_true",
+                    help="record the keys only, not the Foxglove scene, map and log channels beside them")
     ZenohSettings.add_arguments(ap)
     args = ap.parse_args(argv)
     try:
-        cid = args.corridor_id or load_corridor(args.corridor).corridor_id
+        corridor = load_corridor(args.corridor)
+        cid = args.corridor_id or corridor.corridor_id
         settings = ZenohSettings.from_args(args)
     except (CorridorError, ValueError) as exc:
         print(f"iea record: {exc}", file=sys.stderr)
@@ -369,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     record(Path(args.out), cid, settings, args.duration_s, args.keys, stop=stop,
-           say=lambda s: print(s, flush=True))
+           say=lambda s: print(s, flush=True), corridor=None if args.no_scene else corridor)
     return 0
 
 

@@ -177,3 +177,5 @@ def test_iea_record_and_iea_replay_over_zenoh(tmp_path):
     want = per_key([(rename_corridor(k, cid), p) for k, p, _ in sent]
                    + [(f"iea/{cid}/rsu/rsu1/objects", b"\xc1 not msgpack")])
     assert got == want  # every key, byte for byte, in order (kinds of different priority may interleave)
+    topics = check_recording(out)["per_topic"]  # and, beside the keys, the corridor's Foxglove channels
+    assert {"/scene/road", "/scene/objects", "/map/av1", "/log", "/vehicle/av1/cmd"} <= set(topics)
