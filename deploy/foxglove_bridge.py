@@ -4,7 +4,8 @@ The process joins the corridor over Zenoh (peer on loopback, or ``--connect`` a 
 every key of the corridor and serves, with Foxglove's own server (the ``foxglove-sdk`` package, extra
 ``foxglove``), the same channels a recording holds (``deploy.record``):
 
-- every key as its JSON view, schema ``protocol/schema/<Kind>.json`` (topic: the key);
+- every key as its record view (``protocol.record_view``: the JSON Schema of ``protocol/schema/<Kind>.json``
+  with every record's fields named, in the form Foxglove reads; topic: the key);
 - each RSU's camera frames (``iea/<c>/rsu/<rsu>/camera/jpeg``, ``foxglove.CompressedImage``);
 - the derived scene, transforms, map fixes and log (``deploy.foxglove_scene``) at ``--scene-hz``, with
   the DDM's fused tracks (its state queryable, polled at 2 Hz).
@@ -45,9 +46,9 @@ from deploy.foxglove_scene import (
 from deploy.record import CAMERA_KIND, SCHEMA_ENCODING, WIRE_KIND, WIRE_SCHEMA, foxglove_schema, json_record
 from protocol import keys
 from protocol.codec import ProtocolError, decode
-from protocol.json_view import JsonViewError, to_json
+from protocol.json_view import JsonViewError
+from protocol.record_view import record_view_schema, to_json
 from protocol.runtime import stop_on_ctrl_c
-from protocol.schema_export import SCHEMA_DIR
 
 log = logging.getLogger("deploy.foxglove")
 DDM_POLL_S = 0.5
@@ -60,7 +61,7 @@ def schema_bytes(kind: str) -> bytes:
         return json.dumps(WIRE_SCHEMA).encode()
     if kind.startswith("foxglove."):
         return foxglove_schema(kind)
-    return (SCHEMA_DIR / f"{kind}.json").read_bytes()
+    return json.dumps(record_view_schema(kind)).encode()
 
 
 def corridor_channels(corridor: Any, corridor_id: str) -> list[tuple[str, str]]:
@@ -184,7 +185,7 @@ class FoxgloveBridge:
 
     # ------------------------------------------------------------------ inputs
     def on_bytes(self, key: str, payload: bytes) -> None:
-        """One message of the corridor: forwarded as its JSON view (when subscribed) and into the scene."""
+        """One message of the corridor: forwarded as its record view (when subscribed) and into the scene."""
         now = self.clock()
         self.received += 1
         if not self.camera and keys.is_camera_key(key):

@@ -1,6 +1,6 @@
 """The corridor as Foxglove's well-known messages: 3D scene, frames, map fixes and the event log.
 
-Beside the raw channels (every key as its JSON view), recordings and `iea foxglove` carry derived
+Beside the raw channels (every key as its record view, ``protocol.record_view``), recordings and `iea foxglove` carry derived
 channels in Foxglove's own schemas (JSON encoding), which its 3D, Map and Log panels draw:
 
 | topic              | schema                    | what                                                        |
@@ -70,12 +70,13 @@ COLOURS: dict[str, fx.RGBA] = {
 SIZE_M = {"vehicle": (4.6, 1.9, 1.6), "pedestrian": (0.6, 0.6, 1.8), "cyclist": (1.8, 0.6, 1.7),
           "other": (2.0, 1.5, 1.5)}
 ALIASES = {"VehicleState": "/vehicle/{id}/state", "PathSwitchCommand": "/vehicle/{id}/cmd", "EvAlert": "/alerts/ev"}
-"""Kinds also sent under a topic without the corridor id (their JSON view, their schema)."""
+"""Kinds also sent under a topic without the corridor id (their record view, their schema)."""
 
 
 def alias(msg: Any, payload: bytes, now_s: float) -> list[Derived]:
-    """A message's JSON view under its alias topic (``ALIASES``), if its kind has one."""
-    from protocol.json_view import JsonViewError, to_json
+    """A message's record view (``protocol.record_view``) under its alias topic (``ALIASES``), if its kind has one."""
+    from protocol.json_view import JsonViewError
+    from protocol.record_view import to_json
 
     pattern = ALIASES.get(msg.KIND)
     if pattern is None:

@@ -1,11 +1,12 @@
 """`iea record`: every key of a corridor into an MCAP file that Foxglove, Lichtblick and any MCAP reader decode.
 
 One MCAP channel per key (its topic is the key, e.g. ``iea/rellis/rsu/rsu1/objects``) with message
-encoding ``json``: each message is the JSON view of its wire payload (``protocol.json_view``: the
-msgpack map as a JSON object, records as positional arrays, a signature as base64 text) and its
-channel's schema record (encoding ``jsonschema``) is ``protocol/schema/<Kind>.json``, which validates
-exactly that view. The view gives back the very wire bytes (``protocol.json_view.to_wire``), so a
-replay publishes what was received and signatures still verify. A payload whose view would not give
+encoding ``json``: each message is the record view of its wire payload (``protocol.record_view``: the
+msgpack map as a JSON object with every record's fields named, a null field left out, a signature as
+base64 text) and its channel's schema record (encoding ``jsonschema``, name: the kind) is the record
+view of ``protocol/schema/<Kind>.json``, with every range, pattern and unit of it, in the form Foxglove
+and Lichtblick read (each field one plain type). The view gives back the very wire bytes
+(``protocol.record_view.to_wire``), so a replay publishes what was received and signatures still verify. A payload whose view would not give
 its bytes back (not a valid message, or not encoded as this project encodes) is kept on a channel
 ``_wire/<key>`` as ``{"key", "payload_base64"}`` (schema ``iea.WirePayload``); an RSU's camera frames
 (``iea/<c>/rsu/<rsu>/camera/jpeg``) are ``foxglove.CompressedImage`` JSON on the wire and recorded
@@ -40,14 +41,14 @@ from typing import Any, BinaryIO
 
 import msgpack
 
-from protocol.json_view import JsonViewError, to_json, to_wire
+from protocol.json_view import JsonViewError
 from protocol.keys import KeyError_, is_camera_key, key_matches, message_type_for_key
+from protocol.record_view import record_view_schema, to_json, to_wire
 from protocol.runtime import stop_on_ctrl_c
-from protocol.schema_export import SCHEMA_DIR
 
 MESSAGE_ENCODING = "json"
 LEGACY_ENCODING = "msgpack"
-"""Recordings made before the JSON view: the wire bytes as they came (still read by ``read_recording``)."""
+"""Recordings made before the record view: the wire bytes as they came (still read by ``read_recording``)."""
 SCHEMA_ENCODING = "jsonschema"
 PROFILE = "iea-corridor"
 NS_PER_S = 1_000_000_000
@@ -56,7 +57,7 @@ WIRE_KIND = "iea.WirePayload"
 WIRE_SCHEMA = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": WIRE_KIND,
-    "description": "A payload received on a corridor key whose JSON view would not give its bytes back "
+    "description": "A payload received on a corridor key whose record view would not give its bytes back "
                    "(not a valid message): the key and the bytes as they came.",
     "type": "object",
     "properties": {"key": {"type": "string", "description": "the Zenoh key it was received on"},
@@ -121,7 +122,7 @@ def _key_kind(key: str) -> str:
 
 
 def json_record(key: str, payload: bytes) -> tuple[str, str, bytes]:
-    """``(topic, kind, JSON bytes)`` of one received payload: its JSON view on its key's channel when the
+    """``(topic, kind, JSON bytes)`` of one received payload: its record view on its key's channel when the
     view gives the same bytes back, else the bytes on ``_wire/<key>`` (module docstring)."""
     kind = _key_kind(key)
     if kind == CAMERA_KIND:
@@ -180,7 +181,7 @@ class McapRecorder:
             elif kind.startswith("foxglove."):
                 data = foxglove_schema(kind)
             else:
-                data = (SCHEMA_DIR / f"{kind}.json").read_bytes()
+                data = json.dumps(record_view_schema(kind), indent=1).encode()
             sid = self._schemas[kind] = self._writer.register_schema(kind, SCHEMA_ENCODING, data)
         return sid
 

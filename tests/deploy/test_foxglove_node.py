@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from protocol.codec import encode
+
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -119,19 +121,29 @@ def test_mcap_core_reads_every_channel_of_the_recording(live_run):
     assert sum(n for t, n in topics.items() if t.endswith("/camera/jpeg")) >= 4 * 8  # 4 RSUs at 2 Hz for ~5 s
 
 
-def test_mcap_core_reader_catches_a_message_off_its_schema(tmp_path, live_run):
-    """The check has teeth: one ObjectList with a field out of its range fails validation in Node."""
+def test_mcap_core_reader_catches_a_message_off_its_schema_and_a_schema_foxglove_cannot_read(tmp_path, live_run):
+    """The checks have teeth: a CommandAck missing its fields fails its schema, and the committed wire schema
+    (positional records, $ref, anyOf) is refused as one Foxglove's JSON Schema reader cannot read."""
     from mcap.writer import Writer
 
+    from protocol.examples import example_messages
+    from protocol.json_view import to_json as wire_json
+    from protocol.record_view import record_view_schema
     from protocol.schema_export import SCHEMA_DIR
 
     path = tmp_path / "bad.mcap"
     with open(path, "wb") as f:
         w = Writer(f)
         w.start(profile="iea-corridor")
-        sid = w.register_schema("CommandAck", "jsonschema", (SCHEMA_DIR / "CommandAck.json").read_bytes())
+        sid = w.register_schema("CommandAck", "jsonschema", json.dumps(record_view_schema("CommandAck")).encode())
         cid = w.register_channel("iea/rellis/vehicle/av1/ack", "json", sid)
         w.add_message(cid, log_time=1, publish_time=1, data=json.dumps({"kind": "CommandAck", "v": 1}).encode())
+        wire_sid = w.register_schema("EvAlert", "jsonschema", (SCHEMA_DIR / "EvAlert.json").read_bytes())
+        wire_cid = w.register_channel("iea/rellis/rsu/rsu1/ev", "json", wire_sid)
+        key, alert = example_messages("rellis")[1]
+        w.add_message(wire_cid, log_time=2, publish_time=2, data=wire_json(encode(alert)))
         w.finish()
     rc, rep = run_node(live_run["node"], "read_mcap.mjs", str(path))
-    assert rc == 1 and rep["problemCount"] == 1 and "fails CommandAck" in rep["problems"][0]
+    assert rc == 1 and rep["problemCount"] == 2, rep["problems"]
+    assert any("fails CommandAck" in p for p in rep["problems"])
+    assert any(p.startswith("iea/rellis/rsu/rsu1/ev: schema EvAlert not readable by Foxglove") for p in rep["problems"])

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 from deploy import foxglove_scene as fs
 from deploy.record import foxglove_schema
 from protocol import foxglove_msgs as fx
+from protocol import record_view
 from protocol.codec import encode
 from protocol.corridor import load_corridor
 from protocol.examples import example_messages
@@ -229,7 +231,7 @@ def test_aliases_carry_the_json_view_under_corridor_free_topics(corridor):
                         ("EvAlert", "/alerts/ev")):
         k, m = msgs[kind]
         out = {t: (s, d) for t, s, d, _ in scene.feed(k, encode(m), 10.0)}
-        assert out[topic] == (kind, to_json(encode(m)))
+        assert out[topic] == (kind, record_view.to_json(encode(m)))
 
 
 def test_ddm_state_poll_feeds_the_fused_tracks(corridor):
@@ -258,3 +260,60 @@ def test_ddm_state_poll_feeds_the_fused_tracks(corridor):
         poll.close()
     (track,) = scene.tracks(50.5)
     assert track["id"] == "ddm/9" and track["ev"]
+
+
+def foxglove_readable(schema: dict, where: str = "") -> list[str]:
+    """What keeps Foxglove's and Lichtblick's JSON Schema reader (their parseJsonSchema) from building a
+    channel's fields: the root and every object must be ``type: object`` with ``properties``; every
+    property one plain type (boolean, string - plain or base64 -, number, integer, object, or an array
+    of one of those), or a ``oneOf`` of numeric constants."""
+    if schema.get("type") != "object" or not isinstance(schema.get("properties"), dict):
+        return [f"{where or '<root>'}: not an object with properties"]
+    problems = []
+    for name, field in schema["properties"].items():
+        here = f"{where}.{name}" if where else name
+        if isinstance(field.get("oneOf"), list):
+            if not all(isinstance(a.get("const"), int | float) for a in field["oneOf"]):
+                problems.append(f"{here}: oneOf of non-numbers")
+            continue
+        t = field.get("type")
+        if t in ("boolean", "number", "integer"):
+            continue
+        if t == "string":
+            if field.get("contentEncoding") not in (None, "base64"):
+                problems.append(f"{here}: contentEncoding {field['contentEncoding']}")
+        elif t == "object":
+            problems += foxglove_readable(field, here)
+        elif t == "array":
+            item = field.get("items")
+            it = item.get("type") if isinstance(item, dict) else None
+            if it == "object":
+                problems += foxglove_readable(item, here + "[]")
+            elif it == "string" and item.get("contentEncoding") is not None or it not in (
+                    "boolean", "string", "number", "integer", "object"):
+                problems.append(f"{here}: array of {it}")
+        else:
+            problems.append(f"{here}: type {t!r}")
+    return problems
+
+
+def test_record_view_names_every_field_in_the_form_foxglove_reads_and_gives_the_bytes_back():
+    from protocol.messages import MESSAGE_BY_KIND
+
+    for kind in MESSAGE_BY_KIND:
+        schema = record_view.record_view_schema(kind)
+        assert foxglove_readable(schema) == [], kind
+        committed = json.loads((Path(fs.__file__).parents[1] / "protocol" / "schema" / f"{kind}.json").read_text())
+        assert set(schema["properties"]) == set(committed["properties"])  # the same fields
+        assert foxglove_readable(committed) != []  # which the committed (wire) form does not give Foxglove
+    for name in ("SceneUpdate", "FrameTransforms", "LocationFix", "CompressedImage", "Log"):
+        assert foxglove_readable(json.loads(foxglove_schema(f"foxglove.{name}"))) == [], name
+    for _key, msg in example_messages("rellis"):
+        payload = encode(msg)
+        view = record_view.to_json(payload)
+        assert record_view.to_wire(view) == payload and record_view.view_roundtrips(payload, view)
+        jsonschema.Draft202012Validator(record_view.record_view_schema(msg.KIND)).validate(json.loads(view))
+    state = json.loads(record_view.to_json(encode(_messages()["VehicleState"][1])))
+    assert state["lateral_error_m"] == 0.0 and "active_command_id" not in state  # None: left out
+    with pytest.raises(JsonViewError):
+        record_view.to_view(b"\xc1")

@@ -19,7 +19,7 @@ from deploy.record import McapRecorder, check_recording, peek_header, read_recor
 from deploy.replay import recorded_commands, rename_corridor, replay_into_ddm, schedule
 from protocol.codec import encode
 from protocol.examples import example_messages
-from protocol.schema_export import SCHEMA_DIR
+from protocol.record_view import record_view_schema
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
 
@@ -48,6 +48,7 @@ def test_recording_holds_key_stamp_receive_time_and_schema(tmp_path):
     assert info["messages"] == len(sent) + 1 and info["profile"] == "iea-corridor"
     kinds = {m.kind for m in read_recording(path)} - {"unknown"}
     assert set(info["schemas"]) == kinds | {"iea.WirePayload"}
+    import jsonschema
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
@@ -60,10 +61,17 @@ def test_recording_holds_key_stamp_receive_time_and_schema(tmp_path):
         if ch.topic.startswith("_wire/"):  # the payload that is no message: its bytes, base64, under its key
             assert ch.metadata["key"] == "iea/rellis/rsu/rsu1/objects" and sc.name == "iea.WirePayload"
             continue
-        assert json.loads(sc.data) == json.loads((SCHEMA_DIR / f"{ch.metadata['kind']}.json").read_text())
+        # the record view of the committed JSON Schema of the kind: fields named, the form Foxglove reads
+        schema = json.loads(sc.data)
+        assert schema == record_view_schema(ch.metadata["kind"])
+        assert f"protocol/schema/{ch.metadata['kind']}.json" in schema["$comment"]
         assert views[ch.topic]["kind"] == ch.metadata["kind"]  # a JSON object every JSON reader parses
+        jsonschema.Draft202012Validator(schema).validate(views[ch.topic])
     cmd = views["iea/rellis/vehicle/av1/cmd"]
     assert cmd["reason"].startswith("EV approaching") and len(cmd["waypoints"]) == 40
+    assert cmd["waypoints"][0] == {"x": 100.0, "y": 5.55} and "supersedes" not in cmd  # null: left out
+    obj = views["iea/rellis/rsu/rsu1/objects"]["objects"][0]
+    assert obj["pos_x_m"] == 20.0 and obj["obj_type"] == "vehicle" and len(obj["bbox_px"]) == 4
     got = list(read_recording(path))
     assert [(m.key, m.payload) for m in got[:-1]] == [(k, p) for k, p, _ in sent]  # the wire bytes back
     for m, (_, _, recv) in zip(got, sent, strict=False):

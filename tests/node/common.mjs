@@ -53,3 +53,42 @@ export function formProblems(topic, schemaName, msg) {
   }
   return p;
 }
+
+// What keeps Foxglove's and Lichtblick's JSON Schema reader (their parseJsonSchema, which builds a channel's
+// fields for plots and message paths) from reading a schema: the root and every object must be
+// "type": "object" with "properties"; every property one plain type (boolean, string - plain or base64 -,
+// number, integer, object, or an array of one of those) or a oneOf of numeric constants.
+export function foxgloveReadableProblems(schema, where = "") {
+  if (schema?.type !== "object" || typeof schema.properties !== "object" || schema.properties === null) {
+    return [`${where || "<root>"}: not an object with properties`];
+  }
+  const problems = [];
+  for (const [name, field] of Object.entries(schema.properties)) {
+    const here = where ? `${where}.${name}` : name;
+    if (Array.isArray(field.oneOf)) {
+      if (!field.oneOf.every((a) => typeof a.const === "number")) problems.push(`${here}: oneOf of non-numbers`);
+      continue;
+    }
+    switch (field.type) {
+      case "boolean": case "number": case "integer":
+        break;
+      case "string":
+        if (field.contentEncoding !== undefined && field.contentEncoding !== "base64") problems.push(`${here}: contentEncoding`);
+        break;
+      case "object":
+        problems.push(...foxgloveReadableProblems(field, here));
+        break;
+      case "array": {
+        const item = field.items ?? {};
+        if (item.type === "object") problems.push(...foxgloveReadableProblems(item, `${here}[]`));
+        else if (!["boolean", "string", "number", "integer"].includes(item.type) || (item.type === "string" && item.contentEncoding !== undefined)) {
+          problems.push(`${here}: array of ${JSON.stringify(item.type)}`);
+        }
+        break;
+      }
+      default:
+        problems.push(`${here}: type ${JSON.stringify(field.type)}`);
+    }
+  }
+  return problems;
+}

@@ -4,7 +4,7 @@
 import { McapIndexedReader } from "@mcap/core";
 import { loadDecompressHandlers } from "@mcap/support";
 import { open } from "node:fs/promises";
-import { DECODABLE, formProblems, sameAsFoxglove, validator } from "./common.mjs";
+import { DECODABLE, formProblems, foxgloveReadableProblems, sameAsFoxglove, validator } from "./common.mjs";
 
 const path = process.argv[2];
 const fh = await open(path, "r");
@@ -27,7 +27,11 @@ for (const ch of reader.channelsById.values()) {
   if (!DECODABLE.has(ch.messageEncoding)) problems.push(`${ch.topic}: encoding ${ch.messageEncoding} Foxglove does not decode`);
   const sc = reader.schemasById.get(ch.schemaId);
   if (!sc || sc.encoding !== "jsonschema") problems.push(`${ch.topic}: no JSON Schema`);
-  else if (sc.name.startsWith("foxglove.")) {
+  else {
+    const unreadable = foxgloveReadableProblems(JSON.parse(new TextDecoder().decode(sc.data)));
+    if (unreadable.length > 0) problems.push(`${ch.topic}: schema ${sc.name} not readable by Foxglove: ${unreadable.slice(0, 3)}`);
+  }
+  if (sc?.name.startsWith("foxglove.")) {
     foxgloveSchemasMatch[sc.name] = sameAsFoxglove(sc.name, new TextDecoder().decode(sc.data));
     if (!foxgloveSchemasMatch[sc.name]) problems.push(`${ch.topic}: schema ${sc.name} differs from @foxglove/schemas`);
   }

@@ -5,7 +5,7 @@
 // load the bridge). Exit status 1 when a pattern got nothing or a message does not decode.
 import pkg from "@foxglove/ws-protocol";
 import WebSocket from "ws";
-import { DECODABLE, formProblems, validator } from "./common.mjs";
+import { DECODABLE, formProblems, foxgloveReadableProblems, validator } from "./common.mjs";
 
 const { FoxgloveClient } = pkg;
 const [url, timeoutS, ...rest] = process.argv.slice(2);
@@ -45,6 +45,8 @@ client.on("advertise", (channels) => {
   for (const ch of channels) {
     if (!wanted.some((re) => re.test(ch.topic))) continue;
     if (!DECODABLE.has(ch.encoding)) problems.push(`${ch.topic}: encoding ${ch.encoding}`);
+    const unreadable = foxgloveReadableProblems(JSON.parse(ch.schema));
+    if (unreadable.length > 0) problems.push(`${ch.topic}: schema not readable by Foxglove: ${unreadable.slice(0, 3)}`);
     subs.set(client.subscribe(ch.id), ch);
   }
 });
