@@ -8,7 +8,8 @@ float), and writes msgpack bin (only ``Signature.sig``) as base64 text (RFC 4648
 so for a payload this project encoded the view carries the very wire bytes (``view_roundtrips``:
 signatures still verify after a JSON round trip).
 
-Pure functions: recordings (``deploy.record``) and the Foxglove bridge use them.
+Pure functions. Recordings and the Foxglove bridge write the named form of the same message
+(``protocol.record_view``, built on this module's schemas), which Foxglove's JSON Schema reader reads.
 """
 
 from __future__ import annotations
