@@ -153,7 +153,7 @@ def draw_plot(view: np.ndarray, series: dict[str, list[tuple[float, float]]], t_
         cv2.polylines(view, [pts], False, colours.get(name, TEXT), 2, cv2.LINE_AA)
         cv2.putText(view, f"{name}  [{lo:.2f} .. {hi:.2f}]", (44, top - 4), FONT, 0.4, colours.get(name, TEXT), 1,
                     cv2.LINE_AA)
-    xm = int(40 + (t_mark - t0) / max(t1 - t0, 1e-6) * (w - 50))
+    xm = int(40 + (t_mark - t0) / max(t1 - t0, 1e-6) * (w - 50))  # t0, t1: the plotted span
     cv2.line(view, (xm, 0), (xm, h), DIM, 1)
 
 
@@ -171,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         print("foxglove_panels: the recording's scene never shows an alerted EV", file=sys.stderr)
         return 2
     t_alert = alerted[0][0]
+    t0 = min(msgs[0][0] for msgs in data.values() if msgs)  # times shown from the recording's start
     t = alerted[min(len(alerted) - 1, 10)][0]  # a second into the alert: the AV's commanded path is out
     objects = latest(scenes, t)
     road = latest(data.get("/scene/road", []), t)
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     ax, ay = (av_ent["cubes"][0]["pose"]["position"]["x"], av_ent["cubes"][0]["pose"]["position"]["y"]) if av_ent \
         else (0.0, 0.0)
     ex, ey = ev_ent["cubes"][0]["pose"]["position"]["x"], ev_ent["cubes"][0]["pose"]["position"]["y"]
-    view = frame(img, 8, 8, 820, 470, f"3D  /scene/road  /scene/objects  (top view, t = {t:.1f} s)")
+    view = frame(img, 8, 8, 820, 470, f"3D  /scene/road  /scene/objects  (top view, t = {t - t0:.1f} s)")
     span = max(90.0, abs(ax - ex) * 1.6)
     boxes = draw_scene(view, road, objects, ((ax + ex) / 2, (ay + ey) / 2), span)
     alert = latest(data.get("/alerts/ev", []), t)
@@ -210,15 +211,15 @@ def main(argv: list[str] | None = None) -> int:
     logs = [(tm, m) for tm, m in data.get("/log", []) if tm <= t]
     for k, (tm, m) in enumerate(logs[-12:]):
         colour = (60, 170, 255) if m["level"] >= 3 else TEXT
-        line = f"{tm:6.2f}  {m['name']:>5}  {m['message']}"
+        line = f"{tm - t0:6.2f}  {m['name']:>5}  {m['message']}"
         cv2.putText(view, line[:78], (8, 20 + 20 * k), FONT, 0.4, colour, 1, cv2.LINE_AA)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), img, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    figures = {"t_first_alerted_s": round(t_alert, 2), "t_drawn_s": round(t, 2), "boxes": boxes,
+    figures = {"t_first_alerted_s": round(t_alert - t0, 2), "t_drawn_s": round(t - t0, 2), "boxes": boxes,
                "camera": cam_topic, "map_fixes": len(av_fix) + len(ev_fix), "plot_points": len(states),
                "log_lines": len(logs), "out": str(out)}
-    print(f"[foxglove_panels] {out}: t = {t:.2f} s, {boxes} boxes, camera {cam_topic}, {len(logs)} log lines")
+    print(f"[foxglove_panels] {out}: t = {t - t0:.2f} s, {boxes} boxes, camera {cam_topic}, {len(logs)} log lines")
     if args.json:
         print(json.dumps(figures))
     return 0
