@@ -11,7 +11,8 @@ publish only under its own keys, denying everything else by default:
 | ``{vehicle_id}``| ``iea/{c}/vehicle/{vehicle_id}/state|ack|health``                 |
 | ``sim``         | ``iea/{c}/sim/**``                                                |
 
-Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) everything it admitted.
+Everyone may subscribe under ``iea/{c}/**`` and the router delivers (egress) everything it admitted;
+``foxglove`` (``iea foxglove``, the robotics tools' live view) has credentials and may only do that.
 Only the DDM may therefore send a ``PathSwitchCommand``; vehicles also verify its signature
 (protocol/security.py).
 
@@ -47,6 +48,10 @@ def service_publish_keys(corridor: Corridor) -> dict[str, list[str]]:
     for v in corridor.vehicles:
         out[v.vehicle_id] = [f"iea/{c}/vehicle/{v.vehicle_id}/{t}" for t in ("state", "ack", "health")]
     return out
+
+
+WATCHERS = ("foxglove",)
+"""Users that only watch the corridor (``iea foxglove``): credentials, and nothing to publish or serve."""
 
 
 def service_serve_keys(corridor: Corridor) -> dict[str, list[str]]:
@@ -128,7 +133,7 @@ def write_mtls_bundle(corridor: Corridor, out_dir: Path, listen: list[str] | Non
     (e.g. in containers); by default the absolute output path."""
     from deploy.certs import make_pki
 
-    users = list(service_publish_keys(corridor))
+    users = [*service_publish_keys(corridor), *WATCHERS]
     out_dir.mkdir(parents=True, exist_ok=True)
     make_pki(["router", *users], out_dir, hosts=hosts)
     where = pki_dir_in_services or str(out_dir.resolve())
@@ -148,7 +153,7 @@ def write_acl_bundle(corridor: Corridor, out_dir: Path, listen: list[str] | None
                      dictionary_path_in_router: str | None = None) -> dict[str, Path]:
     """Router config, password dictionary (mode 0600) and a credentials file per service."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    users = {u: secrets.token_urlsafe(18) for u in service_publish_keys(corridor)}
+    users = {u: secrets.token_urlsafe(18) for u in [*service_publish_keys(corridor), *WATCHERS]}
     dictionary = out_dir / "users.txt"
     dictionary.write_text("".join(f"{u}:{p}\n" for u, p in users.items()), encoding="utf-8")
     dictionary.chmod(0o600)

@@ -15,6 +15,7 @@
     iea record --out run.mcap   every key of a running corridor into an MCAP file
     iea replay run.mcap         republish a recording (--speed X, --keys EXPR)
     iea view [--port 8080]      the corridor live in a browser (plan, health, timeline)
+    iea foxglove [--port 8765]  the corridor live in Foxglove / Lichtblick (Foxglove WebSocket protocol)
 """
 
 from __future__ import annotations
@@ -288,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
                    _delegate("deploy.replay")),
         "view": ("the corridor live in a browser (iea view --port 8080 --corridor-id ID)",
                  _delegate("deploy.view")),
+        "foxglove": ("the corridor live in Foxglove / Lichtblick (iea foxglove --port 8765 --corridor-id ID)",
+                     _delegate("deploy.foxglove_bridge")),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]

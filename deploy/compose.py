@@ -36,7 +36,9 @@ both, 1.29.2 validates "2.x", "3.x" and no version alike, and Docker Compose v2 
 Metrics: every IEA service serves Prometheus metrics on port ``METRICS_PORT`` of its container
 (``--metrics-port``; exposed to the compose network only), and the optional profile ``monitoring`` adds a
 Prometheus server (the official ``prom/prometheus`` image, pinned) scraping them every 5 s, its UI on
-host port 9090: ``docker compose --profile monitoring up``. Its configuration is written by its own
+host port 9090: ``docker compose --profile monitoring up``. Likewise the profile ``foxglove`` adds
+``iea foxglove`` (the corridor live for Foxglove / Lichtblick on host port 8765, with credentials that
+may only subscribe: ``deploy.acl.WATCHERS``): ``docker compose --profile foxglove up``. Its configuration is written by its own
 command line (the image's shell), so the compose file stays the one file to deploy. Profiles are in both
 schemas (docker-compose >= 1.28).
 """
@@ -59,6 +61,9 @@ METRICS_PORT = 9464
 PROMETHEUS_IMAGE = "prom/prometheus:v2.53.0"
 """The official Prometheus image, pinned (2.53 is a long-term-support release)."""
 MONITORING_PROFILE = "monitoring"
+FOXGLOVE_PROFILE = "foxglove"
+FOXGLOVE_PORT = 8765
+"""``iea foxglove``'s Foxglove WebSocket port (published on the host: Foxglove / Lichtblick connect to it)."""
 
 
 def _zenoh_args(user: str, acl: bool) -> list[str]:
@@ -139,6 +144,14 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             cmd += ["--start-s", f"{s0:g}", "--start-lane", str(lane), "--speed", f"{speed:g}"]
         services[v.vehicle_id] = iea_service(v.vehicle_id, cmd, "vehicle", v.vehicle_id)
     services["prometheus"] = prometheus_service([n for n in services if n != "router"])
+    services["foxglove"] = {  # the robotics tools' live view, off unless its profile is enabled
+        "image": IEA_IMAGE, "profiles": [FOXGLOVE_PROFILE],
+        "command": ["foxglove", "--host", "0.0.0.0", "--port", str(FOXGLOVE_PORT), "--corridor", corridor_in_image]
+        + _zenoh_args("foxglove", acl),
+        "ports": [f"{FOXGLOVE_PORT}:{FOXGLOVE_PORT}"],
+        "depends_on": {"router": {"condition": "service_started"}}, "restart": "unless-stopped",
+        **({"volumes": list(acl_volume)} if acl_volume else {}),
+    }
     return {"services": services}  # no top-level `name`: docker-compose 1.29.2 refuses it (module docstring)
 
 
@@ -192,6 +205,7 @@ HEADER = """\
 #   iea deploy keys --out secrets/keys
 # Real cameras: RSU1_SOURCE=rtsp://... docker compose up   (default: each RSU renders the simulator's view)
 # Monitoring: docker compose --profile monitoring up   (Prometheus on :9090 scraping every service's :9464/metrics)
+# Foxglove / Lichtblick: docker compose --profile foxglove up   (iea foxglove on ws://<host>:8765)
 # Valid for Docker Compose v2 (`docker compose`) and Debian 12's docker-compose 1.29.2 (`docker-compose`).
 # Project name: this folder's name, or COMPOSE_PROJECT_NAME=iea-rellis (or `-p iea-rellis`).
 """

@@ -60,11 +60,16 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     monitor = RunMonitor(cid, road=corridor.road)
     transport = ZenohTransport()
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
-    recorder = None
-    if record:  # every key as it went on the wire, for `iea replay` and log viewers
+    recorder = ddm_poll = None
+    if record:  # every key as it went on the wire, for `iea replay` and log viewers (issue 22)
+        from deploy.foxglove_bridge import DdmStatePoll
+        from deploy.foxglove_scene import CorridorScene
         from deploy.record import McapRecorder
 
-        recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario})
+        scene = CorridorScene(corridor)  # the Foxglove scene, map and log, with the DDM's fused tracks
+        recorder = McapRecorder(run_dir / "run.mcap", metadata={"corridor_id": cid, "scenario": scenario},
+                                derive=scene.feed)
+        ddm_poll = DdmStatePoll(transport, cid, scene).start()
         transport.subscribe_bytes(keys.corridor_expr(cid), recorder.on_bytes)
         say(f"[demo] recording every key to {run_dir / 'run.mcap'} (--no-record: off)")
     common: list[str] = []
@@ -105,6 +110,8 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
         time.sleep(1.0)
     finally:
         group.stop_all()
+        if ddm_poll is not None:
+            ddm_poll.close()
         transport.close()
         if recorder is not None:
             recorder.close()

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from deploy.record import McapRecorder
+from deploy.foxglove_scene import scene_recorder
 from scenario.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
 from sim.scenario import load_scenario
 
@@ -63,8 +63,8 @@ def main(argv: list[str] | None = None) -> int:
               f"run folder {run_dir}", flush=True)
         mcap_path = run_dir / "run.mcap"
         mcap_path.parent.mkdir(parents=True, exist_ok=True)
-        runner = CorridorLockstep(cfg, scenario=sc, recorder=lambda now, meta: McapRecorder(mcap_path, clock=now,
-                                                                                             metadata=meta))
+        # every key, and the Foxglove scene, map and log (deploy.foxglove_scene)
+        runner = CorridorLockstep(cfg, scenario=sc, recorder=scene_recorder(mcap_path, sc.corridor))
         m = runner.run(progress=lambda line: print("  " + line, flush=True))
         write_run_folder(runner, m, run_dir)
         m["run_dir"] = str(run_dir)

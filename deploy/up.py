@@ -11,6 +11,9 @@ The run folder (``runs/up-<time>/``) holds ``logs/<service>.log``, the vehicle's
 Signed by default: the DDM and every RSU sign with their own key and every service runs on a
 corridor file trusting only those keys: an ``iea deploy keys`` bundle (``--keys DIR``), else throwaway
 keys written to the run folder (``keys/``). ``--unsigned`` runs without signatures.
+
+``--foxglove [PORT]`` also runs ``iea foxglove`` against the router: Foxglove or Lichtblick connect to
+``ws://127.0.0.1:PORT`` (default 8765) and watch the corridor live.
 """
 
 from __future__ import annotations
@@ -25,11 +28,12 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from deploy.procs import ROOT, ServiceGroup, corridor_services, start_when_rsus_up
+from deploy.procs import ROOT, ServiceGroup, ServiceSpec, corridor_services, start_when_rsus_up
 from protocol.runtime import stop_on_ctrl_c
 from scenario.monitor import RunMonitor, print_summary
 
 ROUTER = "router"
+FOXGLOVE = "foxglove"
 CLIENT_CONFIG = "zenoh-client.json5"
 CLIENT_CONFIG_TEXT = """// written by `iea up`: a service waits for its router instead of exiting when the router is not up
 // (yet, or again); once connected, Zenoh clients reconnect by themselves after a router restart.
@@ -63,8 +67,9 @@ class Up:
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
                  signed: bool = True, keys_dir: str | None = None, record: bool = False,
-                 lighting: str | None = None) -> None:
+                 lighting: str | None = None, foxglove_port: int | None = None) -> None:
         """``lighting``: day, dusk or night instead of the scenario's (the simulator's override).
+        ``foxglove_port``: also run ``iea foxglove`` on that port (Foxglove / Lichtblick watch the corridor).
         ``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
         of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
         from deploy.signing import key_args, load_key_bundle, write_key_bundle
@@ -100,6 +105,9 @@ class Up:
                                        lighting=lighting)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
+        if foxglove_port is not None:  # publishes nothing: a Health-less watcher of the corridor
+            self.specs.append(ServiceSpec(FOXGLOVE, ["-m", "deploy", "foxglove", "--port", str(foxglove_port),
+                                                     "--corridor-id", self.corridor_id, *zenoh]))
         for s in self.specs:
             s.restart = restart if s.name != "sim" else "no"  # the simulator ends with its scenario
         if not peer:
@@ -111,6 +119,7 @@ class Up:
         self.record = record
         """Record every key to ``<run folder>/run.mcap`` from the monitor's Zenoh session."""
         self.recorder = None
+        self._ddm_poll = None
 
     # ------------------------------------------------------------------ lifecycle
     def _start_router(self, timeout_s: float = 20.0) -> None:
@@ -135,9 +144,14 @@ class Up:
             readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:
+                from deploy.foxglove_bridge import DdmStatePoll
+                from deploy.foxglove_scene import CorridorScene
                 from deploy.record import McapRecorder
 
-                self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id})
+                scene = CorridorScene(self.corridor)  # and the Foxglove scene, with the DDM's fused tracks
+                self.recorder = McapRecorder(self.run_dir / "run.mcap", metadata={"corridor_id": self.corridor_id},
+                                             derive=scene.feed)
+                self._ddm_poll = DdmStatePoll(self.transport, self.corridor_id, scene).start()
                 self.transport.subscribe_bytes(keys.corridor_expr(self.corridor_id), self.recorder.on_bytes)
         # the AV and the world start together once every RSU is up (its token), or the scenario would measure
         # the RSUs' start-up (7-9 s for four on a slow 2-core host) instead of the corridor
@@ -153,6 +167,9 @@ class Up:
 
     def stop(self) -> None:
         """Services first (SIGINT, then SIGKILL), the router last."""
+        if self._ddm_poll is not None:
+            self._ddm_poll.close()
+            self._ddm_poll = None
         if self.transport is not None:
             self.transport.close()
             self.transport = None
@@ -181,6 +198,8 @@ class Up:
         now = time.time()
         parts = []
         for spec in self.specs:
+            if spec.name == FOXGLOVE:
+                continue
             h = self.health.get(spec.name)
             parts.append(f"{spec.name}:?" if h is None else f"{spec.name}:{h[1]}({now - h[0]:.0f}s)")
         return "health " + " ".join(parts)
@@ -225,6 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sign with this `iea deploy keys --out DIR` bundle (default: throwaway keys in the run folder)")
     ap.add_argument("--unsigned", action="store_true",
                     help="no signatures: vehicles accept any command the router lets through (closed lab only)")
+    ap.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                    help="also serve the corridor to Foxglove / Lichtblick (iea foxglove) on ws://127.0.0.1:PORT "
+                         "(default port 8765); needs the foxglove extra")
     ap.add_argument("--no-record", action="store_true",
                     help="do not record (default: every key to <run folder>/run.mcap; `iea replay` it)")
     return ap
@@ -251,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
-                signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting)
+                signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting,
+                foxglove_port=args.foxglove)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2

@@ -4,6 +4,7 @@
     iea/{c}/vehicle/{veh}/cmd | ack | state | health
     iea/{c}/ddm/health
     iea/{c}/sim/world | health
+    iea/{c}/rsu/{rsu}/camera/jpeg   an RSU's annotated camera frames (foxglove.CompressedImage JSON)
 
 Beside the published keys:
 
@@ -143,6 +144,36 @@ def all_vehicles_expr(corridor: str, topic: str) -> str:
 
 def corridor_expr(corridor: str) -> str:
     return f"{ROOT}/{_chunk(corridor, 'corridor')}/**"
+
+
+CAMERA_TOPIC = "camera/jpeg"
+"""An RSU's annotated camera frames, as ``foxglove.CompressedImage`` JSON (``rsu.camera_feed``): two chunks
+under the RSU, so the RSU's own ACL covers it and the DDM's ``rsu/*/*`` does not see it."""
+
+
+def rsu_camera_key(corridor: str, rsu_id: str) -> str:
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/rsu/{_chunk(rsu_id, 'rsu id')}/{CAMERA_TOPIC}"
+
+
+def camera_expr(corridor: str) -> str:
+    """Every RSU's camera frames in the corridor."""
+    return f"{ROOT}/{_chunk(corridor, 'corridor')}/rsu/*/{CAMERA_TOPIC}"
+
+
+def parse_camera_key(key: str) -> tuple[str, str]:
+    """``(corridor, rsu id)`` of an RSU camera key; ``KeyError_`` for anything else."""
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) != 6 or parts[0] != ROOT or parts[2] != "rsu" or "/".join(parts[4:]) != CAMERA_TOPIC:
+        raise KeyError_(f"key {key!r} is not an RSU camera key iea/<corridor>/rsu/<rsu>/{CAMERA_TOPIC}")
+    return _chunk(parts[1], "corridor"), _chunk(parts[3], "rsu id")
+
+
+def is_camera_key(key: str) -> bool:
+    try:
+        parse_camera_key(key)
+    except KeyError_:
+        return False
+    return True
 
 
 @dataclass(frozen=True, slots=True)

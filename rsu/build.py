@@ -201,6 +201,8 @@ class ServiceOptions:
     queue_size: int = 2
     max_frames: int | None = None
     annotate: str | None = None
+    camera_hz: float | None = None
+    """Annotated frames a second on the corridor (rsu.camera_feed; None: by source kind)."""
     key: str | None = None
     key_id: str | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
@@ -231,7 +233,7 @@ def run_rsu(options: ServiceOptions, config: PipelineConfig) -> int:
         service = RsuService(corridor, options.rsu_id, source, pipeline, open_transport(),
                              corridor_id=options.corridor_id, annotate_path=options.annotate,
                              max_frames=options.max_frames, read_timeout_s=options.read_timeout_s,
-                             max_stall_s=options.max_stall_s, signer=signer)
+                             max_stall_s=options.max_stall_s, signer=signer, camera_rate_hz=options.camera_hz)
         signal.signal(signal.SIGTERM, lambda *_: service.stop())
         signal.signal(signal.SIGINT, lambda *_: service.stop())
         log.info("RSU %s: %s -> %s on %s", options.rsu_id, source.source_id,

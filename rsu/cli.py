@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write the video with boxes, ids and labels over the corridor drawn through the camera "
                          "(lanes, road edges, coverage limit, 10 m grid: lines off the painted lanes mean the "
                          "camera moved; recommission with `iea calibrate`)")
+    ap.add_argument("--camera-hz", type=float, default=None, metavar="HZ",
+                    help="publish the annotated frame HZ times a second as JPEG on iea/<c>/rsu/<rsu>/camera/jpeg "
+                         "for Foxglove and recordings (default: 2 from a simulated camera, 0 = off from a real one)")
     ap.add_argument("--key", metavar="PEM", default=None,
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
     ap.add_argument("--key-id", metavar="ID", default=None,
@@ -233,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
             rsu_id=args.rsu, source=args.source, corridor_file=args.corridor, corridor_id=args.corridor_id,
             sim_seed=args.sim_seed, fps=args.fps, realtime=args.realtime, read_timeout_s=args.read_timeout_s,
             max_stall_s=args.max_stall_s, queue_size=args.queue_size, max_frames=args.max_frames,
-            annotate=args.annotate, key=args.key, key_id=args.key_id, zenoh=ZenohSettings.from_args(args))
+            annotate=args.annotate, key=args.key, key_id=args.key_id, zenoh=ZenohSettings.from_args(args),
+            camera_hz=args.camera_hz)
         metrics.serve_from_args(args, "rsu", args.rsu)
         return run_rsu(options, pipeline_config(args))
     except (CorridorError, KeyError, ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:

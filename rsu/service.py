@@ -50,6 +50,7 @@ from protocol.security import SecureTransport, Signer
 from protocol.transport import Transport
 from rsu import wire
 from rsu.calibration.overlay import CalibrationOverlay
+from rsu.camera_feed import CameraFeed, default_rate_hz
 from rsu.classify.alerts import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardEvent
@@ -64,7 +65,8 @@ class RsuService:
                  transport: Transport, clock: Clock | None = None, *, corridor_id: str | None = None,
                  annotate_path: str | None = None, max_frames: int | None = None,
                  read_timeout_s: float = 5.0, max_stall_s: float | None = None,
-                 health_period_s: float = 1.0, signer: Signer | None = None) -> None:
+                 health_period_s: float = 1.0, signer: Signer | None = None,
+                 camera_rate_hz: float | None = None) -> None:
         self.corridor = corridor
         corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start (issue 19)
         self.rsu_id = rsu_id
@@ -88,6 +90,8 @@ class RsuService:
         self._seq = {"objects": 0, "health": 0, "ev": 0, "hazard": 0}
         self._writer: cv2.VideoWriter | None = None
         self._overlay: CalibrationOverlay | None = None
+        # annotated frames on the corridor for Foxglove (rsu.camera_feed): None picks by source kind
+        self.camera_feed = CameraFeed(transport, cid, rsu_id, default_rate_hz(source, camera_rate_hz))
         self._stop = False
         self.frames = 0
         self.stalls = 0
@@ -207,6 +211,7 @@ class RsuService:
             self._publish_hazard(h)
         if self.annotate_path:
             self._write_annotated(frame, result)
+        self.camera_feed.offer(self.clock.now(), lambda: self._annotated(frame, result))
         result.stage_s["publish"] = time.perf_counter() - t0
         result.stage_cpu_s["publish"] = time.thread_time() - c0
         render = self.source.last_render_times_s  # a simulated camera renders in this process
@@ -244,12 +249,15 @@ class RsuService:
             log.info("HazardAlert %s %s (lane %s, x %.1f y %.1f m, %.1f x %.1f m)", msg.hazard_id, h.state, h.lane,
                      h.x_m, h.y_m, h.length_m, h.width_m)
 
-    def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
+    def _annotated(self, frame: Frame, result: FrameResult) -> np.ndarray:
         if self._overlay is None:  # the corridor drawn through the camera (issue 27): drift shows as misfit lines
             rsu = self.corridor.rsu(self.rsu_id)
             self._overlay = CalibrationOverlay(rsu.camera, self.corridor.road, max_range_m=rsu.max_range_m,
                                                calibration=rsu.calibration)
-        image = annotate(self._overlay.apply(frame.image), result)
+        return annotate(self._overlay.apply(frame.image), result)
+
+    def _write_annotated(self, frame: Frame, result: FrameResult) -> None:
+        image = self._annotated(frame, result)
         if self._writer is None:
             fps = float(self.source.fps or 15.0)
             h, w = image.shape[:2]

@@ -81,6 +81,9 @@ class LockstepConfig:
     warmup_s: float = WARMUP_S
     """Before scenario time 0 the motion and hazard detectors learn their background from this many seconds
     of each camera's own frames of the road with traffic (``sim.warmup``): no picture of the empty road."""
+    camera_hz: float | None = None
+    """Each RSU's annotated frames a second on the bus (``rsu.camera_feed``); None: 2 when the run is recorded,
+    else 0."""
 
 
 class _Task:
@@ -168,8 +171,11 @@ class CorridorLockstep:
         if self.config.annotate_dir is not None:
             Path(self.config.annotate_dir).mkdir(parents=True, exist_ok=True)
             annotate = str(Path(self.config.annotate_dir) / f"{rsu_id}.mp4")
-        svc = RsuService(self.corridor, rsu_id, SimSource.from_camera(cam), pipe, self.bus, self.clock,
-                         annotate_path=annotate)
+        camera_hz = self.config.camera_hz
+        if camera_hz is None:
+            camera_hz = 2.0 if self.recorder is not None else 0.0
+        svc = RsuService(self.corridor, rsu_id, SimSource.from_camera(cam), pipe, self.bus, self.clock, annotate_path=annotate,
+                         camera_rate_hz=camera_hz)
         self.rsus[rsu_id] = svc
         self._cameras[rsu_id] = cam
         self._tasks.append(_Task(f"rsu:{rsu_id}", 1.0 / cam.fps, lambda now, rid=rsu_id: self._rsu_step(rid, now),

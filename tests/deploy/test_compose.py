@@ -51,8 +51,8 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
     assert "name" not in doc and "version" not in doc  # neither key means the same to compose v1 and v2
     services = doc["services"]
     rsu_ids = [r.rsu_id for r in corridor.rsus]
-    optional = {n for n, s in services.items() if s.get("profiles")}  # `--profile monitoring` only
-    assert optional == {"prometheus"}
+    optional = {n for n, s in services.items() if s.get("profiles")}  # `--profile monitoring` / `foxglove` only
+    assert optional == {"prometheus", "foxglove"}
     services = {n: s for n, s in services.items() if n not in optional}
     assert set(services) == {"router", "sim", "ddm", *rsu_ids, *(v.vehicle_id for v in corridor.vehicles)}
     # the router image is pinned to the Python binding's version
@@ -85,6 +85,36 @@ def test_compose_matches_the_corridor_and_services_parse_their_commands():
     assert (v.start_s, v.start_lane, v.speed) == (135.0, 1, 13.4)
 
 
+def test_foxglove_profile_serves_the_corridor_to_robotics_tools():
+    """`iea foxglove` as an optional service: its own CLI accepts the command, on the signed corridor file,
+    with watcher credentials (subscribe only), its WebSocket port published on the host."""
+    from deploy.acl import WATCHERS
+    from deploy.foxglove_bridge import build_parser
+
+    fox = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))["services"]["foxglove"]
+    assert fox["profiles"] == ["foxglove"] and fox["ports"] == ["8765:8765"] and fox["image"] == "iea-corridor:latest"
+    assert fox["command"][0] == "foxglove"
+    args = build_parser().parse_args(fox["command"][1:])
+    assert (args.host, args.port, args.corridor) == ("0.0.0.0", 8765, "/etc/iea/corridor.toml")
+    assert args.connect == [ROUTER_ENDPOINT] and args.zenoh_config == "/etc/iea/acl/foxglove.json5"
+    assert "foxglove" in WATCHERS and "./secrets/keys/corridor.toml:/etc/iea/corridor.toml:ro" in fox["volumes"]
+    assert not any(".pem" in v for v in fox["volumes"])  # no signing key: it publishes nothing
+
+
+def test_iea_up_offers_the_foxglove_bridge(tmp_path):
+    from deploy.foxglove_bridge import build_parser
+    from deploy.up import Up
+    from deploy.up import build_parser as up_parser
+
+    assert up_parser().parse_args(["--foxglove"]).foxglove == 8765 and up_parser().parse_args([]).foxglove is None
+    up = Up(run_dir=tmp_path / "run", signed=False, record=False, foxglove_port=9876, port=7600)
+    (spec,) = [s for s in up.specs if s.name == "foxglove"]
+    assert spec.args[:3] == ["-m", "deploy", "foxglove"]
+    args = build_parser().parse_args(spec.args[3:])
+    assert (args.port, args.corridor_id, args.connect) == (9876, up.corridor_id, [up.endpoint])
+    assert "foxglove" not in up.health_line()  # it sends no Health
+
+
 def test_monitoring_profile_scrapes_every_service():
     """The optional Prometheus server: the official image pinned, its config listing every IEA
     service's metrics port, written by its own command line."""
@@ -96,7 +126,7 @@ def test_monitoring_profile_scrapes_every_service():
     lines = re.findall(r'"([^"]*)"', script.split(" > ")[0])
     config = yaml.safe_load("\n".join(lines))
     targets = config["scrape_configs"][0]["static_configs"][0]["targets"]
-    iea = [n for n, s in services.items() if s.get("image") == "iea-corridor:latest"]
+    iea = [n for n, s in services.items() if s.get("image") == "iea-corridor:latest" and not s.get("profiles")]
     assert sorted(targets) == sorted(f"{n}:{METRICS_PORT}" for n in iea)
 
 

@@ -19,7 +19,7 @@ from deploy.record import McapRecorder, check_recording, peek_header, read_recor
 from deploy.replay import recorded_commands, rename_corridor, replay_into_ddm, schedule
 from protocol.codec import encode
 from protocol.examples import example_messages
-from protocol.schema_export import SCHEMA_DIR
+from protocol.record_view import record_view_schema
 
 pytestmark = pytest.mark.serial  # processes, Zenoh or its own timing: make test runs it alone
 
@@ -47,25 +47,62 @@ def test_recording_holds_key_stamp_receive_time_and_schema(tmp_path):
     info = check_recording(path)
     assert info["messages"] == len(sent) + 1 and info["profile"] == "iea-corridor"
     kinds = {m.kind for m in read_recording(path)} - {"unknown"}
-    assert set(info["schemas"]) == kinds
+    assert set(info["schemas"]) == kinds | {"iea.WirePayload"}
+    import jsonschema
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
-    for ch in summary.channels.values():  # the schema record is the committed JSON Schema of the key's kind
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        views = {ch.topic: json.loads(m.data) for _s, ch, m in reader.iter_messages()}
+    for ch in summary.channels.values():  # JSON, and the schema record is the committed JSON Schema of the kind
         sc = summary.schemas[ch.schema_id]
-        assert sc.encoding == "jsonschema" and ch.message_encoding == "msgpack"
-        assert json.loads(sc.data) == json.loads((SCHEMA_DIR / f"{ch.metadata['kind']}.json").read_text())
+        assert sc.encoding == "jsonschema" and ch.message_encoding == "json"
+        if ch.topic.startswith("_wire/"):  # the payload that is no message: its bytes, base64, under its key
+            assert ch.metadata["key"] == "iea/rellis/rsu/rsu1/objects" and sc.name == "iea.WirePayload"
+            continue
+        # the record view of the committed JSON Schema of the kind: fields named, the form Foxglove reads
+        schema = json.loads(sc.data)
+        assert schema == record_view_schema(ch.metadata["kind"])
+        assert f"protocol/schema/{ch.metadata['kind']}.json" in schema["$comment"]
+        assert views[ch.topic]["kind"] == ch.metadata["kind"]  # a JSON object every JSON reader parses
+        jsonschema.Draft202012Validator(schema).validate(views[ch.topic])
+    cmd = views["iea/rellis/vehicle/av1/cmd"]
+    assert cmd["reason"].startswith("EV approaching") and len(cmd["waypoints"]) == 40
+    assert cmd["waypoints"][0] == {"x": 100.0, "y": 5.55} and "supersedes" not in cmd  # null: left out
+    obj = views["iea/rellis/rsu/rsu1/objects"]["objects"][0]
+    assert obj["pos_x_m"] == 20.0 and obj["obj_type"] == "vehicle" and len(obj["bbox_px"]) == 4
     got = list(read_recording(path))
-    assert [(m.key, m.payload) for m in got[:-1]] == [(k, p) for k, p, _ in sent]
+    assert [(m.key, m.payload) for m in got[:-1]] == [(k, p) for k, p, _ in sent]  # the wire bytes back
     for m, (_, _, recv) in zip(got, sent, strict=False):
         assert m.receive_s == pytest.approx(recv, abs=1e-9)
         stamp, seq = peek_header(m.payload)
         assert m.stamp_s == pytest.approx(stamp) and m.seq == seq
     assert {m.stamp_s for m in got[:-1]} == {10.0, 11.0, 12.0}
     assert got[-1].payload == b"\xc1 not msgpack" and got[-1].stamp_s == pytest.approx(got[-1].receive_s)
+    assert got[-1].key == "iea/rellis/rsu/rsu1/objects"
     only_rsu = list(read_recording(path, "iea/rellis/rsu/**"))
     assert only_rsu and all("/rsu/" in m.key for m in only_rsu)
+
+
+def test_signed_messages_keep_their_signature_through_the_json_view(tmp_path):
+    from cryptography.hazmat.primitives.serialization import load_pem_private_key
+
+    from protocol.security import Signer, TrustList, Verifier, new_key_pair
+
+    pem, public_b64 = new_key_pair()
+    trust = TrustList.from_entries([{"key_id": "k1", "role": "rsu", "rsu_id": "rsu1", "public_key": public_b64}])
+    key, alert = example_messages("rellis")[1]
+    signed = Signer("k1", load_pem_private_key(pem, None)).sign_message(key, alert)
+    assert signed.auth is not None
+    payload = encode(signed)
+    with McapRecorder(tmp_path / "run.mcap", clock=lambda: 5.0) as rec:
+        rec.on_bytes(key, payload)
+    (m,) = read_recording(tmp_path / "run.mcap")
+    assert m.payload == payload
+    from protocol.codec import decode
+
+    Verifier(trust).check(key, decode(m.payload), now=alert.stamp)  # raises when the signature does not verify
 
 
 def test_check_recording_refuses_a_truncated_file(tmp_path):
@@ -148,3 +185,5 @@ def test_iea_record_and_iea_replay_over_zenoh(tmp_path):
     want = per_key([(rename_corridor(k, cid), p) for k, p, _ in sent]
                    + [(f"iea/{cid}/rsu/rsu1/objects", b"\xc1 not msgpack")])
     assert got == want  # every key, byte for byte, in order (kinds of different priority may interleave)
+    topics = check_recording(out)["per_topic"]  # and, beside the keys, the corridor's Foxglove channels
+    assert {"/scene/road", "/scene/objects", "/map/av1", "/log", "/vehicle/av1/cmd"} <= set(topics)
