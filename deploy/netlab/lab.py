@@ -57,6 +57,13 @@ def lab_guard():
             signal.signal(s, h)
 
 
+def segment_router_config(core_endpoint: str) -> str:
+    """A segment router's Zenoh config: listens on every address of its host, joins the core (waiting for it)."""
+    return json.dumps({"mode": "router", "listen": {"endpoints": [LISTEN]},
+                       "connect": {"endpoints": [core_endpoint], "timeout_ms": -1},
+                       "scouting": {"multicast": {"enabled": False}}}, indent=2) + "\n"
+
+
 def new_plan(hosts: dict[str, str], hubs: list[str], prefix: str | None = None) -> LabPlan:
     """A plan with a fresh prefix and a monitor link on a /30 no route here uses."""
     prefix = prefix or make_prefix(os.getpid())
@@ -100,9 +107,7 @@ class Lab(Up):
 
     def _start_segment(self, seg: str, timeout_s: float = 20.0) -> None:
         cfg = self.run_dir / f"router-{seg}.json5"
-        cfg.write_text(json.dumps({"mode": "router", "listen": {"endpoints": [LISTEN]},
-                                   "connect": {"endpoints": [self.plan.endpoint(seg)], "timeout_ms": -1},
-                                   "scouting": {"multicast": {"enabled": False}}}, indent=2) + "\n")
+        cfg.write_text(segment_router_config(self.plan.endpoint(seg)))
         self._start_one(f"router-{seg}", ["-m", "deploy", "router", "--config", str(cfg)], timeout_s)
 
     def _start_one(self, name: str, args: list[str], timeout_s: float) -> None:
