@@ -174,7 +174,10 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
             tuple(rec.acks), tuple(rec.modes), tuple((t, s, tuple(st)) for t, s, st in rec.ddm_health),
             tuple(rec.ev_reports), {k: tuple(v) for k, v in rec.heard.items()}, rec.cmd_expired, victims,
             lab.monitor.events.get("ev_passed_av"), lab.monitor.events.get("lights_on"), active)
-    details.update(victims=list(victims), metrics=m, alert_latency_s=m["latency_s"].get("lights_on_to_alert_s"),
+    lon = seen.lights_on_s
+    details.update(commands_since_lights_on_s=[(mn, None if lon is None else round(t - lon, 2))
+                                               for t, mn in seen.commands.values()],
+                   victims=list(victims), metrics=m, alert_latency_s=m["latency_s"].get("lights_on_to_alert_s"),
                    fault_after_lights_on_s=None if seen.lights_on_s is None else round(t_fault - seen.lights_on_s, 3),
                    **message_figures(seen))
     judged = judge_row(fault, seen, m.get("yield"))

@@ -87,7 +87,7 @@ NET_FAULTS: tuple[NetFault, ...] = (
     NetFault("RSU host cut, EV in its view", "rsu_kill", "cut", FIRST_ALERT_RSU, "first_alert", fault_delay_s=None),
     NetFault("DDM host cut 2 s", "ddm_restart", "cut", "ddm", "first_manoeuvre", length_s=2.0, fault_delay_s=None),
     *(NetFault(f"RSU uplinks capped {name}", "dropout", "cap", EVERY_RSU, "start", value=rate)
-      for name, rate in (("1 Mbit/s", 1e6), ("256 kbit/s", 256e3))),
+      for name, rate in (("1 Mbit/s", 1e6), ("256 kbit/s", 256e3), ("64 kbit/s", 64e3))),
     NetFault("router host cut 2 s, restored", "router_restart", "hub_cut", "router", "lights_on", length_s=2.0,
              fault_delay_s=2.0),
     NetFault("segment router lost (mesh)", "rsu_kill", "hub_lost", SEGMENT_OF_FIRST_ALERT, "first_alert",

@@ -30,7 +30,7 @@ def _seen(**kw) -> RowSeen:
 
 def test_the_table_has_every_row_the_lab_runs():
     names = [f.name for f in NET_FAULTS]
-    assert len(names) == len(set(names)) == 12
+    assert len(names) == len(set(names)) == 13
     assert {f.action for f in NET_FAULTS} == {"loss", "cut", "cap", "hub_cut", "hub_lost"}
     assert [f.value for f in NET_FAULTS if f.action == "loss"] == [0.1, 0.3, 0.5]
     assert [f.length_s for f in NET_FAULTS if f.action == "cut" and f.target == "vehicle"] == [1.0, 3.0, 10.0]
