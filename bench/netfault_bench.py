@@ -21,6 +21,7 @@ from bench._setup import ROOT  # noqa: F401  first: one thread per numeric libra
 # isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
+import os  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -86,10 +87,16 @@ def main(argv: list[str] | None = None) -> int:
         for r in s["router_cpu_cores"]:
             print(f"  router {r}: CPU {s['router_cpu_cores'][r]:.3f} cores, {s['router_bytes_per_s'][r] / 1e3:.0f} kB/s")
         figures["scale"] = s
+    from deploy.netlab.net import leftovers
+    from deploy.netlab.plan import PREFIX_HEAD, base36
+
+    left = leftovers(PREFIX_HEAD + base36(os.getpid()).rjust(5, "0"))  # every lab this run made
+    figures["left_behind"] = {k: len(v) for k, v in left.items()}
+    print(f"\nleft behind: {figures['left_behind']}")
     figures["wall_s"] = round(time.monotonic() - t0, 1)
     if args.json:
         print(json.dumps(figures, default=str))
-    return 0 if figures["rows_failed"] == 0 else 1
+    return 0 if figures["rows_failed"] == 0 and not any(figures["left_behind"].values()) else 1
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ the rig's bound (``scenario.faults``) is marked beyond it.
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 import uuid
 from pathlib import Path
@@ -123,8 +124,8 @@ def run_row(fault: NetFault, run_root: Path | None = None, duration_s: float = 2
 def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: float, detector: str,
          pass_wait_s: float, rsu_ids: list[str] | None) -> FaultOutcome:
     lab = Lab(segments=fault.segments, run_dir=run_dir_for(run_root, fault.action),
-              corridor_id=f"n{uuid.uuid4().hex[:8]}", duration_s=duration_s, restart="no", detector=detector,
-              rsu_ids=rsu_ids)
+              corridor_id=f"n{uuid.uuid4().hex[:8]}", duration_s=max(duration_s, fault.min_duration_s), restart="no",
+              detector=detector, rsu_ids=rsu_ids)
     rec = NetRecorder()
     details: dict[str, Any] = {"run_dir": str(lab.run_dir), "prefix": lab.plan.prefix, "action": fault.action,
                                "target": fault.target, "value": fault.value, "length_s": fault.length_s}
@@ -153,7 +154,8 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
         if fault.kind == "router_restart":
             names = [s.name for s in lab.specs]
             _wait(lambda: all(rec.first_after(s, t_restore) is not None for s in names), 15.0, 0.1)
-        _wait(lambda: lab.monitor.events.get("ev_passed_av") is not None, pass_wait_s, 0.2)
+        _wait(lambda: lab.monitor.events.get("ev_passed_av") is not None,
+              pass_wait_s + fault.min_duration_s, 0.2)
         time.sleep(1.5)
         if bytes0:
             span = time.time() - t_fault
@@ -164,8 +166,8 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
                                               for v in victims}
         details["startup_s"] = round(t_start - rec.t0, 2)
     finally:
+        end = time.time()  # what the lab's session heard ends here
         lab.stop()
-    end = time.time()
     m = lab.metrics()
     with rec.lock:
         seen = RowSeen(
@@ -181,8 +183,9 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
                    fault_after_lights_on_s=None if seen.lights_on_s is None else round(t_fault - seen.lights_on_s, 3),
                    **message_figures(seen))
     judged = judge_row(fault, seen, m.get("yield"))
-    row = judged.row(fault.name, fault.kind, RUNNER, details)
-    return beyond_bound(row, fault, details["alert_latency_s"])
+    row = beyond_bound(judged.row(fault.name, fault.kind, RUNNER, details), fault, details["alert_latency_s"])
+    (lab.run_dir / "row.json").write_text(json.dumps({"row": row.row(), **row.details}, indent=2, default=str) + "\n")
+    return row
 
 
 def beyond_bound(row: FaultOutcome, fault: NetFault, alert_delay_s: float | None) -> FaultOutcome:

@@ -111,3 +111,14 @@ def test_summary_counts_verdicts_losses_and_recoveries():
     s = summary(rows)
     assert (s["rows_total"], s["rows_passed"], s["rows_beyond_bound"], s["rows_failed"]) == (3, 1, 1, 1)
     assert s["commands_lost"] == 1 and s["recovery_s"] == {"a": 0.4} and s["bounds"] == {"b": "too late"}
+
+
+def test_every_kind_also_fails_on_a_lost_command():
+    row = fault_by_name("router host cut 2 s, restored")
+    seen = _seen(restored_at_s=102.0, heard={"ddm": (103.0,), "vehicle": (102.5,)},
+                 commands={"c1": (101.0, "pull_over"), "c2": (110.0, "pull_over")}, acks=((101.2, "c1", "accepted"),))
+    j = judge_row(row, seen, YIELDED)
+    assert not j.passed and "1 command(s) lost" in j.own
+    assert judge_row(row, _seen(restored_at_s=102.0, heard={"ddm": (103.0,)}, acks=((101.2, "c1", "accepted"),
+                                                                                   (110.2, "c2", "accepted"))),
+                     YIELDED).passed
