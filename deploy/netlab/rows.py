@@ -190,15 +190,15 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
 
 def beyond_bound(row: FaultOutcome, fault: NetFault, alert_delay_s: float | None) -> FaultOutcome:
     """The row marked beyond the rig's bound (``scenario.faults``) when it failed and its own alert delay plus
-    the fault's least delay is past the latest alert that still clears the lane."""
-    from scenario.faults import MEASURED_ALERT_DELAY_S, YieldScenario
-    from scenario.faults import _judged as judged_against_rig_bound
-
-    delay = alert_delay_s if alert_delay_s is not None else MEASURED_ALERT_DELAY_S["p99"]
-    extra = command_delay_s(fault, delay)
+    the fault's least delay is past the latest alert that still clears the lane. A run where no EvAlert got
+    through at all measured no alert delay: no bound, the failure stands."""
+    extra = None if alert_delay_s is None else command_delay_s(fault, alert_delay_s)
     if row.passed or extra is None:
         return row
-    return judged_against_rig_bound(row, extra, YieldScenario(alert_delay_s=delay))
+    from scenario.faults import YieldScenario
+    from scenario.faults import _judged as judged_against_rig_bound
+
+    return judged_against_rig_bound(row, extra, YieldScenario(alert_delay_s=alert_delay_s))
 
 
 def run_table(faults, run_root: Path | None = None, say=print, **kw: Any) -> list[FaultOutcome]:

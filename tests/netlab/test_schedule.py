@@ -122,3 +122,12 @@ def test_every_kind_also_fails_on_a_lost_command():
     assert judge_row(row, _seen(restored_at_s=102.0, heard={"ddm": (103.0,)}, acks=((101.2, "c1", "accepted"),
                                                                                    (110.2, "c2", "accepted"))),
                      YIELDED).passed
+
+
+def test_a_row_where_no_alert_got_through_has_no_bound():
+    from deploy.netlab.rows import beyond_bound
+
+    failed = FaultOutcome("RSU uplinks capped 16 kbit/s", "dropout", False, "collision", None, "lab", {})
+    assert beyond_bound(failed, fault_by_name("RSU uplinks capped 16 kbit/s"), None).verdict == "FAIL"
+    passed = FaultOutcome("x", "dropout", True, "", 1.0, "lab", {})
+    assert beyond_bound(passed, fault_by_name("vehicle link cut 10 s"), 0.6) is passed
