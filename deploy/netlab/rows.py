@@ -27,14 +27,14 @@ from deploy.netlab.schedule import (
     judge_row,
     message_figures,
 )
+from deploy.process_faults import Recorder
 from scenario.fault_judges import FaultOutcome
-from scenario.process_faults import Recorder
 
 RUNNER = "network lab (iea up, a namespace per host)"
 
 
 class NetRecorder(Recorder):
-    """``process_faults.Recorder`` plus the DDM's expired commands and each RSU's object lists."""
+    """``deploy.process_faults.Recorder`` plus the DDM's expired commands and each RSU's object lists."""
 
     def __init__(self) -> None:
         super().__init__()

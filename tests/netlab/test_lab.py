@@ -26,7 +26,7 @@ def _netns(pid: int) -> str:
 
 def test_lab_comes_up_each_role_on_its_own_host_and_messages_cross(tmp_path):
     from deploy.netlab.lab import Lab
-    from scenario.process_faults import Recorder
+    from deploy.process_faults import Recorder
 
     lab = Lab(run_dir=tmp_path / "run", with_sim=False, rsu_ids=[], restart="no", signed=False)
     rec = Recorder()
