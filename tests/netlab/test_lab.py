@@ -104,3 +104,25 @@ def test_a_killed_run_is_cleaned_up_by_the_next(tmp_path):
     assert leftovers(prefix)["namespaces"]
     assert prefix in cleanup_stale()
     assert leftovers(prefix) == {"namespaces": [], "links": [], "processes": []}
+
+
+def test_nothing_left_after_sigint_in_the_middle_of_a_bench_row(tmp_path):
+    from deploy.netlab.plan import PREFIX_HEAD, base36
+
+    env = dict(os.environ, PYTHONPATH=ROOT, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, os.path.join(ROOT, "bench", "netfault_bench.py"), "--rows",
+                          "vehicle link cut 1 s", "--no-scale", "--runs", str(tmp_path)], cwd=ROOT, env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    prefix = PREFIX_HEAD + base36(p.pid).rjust(5, "0")  # every lab the bench makes
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and len(leftovers(prefix)["processes"]) < 4:
+            time.sleep(0.2)
+        assert len(leftovers(prefix)["processes"]) >= 4, "the bench's lab never started its services"
+        p.send_signal(signal.SIGINT)  # as Ctrl-C in its terminal
+        out, _ = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130, out
+    assert leftovers(prefix) == {"namespaces": [], "links": [], "processes": []}
