@@ -45,8 +45,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration-s", type=float, default=22.0, help="scenario time of each row's simulator")
     ap.add_argument("--detector", default="project", help="RSU detector (project, motion or an ONNX path)")
     ap.add_argument("--runs", default=str(ROOT / "runs"), help="where the run folders go")
+    ap.add_argument("--sysctl", action="append", default=[], metavar="KEY=VALUE",
+                    help="a kernel setting of every host of the rows' labs (repeat), e.g. "
+                         "net.ipv4.tcp_thin_linear_timeouts=1")
     ap.add_argument("--json", action="store_true", help="end with one JSON line of figures")
     args = ap.parse_args(argv)
+    sysctls = {}
+    for item in args.sysctl:
+        key, eq, value = item.partition("=")
+        if not eq or not key.startswith("net."):
+            ap.error(f"--sysctl {item!r}: expected net.KEY=VALUE (a per-namespace network setting)")
+        sysctls[key] = value
     reason = unavailable_reason()
     if reason:
         print(f"netfault_bench: {reason}", file=sys.stderr)
@@ -59,8 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     run_root = Path(args.runs)
     print(f"{'row':<34} {'':<6} {'margin':>9}  outcome", flush=True)
     rows = run_table(faults, run_root, say=lambda line: print(line, flush=True), duration_s=args.duration_s,
-                     detector=args.detector)
+                     detector=args.detector, sysctls=sysctls)
     figures = summary(rows)
+    figures["sysctls"] = sysctls
     figures["rows"] = {r.name: {k: r.details.get(k) for k in FIGURES if k in r.details} | {"verdict": r.verdict,
                                                                                           "margin_s": r.margin_s}
                        for r in rows}

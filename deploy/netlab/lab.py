@@ -74,7 +74,10 @@ class Lab(Up):
     """``Up`` across namespaces: ``start()`` makes the network then starts the services; ``stop()`` stops them
     and removes the network (namespaces, links, rules, processes)."""
 
-    def __init__(self, *, segments: int = 0, prefix: str | None = None, **kw) -> None:
+    def __init__(self, *, segments: int = 0, prefix: str | None = None, sysctls: dict[str, str] | None = None,
+                 **kw) -> None:
+        """``segments``: segment routers (0: one router); ``sysctls``: kernel settings of every host
+        (``deploy.netlab.net.Net``); the rest as ``Up``."""
         require_lab()
         cleanup_stale()  # what a crashed run left (labs of running processes are left alone)
         kw.setdefault("port", ZENOH_PORT)
@@ -88,7 +91,7 @@ class Lab(Up):
             hosts, hubs = corridor_hosts(services), ["router"]
         self.plan = new_plan(hosts, hubs, prefix)
         self.segments = list(hubs[1:])
-        self.net = Net(self.plan)
+        self.net = Net(self.plan, dict(sysctls or {}))
         self.endpoint = self.plan.endpoint("monitor")  # the lab's own session (Up.start's monitor) joins here
         for spec in self.specs:
             i = spec.args.index("--connect")

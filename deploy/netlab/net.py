@@ -174,6 +174,9 @@ class Net:
     """The namespaces and links of ``plan``; ``up()`` then ``down()`` (idempotent; also as a context)."""
 
     plan: LabPlan
+    sysctls: dict[str, str] = field(default_factory=dict)
+    """Kernel settings of every namespace of the lab (``net.ipv4.*`` is per namespace), e.g.
+    ``net.ipv4.tcp_thin_linear_timeouts=1``: what its hosts' kernels would be tuned to."""
     made: bool = False
     rules: dict[str, list[list[str]]] = field(default_factory=dict)
     """Per namespace, the iptables rules in force (to take them out one by one)."""
@@ -185,6 +188,8 @@ class Net:
             for ns in self.plan.namespaces():
                 sh("ip", "netns", "add", ns)
                 sh("ip", "-n", ns, "link", "set", "lo", "up")
+                for key, value in self.sysctls.items():
+                    sh("ip", "netns", "exec", ns, "sysctl", "-q", "-w", f"{key}={value}")
             for link in self.plan.links:
                 self._link(link)
         except BaseException:

@@ -114,20 +114,22 @@ def _restore(fault: NetFault, lab: Lab, victims: tuple[str, ...]) -> None:
 
 
 def run_row(fault: NetFault, run_root: Path | None = None, duration_s: float = 20.0, timeout_s: float = 60.0,
-            detector: str = "project", pass_wait_s: float = 25.0, rsu_ids: list[str] | None = None) -> FaultOutcome:
-    """One row on a fresh lab (``rsu_ids``: only these RSUs); everything the lab made is removed before it
-    returns (or raises)."""
+            detector: str = "project", pass_wait_s: float = 25.0, rsu_ids: list[str] | None = None,
+            sysctls: dict[str, str] | None = None) -> FaultOutcome:
+    """One row on a fresh lab (``rsu_ids``: only these RSUs; ``sysctls``: every host's kernel settings);
+    everything the lab made is removed before it returns (or raises)."""
     with lab_guard():
-        return _run(fault, run_root, duration_s, timeout_s, detector, pass_wait_s, rsu_ids)
+        return _run(fault, run_root, duration_s, timeout_s, detector, pass_wait_s, rsu_ids, sysctls)
 
 
 def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: float, detector: str,
-         pass_wait_s: float, rsu_ids: list[str] | None) -> FaultOutcome:
+         pass_wait_s: float, rsu_ids: list[str] | None, sysctls: dict[str, str] | None) -> FaultOutcome:
     lab = Lab(segments=fault.segments, run_dir=run_dir_for(run_root, fault.action),
               corridor_id=f"n{uuid.uuid4().hex[:8]}", duration_s=max(duration_s, fault.min_duration_s), restart="no",
-              detector=detector, rsu_ids=rsu_ids)
+              detector=detector, rsu_ids=rsu_ids, sysctls=sysctls)
     rec = NetRecorder()
-    details: dict[str, Any] = {"run_dir": str(lab.run_dir), "prefix": lab.plan.prefix, "action": fault.action,
+    details: dict[str, Any] = {"run_dir": str(lab.run_dir), "prefix": lab.plan.prefix, "sysctls": dict(sysctls or {}),
+                               "action": fault.action,
                                "target": fault.target, "value": fault.value, "length_s": fault.length_s}
     t_fault = t_restore = None
     victims: tuple[str, ...] = ()

@@ -86,3 +86,11 @@ def test_capability_check_reads_the_effective_set():
     assert not has_net_admin("CapEff:\t0000000000000000\n")
     assert not has_net_admin("CapEff:\t0000000000000800\n")  # bit 11 only (CAP_NET_BROADCAST)
     assert has_net_admin("CapEff:\t0000000000001000\n")
+
+
+def test_bench_refuses_a_setting_that_is_not_a_network_one(capsys):
+    from bench.netfault_bench import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--sysctl", "kernel.panic=1"])
+    assert exc.value.code == 2 and "expected net.KEY=VALUE" in capsys.readouterr().err
