@@ -48,7 +48,7 @@ def has_net_admin(status_text: str | None = None) -> bool:
 def unavailable_reason() -> str | None:
     """Why the lab cannot run here (None: it can): CAP_NET_ADMIN, then the tools."""
     if not has_net_admin():
-        return ("the network lab needs CAP_NET_ADMIN (run as root, or `sudo setcap`/a container with "
+        return ("the network lab needs CAP_NET_ADMIN (run as root, or in a container with "
                 "--cap-add NET_ADMIN) to make network namespaces, veth links and iptables/tc rules")
     missing = [t for t in TOOLS if shutil.which(t) is None]
     if missing:
