@@ -49,6 +49,8 @@ class ServiceGroup:
     restarts: dict[str, int] = field(default_factory=dict)
     log_start: dict[str, int] = field(default_factory=dict)
     """Size of each service's log when it was last started: what it wrote since begins there."""
+    launch: dict[str, list[str]] = field(default_factory=dict)
+    """Per service, a command its interpreter runs under (the network lab: ``ip netns exec NS``)."""
 
     def __post_init__(self) -> None:
         self.run_dir = Path(self.run_dir)
@@ -67,7 +69,7 @@ class ServiceGroup:
         self.specs[name] = ServiceSpec(name, list(args), restart)
         with open(self.log_path(name), "a") as log:  # the child keeps its own descriptor
             self.log_start[name] = log.tell()
-            proc = subprocess.Popen([sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=self.env,
+            proc = subprocess.Popen([*self.launch.get(name, []), sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, env=self.env,
                                     cwd=ROOT, start_new_session=True)
         self.procs[name] = proc
         return proc
