@@ -1,1 +1,1 @@
-"""Roadside unit: frame sources, detectors, SORT tracking, localisation, RSU service (DESIGN.md)."""
+"""Roadside unit: frame sources, detectors, SORT tracking, localisation, RSU service (docs/architecture.md §Perception pipeline)."""

@@ -1,4 +1,4 @@
-"""One RSU assembled in one place (issue 20): which detector, the SORT tracker's settings, the EV classifier,
+"""One RSU assembled in one place: which detector, the SORT tracker's settings, the EV classifier,
 the hazard detector and the localiser, from one :class:`PipelineConfig`.
 
 ``iea-rsu`` (:func:`run_rsu`), ``iea-rsu scan``, the lockstep corridor (``scenario/lockstep.py``), the benches

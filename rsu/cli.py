@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="per-crop EV probability fused into each track's evidence: none, cnn "
                          "(models/ev_cnn.onnx), hsv8-gb (models/ev_hsv8_gb.onnx) or PATH.onnx[:FEATURE]")
     ap.add_argument("--ev-body", default="default",
-                    help="EV-body classifier trained on real vehicles (issue 17): default (models/ev_body.onnx), "
+                    help="EV-body classifier trained on real vehicles: default (models/ev_body.onnx), "
                          "none, or PATH.onnx. It scores a track only while its lamps are lit, a few times a second; "
                          "a steady lit roof bar raises an alert only with a confident EV body")
     ap.add_argument("--whole-frame", action="store_true",
@@ -107,7 +107,7 @@ def build_eval_parser() -> argparse.ArgumentParser:
         epilog="build a dataset from simulator renders: iea-sim export-dataset --out DIR --frames 2000 --seed 1 "
                "--stride-s 1.05, then: iea-rsu eval-classifier DIR/cls. Fitting needs the 'train' extra. Most pairs "
                "fit in seconds; gradient_boosting, hist_gb and adaboost on the 49,152-element pixel array take "
-               "about 35, 11 and 6 min on one core (2026-11-25, 1,761 train crops; the whole table 63 min): "
+               "about 35, 11 and 6 min on one core (1,761 train crops; the whole table 63 min): "
                "leave them out with --features or --classifiers for a quick look.")
     ap.add_argument("dataset", help="RAVEV-layout folder: DATASET/{train,val}/{ev,non_ev}/*.png")
     ap.add_argument("--features", nargs="+", default=["hog", "colour_hist", "pixels", "hsv8", "hsv8_top"],

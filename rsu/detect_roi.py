@@ -1,4 +1,4 @@
-"""Where an RSU's detector looks (issue 19): only the part of the frame where its zone of responsibility lies.
+"""Where an RSU's detector looks: only the part of the frame where its zone of responsibility lies.
 
 An RSU reports nothing farther than ``max_range_m`` from its mast (the next RSU covers it), and vehicles drive on
 the road; from an elevated camera the road within that range is about half of the 1280x720 frame (the sky, the far

@@ -1,4 +1,4 @@
-"""Localisation of tracked vehicles on the road plane (thesis App. B; SPEC.md "Localization").
+"""Localisation of tracked vehicles on the road plane (thesis App. B; docs/architecture.md §Localisation).
 
 Two ways from an image point to the corridor frame (x east, y north, metres):
 

@@ -1,4 +1,4 @@
-"""``iea-rsu scan``: run a recorded clip through the RSU's EV recognition and say what it decided (issue 17).
+"""``iea-rsu scan``: run a recorded clip through the RSU's EV recognition and say what it decided.
 
 An operator checks a camera with it: which vehicles were recognised as emergency vehicles, when, and on
 which cues. :func:`scan_video` builds the RSU's pipeline (``rsu.build``: detector -> SORT, Framework B ->

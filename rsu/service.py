@@ -8,7 +8,7 @@ camera: ``rsu.calibration.overlay.CalibrationOverlay``) and reports health. Fram
 sources keep at most ``queue_size`` frames and drop the oldest (counted as ``drops.source``); a stalled source is
 reported in Health (``degraded``) and the service keeps waiting for it.
 
-Latest frame, not a queue (issue 19): the simulated camera holds its newest ``queue_size`` frames (2, as a live
+Latest frame, not a queue: the simulated camera holds its newest ``queue_size`` frames (2, as a live
 source), renders the oldest of them when the RSU asks for a frame and counts the camera frames pushed out while
 the RSU was busy (``drops.source``). Health reports the processed rate
 (``rates_hz.frames``, beside the camera's ``rates_hz.camera``), per stage the mean wall-clock and CPU (``{stage}_cpu``)
@@ -19,10 +19,10 @@ EV alerts (the pipeline's alert events, when it has a classifier) are published 
 ``iea/{c}/rsu/{rsu}/ev``, ``alert_id = f"{rsu_id}-ev-{track_id}"``; hazards (when it has a hazard detector) as
 ``HazardAlert`` on ``iea/{c}/rsu/{rsu}/hazard``, ``hazard_id = f"{rsu_id}-hz-{n}"``.
 
-Signing (issue 9): with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
+Signing: with a ``signer`` every EvAlert/HazardAlert this service publishes carries an
 Ed25519 signature (``protocol.security.SecureTransport`` wraps the transport).
 
-Presence and state (issue 21): the service declares its liveliness token ``iea/{c}/alive/rsu/{rsu}`` and
+Presence and state: the service declares its liveliness token ``iea/{c}/alive/rsu/{rsu}`` and
 answers queries on ``iea/{c}/rsu/{rsu}/*``: its latest ``objects`` and ``health``, the latest message of
 each active EV alert and hazard (a DDM that starts late is EV-aware at once), and ``state``, a JSON
 summary (tracks, frames, configuration) for ``iea status``.
@@ -68,7 +68,7 @@ class RsuService:
                  health_period_s: float = 1.0, signer: Signer | None = None,
                  camera_rate_hz: float | None = None) -> None:
         self.corridor = corridor
-        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start (issue 19)
+        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start
         self.rsu_id = rsu_id
         self.clock = clock or WallClock()
         if signer is not None:  # alerts are signed on publication
@@ -250,7 +250,7 @@ class RsuService:
                      h.x_m, h.y_m, h.length_m, h.width_m)
 
     def _annotated(self, frame: Frame, result: FrameResult) -> np.ndarray:
-        if self._overlay is None:  # the corridor drawn through the camera (issue 27): drift shows as misfit lines
+        if self._overlay is None:  # the corridor drawn through the camera: drift shows as misfit lines
             rsu = self.corridor.rsu(self.rsu_id)
             self._overlay = CalibrationOverlay(rsu.camera, self.corridor.road, max_range_m=rsu.max_range_m,
                                                calibration=rsu.calibration)

@@ -1,4 +1,4 @@
-"""Localisation error to expect from a camera calibration, per distance band (issue 27; thesis App. B).
+"""Localisation error to expect from a camera calibration, per distance band (thesis App. B).
 
 Two App. B methods map a detection's pixel to the road:
 - transformation-based (``rsu.localize.GroundProjector``): the solved camera's ray meets the road plane.

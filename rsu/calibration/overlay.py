@@ -1,4 +1,4 @@
-"""Check image of a camera calibration (issue 27): the corridor drawn through the camera onto its frame.
+"""Check image of a camera calibration: the corridor drawn through the camera onto its frame.
 
 Drawn: the 10 m ground grid of the corridor frame (grey, labelled with the distance from the camera's
 foot along the road), the lane lines (cyan), the road edges (orange), the RSU's coverage limit
@@ -137,7 +137,7 @@ def draw_legend(img: np.ndarray, lines: Sequence[tuple[str, tuple[int, int, int]
 def check_image(frame: np.ndarray, cam: CameraConfig, road: Road, *, dist: np.ndarray | None = None,
                 max_range_m: float | None = None, points: Sequence[OverlayPoint] = (),
                 title: str = "", min_width_px: int = 960) -> np.ndarray:
-    """The check image of issue 27 (module docstring) on a copy of ``frame``, enlarged by a whole factor to at
+    """The check image (module docstring) on a copy of ``frame``, enlarged by a whole factor to at
     least ``min_width_px`` wide so that labels stay legible on small frames."""
     k = max(1, int(np.ceil(min_width_px / frame.shape[1])))
     img = cv2.resize(frame, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else frame.copy()

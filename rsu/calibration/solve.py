@@ -1,4 +1,4 @@
-"""Commissioning a camera: its pose (and focal length, radial distortion) from surveyed points (issue 27).
+"""Commissioning a camera: its pose (and focal length, radial distortion) from surveyed points.
 
 Input: pairs pixel (u, v) -> world point (x, y, z) in the corridor frame (x east, y north, z up, metres;
 lat/lon/height are converted by the caller, :func:`read_points_csv`). Model: the corridor's pinhole camera

@@ -1,4 +1,4 @@
-"""The EV-body classifier trained on real vehicles (issue 17): is this vehicle crop an emergency vehicle?
+"""The EV-body classifier trained on real vehicles: is this vehicle crop an emergency vehicle?
 
 ``models/ev_body.onnx`` is EfficientNet-Lite0 (ImageNet) fine-tuned on the real photos of
 ``../shared/data/real/ev_train`` (ambulances, fire engines, police vs other vehicles) by

@@ -71,7 +71,7 @@ def clip_box(box: Iterable[float], width: int, height: int) -> tuple[int, int, i
     x1, y1, x2, y2 = (float(v) for v in box)
     if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(x2) and math.isfinite(y2)):
         return None
-    # plain floats: numpy's per-call cost on four scalars was most of the classify stage's clipping (issue 19)
+    # plain floats: numpy's per-call cost on four scalars was most of the classify stage's clipping
     xa, ya = min(max(math.floor(x1), 0), width), min(max(math.floor(y1), 0), height)
     xb, yb = min(max(math.ceil(x2), 0), width), min(max(math.ceil(y2), 0), height)
     if xb - xa < 2 or yb - ya < 2:
@@ -245,7 +245,7 @@ class TrackEvClassifier:
         (farther vehicles' boxes above its top) blanked (:func:`~rsu.classify.ownership.blank_rects`), when the
         band shows lamp activity (:func:`~rsu.classify.evidence_config.lamp_activity`) and the last score is at least
         ``body_period_s`` old; else None. A confirmed EV is not scored again: confirmation is what the body score is
-        for, and only the lamps keep or clear it (issue 19: on the corridor's two cores, scoring every confirmed EV 4 times a second
+        for, and only the lamps keep or clear it (on the corridor's two cores, scoring every confirmed EV 4 times a second
         on four RSUs at once halved their processed fps while the EV was in view)."""
         if self.body is None or crop is None or bounds is None or info.evidence.state == EvState.CONFIRMED:
             return None

@@ -82,7 +82,7 @@ class EvidenceConfig:
     bar-sized (at most ``steady_max_fraction`` of the band) - is a strong flash pattern that confirms alone, like a
     lamp-bright flash: a far EV whose body the classifier cannot yet judge still alerts. Paint does not flash, and
     corner lamps (turn signals, hazards) are excluded as for every cue. 0: never. The size bound stays: without it
-    (tried on tuning seeds, seventh session) a close EV driving away, its bar filling 13-40 % of the band, confirmed
+    (measured on tuning seeds) a close EV driving away, its bar filling 13-40 % of the band, confirmed
     (``ev_two_lanes_dense`` 21674, rsu1: missed with it), but so did the EV's red and blue glow on a car beside it
     at night (11-33 % of the band, clipped, alternating: ``night_ev`` 31372, a false alert)."""
     body_threshold: float = 0.5
@@ -94,7 +94,7 @@ class EvidenceConfig:
 
 def lamp_activity(lamps: LampMeasurement, bar: LampMeasurement, config: EvidenceConfig) -> bool:
     """Does one frame's band show what a light bar could be, so that the EV-body classifier is worth running
-    (issue 17: "only while it has lamp activity")? A lamp-bright colour lit in the middle of the band, or a
+    (only while it has lamp activity)? A lamp-bright colour lit in the middle of the band, or a
     light-bar colour lit in the middle and covering at most ``steady_max_fraction`` of it. Red or blue paint
     covers more of the band than a bar (and could give no lamp cue: a lamp lit that long or that wide is no
     flash and no steady bar), and corner lamps (tail, brake, turn, hazard) sit off the middle: neither earns

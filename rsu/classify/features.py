@@ -1,4 +1,4 @@
-"""Feature descriptors of a vehicle crop (thesis 2.4.1, SPEC.md "Feature descriptors").
+"""Feature descriptors of a vehicle crop (thesis 2.4.1, docs/architecture.md §EV recognition).
 
 All take a BGR uint8 crop (any size) and return a float32 vector; the ``*_batch`` forms stack many.
 

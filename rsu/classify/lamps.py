@@ -1,4 +1,4 @@
-"""Lamp signals of one vehicle crop and their flash patterns (issue 5, issue 17).
+"""Lamp signals of one vehicle crop and their flash patterns.
 
 :func:`measure_lamps` reads the *lamp band* of a crop (the top rows, where a light bar sits when the
 camera looks down at a vehicle; the caller grows the box upwards first, since a roof bar sits above a
@@ -12,7 +12,7 @@ Two colour definitions are used. :data:`LAMP_BRIGHT` (HSV: V >= 240, S >= 120) i
 saturates the sensor, as every lit lamp does in the simulator's renders; a flash pattern in it is strong
 enough to confirm an EV alone. :data:`BAR_COLOURED` is what a real light bar looks like in compressed
 video: a bright red or blue *chroma* (the channel >= 180 and R - max(G, B) or B - max(R, G) >= 50).
-Measured frame by frame (issue 5 and issue 17; the escort, Japanese-ambulance and NYC-police clips are
+Measured frame by frame (the escort, Japanese-ambulance and NYC-police clips are
 the tuning clips of this definition): the escort's bars have S ~ 100-115; the Japanese ambulance's lit
 lamps are pink-red points (RGB ~ (233, 101, 120), (255, 164, 195): hue 160-170, S ~ 90-140) on a
 dark-red dome (R ~ 120-150). The HSV test misses those; the chroma test sees them. A channel floor of

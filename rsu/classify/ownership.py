@@ -1,4 +1,4 @@
-"""Which vehicle a lamp belongs to (issue 17): the RSU measures lamps in a band grown above each track's box, and
+"""Which vehicle a lamp belongs to: the RSU measures lamps in a band grown above each track's box, and
 in dense traffic one lamp, or its glow, falls in the bands of several tracks. These pure functions of the frame's
 boxes decide which parts of a track's band are another vehicle's (:func:`band_exclusions`, :func:`farther_boxes`),
 so that an EV's flashes count for the EV and not for the car beside it (:class:`rsu.classify.ev.TrackEvClassifier`,

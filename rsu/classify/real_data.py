@@ -1,4 +1,4 @@
-"""Real labelled vehicle crops for the EV-body classifier (issue 17): ``../shared/data/real/ev_train``.
+"""Real labelled vehicle crops for the EV-body classifier: ``../shared/data/real/ev_train``.
 
 Three sources (README beside the data), one list of :class:`CropSample`:
 
@@ -13,7 +13,7 @@ Three sources (README beside the data), one list of :class:`CropSample`:
   the source id, the name before ``.rf.``, over all three of its folders.
 - ``indian_ev_photos``: web photos named by class (ambulance, fire truck, police), all EV, whole image.
 
-**Label review** (``models/ev_train_review.csv``, seventh session): every ``av_emergency_crops`` photo and every
+**Label review** (``models/ev_train_review.csv``): every ``av_emergency_crops`` photo and every
 Open Images Car or Truck box of at least ``MIN_BOX_PX`` (one Roboflow copy per photo) was looked at on contact
 sheets against one written definition (EV = ambulance, fire-service or marked police vehicle). The file lists
 each change (a wrong label, or ``exclude``: no single vehicle dominates, a fragment, an interior, a toy or a

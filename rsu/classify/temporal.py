@@ -29,7 +29,7 @@ classifies tracks, not frames). Three cues are combined:
    ``[flash_min_hz, flash_max_hz]``.
 2. **Crop score.** Any per-crop classifier's EV probability (the CNN of thesis 2.4.2.3 or a feature
    classifier), accumulated as log-odds.
-3. **EV body** (issue 17). A classifier trained on real vehicles (``models/ev_body.onnx``,
+3. **EV body**. A classifier trained on real vehicles (``models/ev_body.onnx``,
    :class:`rsu.classify.body.EvBodyClassifier`) scores the track's crop while the track shows lamp
    activity, a few times a second; the body score is the mean of the last ``body_window`` scores.
    Real LED bars often read as *steady* at video frame rates (lit on every frame, or dipping for single

@@ -1,7 +1,7 @@
-"""Road hazards from a fixed camera (issue 10): static objects that appear in a lane and stay. Pure core.
+"""Road hazards from a fixed camera: static objects that appear in a lane and stay. Pure core.
 
 Dual background (Porikli, Ivanov, Haga 2008, "Robust abandoned object detection using dual
-foregrounds"), per pixel at a reduced working scale, on frames at most ``rate_hz`` (3) a second (issue 19: debris
+foregrounds"), per pixel at a reduced working scale, on frames at most ``rate_hz`` (3) a second (debris
 is static; every rate and duration is in seconds, so the behaviour does not depend on the frame rate):
 
 - long-term background ``B_L``: the per-pixel median of ``init_frames`` frames spread over the first

@@ -165,7 +165,7 @@ def median_of_frames(frames: list[np.ndarray]) -> np.ndarray:
 
     Nine frames (the detector's default) go through Paeth's network of element-wise min / max: 10 ms for nine
     640x360 BGR frames where ``np.median`` took 250 ms, a spike that every RSU of a corridor started together hit
-    at the same moment (issue 19). Other counts fall back to ``np.median``."""
+    at the same moment. Other counts fall back to ``np.median``."""
     if len(frames) != 9:
         return np.median(np.stack(frames), axis=0)
     p = list(frames)

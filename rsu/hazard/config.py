@@ -18,14 +18,13 @@ class HazardConfig:
     scale: float = 0.5
     """Working scale of the background models (1280x720 -> 640x360)."""
     rate_hz: float = 2.0
-    """The detector looks at a frame at most this often (issue 19: debris is static, a camera's 15 fps are not
-    needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it. 2 Hz
-    (3 before the eleventh session): ``bench/hazard_bench.py`` reads the same recall, false alarms and clearance at
-    both, detection 1.18 s instead of 1.35 s (median), for a third less of the detector's CPU."""
+    """The detector looks at a frame at most this often (debris is static, a camera's 15 fps are not
+    needed; 0 = every frame). Every duration below is in seconds, so the behaviour does not depend on it. At 2 Hz
+    and at 3 Hz ``bench/hazard_bench.py`` reads the same recall, false alarms and clearance, detection 1.18 s instead of 1.35 s (median), for a third less of the detector's CPU."""
     phase_s: float = 0.0
     """The first look waits this long after the first frame, and the looks keep that phase: a corridor's RSUs that
     share one machine look in turn, not on the same frames (``rsu.build.build_hazards`` gives RSU k of the corridor
-    k / 4 of a period; issue 19: in step, four looks of ~10 ms of CPU each landed on the same frame every half second;
+    k / 4 of a period; in step, four looks of ~10 ms of CPU each landed on the same frame every half second;
     what that did to dropped frames was not measured apart from the machine's run-to-run spread)."""
     warmup_fps: float = 15.0
     """Frame rate assumed for untimed warm-up frames (``HazardDetector.learn_background`` without a time)."""
@@ -34,9 +33,9 @@ class HazardConfig:
     """Long-term background: median of ``init_frames`` frames at least ``init_interval_s`` apart (every look at
     2 Hz: 9 frames over 4 s; a car at 10 m/s moves 40 m meanwhile)."""
     long_tau_s: float = 33.3
-    """Long-term background's time constant (issue 10's rate 0.002 per frame at 15 fps)."""
+    """Long-term background's time constant (a rate of 0.002 per frame at 15 fps)."""
     short_tau_s: float = 0.232
-    """Short-term background's time constant (issue 10's rate 0.25 per frame at 15 fps): the learning rate of an
+    """Short-term background's time constant (a rate of 0.25 per frame at 15 fps): the learning rate of an
     update dt after the last is 1 - exp(-dt / tau)."""
     diff_threshold: float = 28.0
     """Largest channel difference (0-255) from the long-term background that makes a pixel foreground

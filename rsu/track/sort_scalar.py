@@ -1,4 +1,4 @@
-"""SORT's frame step on Python floats, for the densities an RSU sees (issue 19, point 5).
+"""SORT's frame step on Python floats, for the densities an RSU sees.
 
 ``rsu.track.sort.SortTracker`` keeps one row of ``rsu.track.sort``'s table layout per track; at 5-20 targets a frame of its
 vectorised step is a few dozen numpy calls of ~0.5 us each on arrays of a few rows, so the calls, not the
