@@ -37,24 +37,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.proc_stats import cpu_s, rss_mb  # noqa: E402
 from deploy.procs import stop_process_group  # noqa: E402
 from deploy.up import free_port  # noqa: E402
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 NODE_DIR = ROOT / "tests" / "node"
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return 0.0
 
 
 def without_topics(src: Path, dst: Path, drop: str) -> None:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from deploy.procs import wait_until
 from deploy.up import Up
 from scenario.fault_judges import (
     DdmRestartSeen,
@@ -102,15 +103,6 @@ def _start(name: str, run_root: Path | None, duration_s: float, **kw: Any) -> tu
     return up, rec
 
 
-def _wait(pred, timeout_s: float, poll_s: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(poll_s)
-    return bool(pred())
-
-
 def _ev_passed(up: Up) -> float | None:
     with up.monitor.lock:
         return up.monitor.events.get("ev_passed_av")
@@ -121,14 +113,14 @@ def rsu_killed(run_root: Path | None = None, stale_limit_s: float = 2.0, timeout
     up, rec = _start("rsu", run_root, duration_s=duration_s, restart="no")
     details: dict[str, Any] = {"run_dir": str(up.run_dir)}
     try:
-        if not _wait(lambda: bool(rec.ev_reports and any(r[2] == "alert" for r in rec.ev_reports)), timeout_s):
+        if not wait_until(lambda: bool(rec.ev_reports and any(r[2] == "alert" for r in rec.ev_reports)), timeout_s):
             return FaultOutcome("RSU killed with the EV in view", "rsu_kill", False, "no EvAlert at all", None,
                                 RUNNER, details)
         victim = next(r[1] for r in rec.ev_reports if r[2] == "alert")
         up.group.kill(victim)
         t_kill = time.time()
         details["killed"] = victim
-        _wait(lambda: _ev_passed(up) is not None, 25.0, 0.2)
+        wait_until(lambda: _ev_passed(up) is not None, 25.0, 0.2)
         time.sleep(1.0)
     finally:
         up.stop()
@@ -150,7 +142,7 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
     up, rec = _start("ddm", run_root, duration_s=duration_s, restart="no")
     details: dict[str, Any] = {"run_dir": str(up.run_dir), "down_s": down_s}
     try:
-        if not _wait(lambda: any(m == "manoeuvre" for _, m, _ in rec.modes), timeout_s):
+        if not wait_until(lambda: any(m == "manoeuvre" for _, m, _ in rec.modes), timeout_s):
             return FaultOutcome("DDM killed + restarted mid-manoeuvre", "ddm_restart", False,
                                 "the AV never started a manoeuvre", None, RUNNER, details)
         up.group.kill("ddm")
@@ -161,7 +153,7 @@ def ddm_restarted(run_root: Path | None = None, down_s: float = 0.5, timeout_s: 
         time.sleep(down_s)
         up.group.restart("ddm")
         t_restart = time.time()
-        _wait(lambda: _ev_passed(up) is not None, 25.0, 0.2)
+        wait_until(lambda: _ev_passed(up) is not None, 25.0, 0.2)
         time.sleep(2.0)
     finally:
         up.stop()
@@ -186,14 +178,14 @@ def router_restarted(run_root: Path | None = None, at_s: float = 0.5, down_s: fl
     up, rec = _start("router", run_root, duration_s=duration_s, restart="no")
     details: dict[str, Any] = {"run_dir": str(up.run_dir), "down_s": down_s}
     try:
-        if not _wait(lambda: all(s in rec.heard for s in SERVICES), timeout_s, 0.1):
+        if not wait_until(lambda: all(s in rec.heard for s in SERVICES), timeout_s, 0.1):
             details["never_heard"] = [s for s in SERVICES if s not in rec.heard]
         time.sleep(at_s)  # every service is connected and publishing: now take the router away
         up.restart_router(down_s)
         t_back = time.time()
-        _wait(lambda: all(rec.first_after(s, t_back) is not None for s in SERVICES), reconnect_limit_s, 0.1)
-        _wait(lambda: any(s == "accepted" and t > t_back for t, _, s in rec.acks), timeout_s / 2, 0.2)
-        _wait(lambda: _ev_passed(up) is not None, 25.0, 0.2)  # the yield outcome is judged too
+        wait_until(lambda: all(rec.first_after(s, t_back) is not None for s in SERVICES), reconnect_limit_s, 0.1)
+        wait_until(lambda: any(s == "accepted" and t > t_back for t, _, s in rec.acks), timeout_s / 2, 0.2)
+        wait_until(lambda: _ev_passed(up) is not None, 25.0, 0.2)  # the yield outcome is judged too
         time.sleep(0.5)
     finally:
         up.stop()

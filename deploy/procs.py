@@ -158,6 +158,16 @@ class ServiceGroup:
         self.stop_all()
 
 
+def wait_until(pred, timeout_s: float, poll_s: float = 0.05) -> bool:
+    """Poll ``pred`` every ``poll_s`` until it is true or ``timeout_s`` has passed; its last answer."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(poll_s)
+    return bool(pred())
+
+
 def _signal_group(p: subprocess.Popen, sig: int) -> None:
     try:
         os.killpg(p.pid, sig)

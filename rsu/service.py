@@ -36,6 +36,7 @@ import time
 from collections import Counter
 
 import cv2
+import numpy as np
 
 from protocol import metrics, presence
 from protocol.clock import Clock, WallClock

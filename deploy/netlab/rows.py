@@ -28,6 +28,7 @@ from deploy.netlab.schedule import (
     message_figures,
 )
 from deploy.process_faults import Recorder
+from deploy.procs import wait_until
 from scenario.fault_judges import FaultOutcome
 
 RUNNER = "network lab (iea up, a namespace per host)"
@@ -48,15 +49,6 @@ class NetRecorder(Recorder):
         elif msg.KIND == "ObjectList":
             with self.lock:
                 self.objects.setdefault(msg.rsu_id, []).append(time.time())
-
-
-def _wait(pred, timeout_s: float, poll_s: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(poll_s)
-    return bool(pred())
 
 
 def _trigger(at: str, lab: Lab, rec: NetRecorder) -> bool:
@@ -138,7 +130,7 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
     try:
         lab.start(extra_subscribers=[rec.on_message])
         t_start = time.time()
-        if not _wait(lambda: _trigger(fault.at, lab, rec), timeout_s):
+        if not wait_until(lambda: _trigger(fault.at, lab, rec), timeout_s):
             return FaultOutcome(fault.name, fault.kind, False, f"the trigger ({fault.at}) never came", None, RUNNER,
                                 {**details, "metrics": lab.metrics()})
         victims = _victims(fault, lab, rec)
@@ -155,8 +147,8 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
             t_restore = time.time()
         if fault.kind == "router_restart":
             names = [s.name for s in lab.specs]
-            _wait(lambda: all(rec.first_after(s, t_restore) is not None for s in names), 15.0, 0.1)
-        _wait(lambda: lab.monitor.events.get("ev_passed_av") is not None,
+            wait_until(lambda: all(rec.first_after(s, t_restore) is not None for s in names), 15.0, 0.1)
+        wait_until(lambda: lab.monitor.events.get("ev_passed_av") is not None,
               pass_wait_s + fault.min_duration_s, 0.2)
         time.sleep(1.5)
         if bytes0:
