@@ -62,8 +62,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     transport.subscribe(keys.corridor_expr(cid), monitor.on_message)
     recorder = ddm_poll = None
     if record:  # every key as it went on the wire, for `iea replay` and log viewers
-        from deploy.foxglove_bridge import DdmStatePoll
-        from deploy.foxglove_scene import CorridorScene
+        from deploy.foxglove_scene import CorridorScene, DdmStatePoll
         from deploy.record import McapRecorder
 
         scene = CorridorScene(corridor)  # the Foxglove scene, map and log, with the DDM's fused tracks

@@ -41,6 +41,7 @@ from deploy.foxglove_scene import (
     TOPIC_ROAD,
     TOPIC_TF,
     CorridorScene,
+    DdmStatePoll,
     alias,
 )
 from deploy.record import CAMERA_KIND, SCHEMA_ENCODING, WIRE_KIND, WIRE_SCHEMA, foxglove_schema, json_record
@@ -51,7 +52,6 @@ from protocol.record_view import record_view_schema, to_json
 from protocol.runtime import stop_on_ctrl_c
 
 log = logging.getLogger("deploy.foxglove")
-DDM_POLL_S = 0.5
 NEEDS = "the Foxglove bridge needs the foxglove-sdk package: pip install 'iea-corridor[foxglove]'"
 
 
@@ -82,37 +82,6 @@ def corridor_channels(corridor: Any, corridor_id: str) -> list[tuple[str, str]]:
     for kind, pattern in ALIASES.items():
         out += sorted({(pattern.format(id=v.vehicle_id), kind) for v in corridor.vehicles})
     return out
-
-
-class DdmStatePoll:
-    """Feeds a ``CorridorScene`` the DDM's fused tracks: its state queryable (``iea/<c>/ddm/state``) asked every
-    ``period_s`` on a transport with ``query_bytes`` (Zenoh), on a thread of its own until ``close()``."""
-
-    def __init__(self, transport: Any, corridor_id: str, scene: CorridorScene, *, period_s: float = DDM_POLL_S,
-                 clock: Any = time.time) -> None:
-        self.transport, self.scene, self.period_s, self.clock = transport, scene, period_s, clock
-        self.key = keys.ddm_state_key(corridor_id)
-        self.answers = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="ddm state poll", daemon=True)
-
-    def start(self) -> DdmStatePoll:
-        self._thread.start()
-        return self
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.period_s):
-            try:
-                for _k, payload in self.transport.query_bytes(self.key, min(0.4, self.period_s)):
-                    self.scene.on_ddm_state(json.loads(payload), self.clock())
-                    self.answers += 1
-            except Exception:  # the session closed under us, no DDM yet, or a transient query error
-                log.debug("ddm state query failed", exc_info=True)
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
 
 
 class _Listener:

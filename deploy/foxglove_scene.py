@@ -28,14 +28,17 @@ builders are pure (no clock, no I/O): the caller passes the time.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
 
 from deploy.view_model import DEFAULT_RANGE_M, corridor_plan
 from protocol import foxglove_msgs as fx
+from protocol import keys
 from protocol.codec import ProtocolError, decode
 from protocol.keys import KeyError_, message_type_for_key
 
@@ -363,13 +366,37 @@ class CorridorScene:
         return out
 
 
-def scene_recorder(path: Any, corridor: Any, **recorder_options: Any) -> Any:
-    """A ``scenario.lockstep.RecorderFactory``: an MCAP recorder (``deploy.record.McapRecorder``) of ``path``
-    on the run's clock, writing this corridor's Foxglove channels beside the keys."""
-    from deploy.record import McapRecorder
+DDM_POLL_S = 0.5
+"""How often the DDM's state (its fused tracks) is asked for the scene."""
+log = logging.getLogger(__name__)
 
-    def factory(now: Any, metadata: dict[str, str]) -> Any:
-        return McapRecorder(path, clock=now, metadata=metadata, derive=CorridorScene(corridor).feed,
-                            **recorder_options)
 
-    return factory
+class DdmStatePoll:
+    """Feeds a ``CorridorScene`` the DDM's fused tracks: its state queryable (``iea/<c>/ddm/state``) asked every
+    ``period_s`` on a transport with ``query_bytes`` (Zenoh), on a thread of its own until ``close()``."""
+
+    def __init__(self, transport: Any, corridor_id: str, scene: CorridorScene, *, period_s: float = DDM_POLL_S,
+                 clock: Any = time.time) -> None:
+        self.transport, self.scene, self.period_s, self.clock = transport, scene, period_s, clock
+        self.key = keys.ddm_state_key(corridor_id)
+        self.answers = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ddm state poll", daemon=True)
+
+    def start(self) -> DdmStatePoll:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                for _k, payload in self.transport.query_bytes(self.key, min(0.4, self.period_s)):
+                    self.scene.on_ddm_state(json.loads(payload), self.clock())
+                    self.answers += 1
+            except Exception:  # the session closed under us, no DDM yet, or a transient query error
+                log.debug("ddm state query failed", exc_info=True)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)

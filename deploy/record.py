@@ -317,6 +317,18 @@ def check_recording(path: str | Path) -> dict[str, Any]:
             "per_topic": dict(per_topic)}
 
 
+def scene_recorder(path: Any, corridor: Any, **recorder_options: Any) -> Any:
+    """A ``scenario.lockstep.RecorderFactory``: an MCAP recorder (``deploy.record.McapRecorder``) of ``path``
+    on the run's clock, writing this corridor's Foxglove channels beside the keys."""
+    from deploy.foxglove_scene import CorridorScene
+
+    def factory(now: Any, metadata: dict[str, str]) -> Any:
+        return McapRecorder(path, clock=now, metadata=metadata, derive=CorridorScene(corridor).feed,
+                            **recorder_options)
+
+    return factory
+
+
 # ---------------------------------------------------------------------- CLI
 def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None = None,
            keys: str | None = None, say: Callable[[str], None] = print, stop: threading.Event | None = None,
@@ -338,7 +350,7 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
     transport = ZenohTransport(settings, bulk_queue=0)  # every sample on the network thread: none dropped here
     try:
         if scene is not None:
-            from deploy.foxglove_bridge import DdmStatePoll
+            from deploy.foxglove_scene import DdmStatePoll
 
             poll = DdmStatePoll(transport, corridor_id, scene).start()
         transport.subscribe_bytes(expr, rec.on_bytes)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from deploy.foxglove_scene import scene_recorder
+from deploy.record import scene_recorder
 from scenario.lockstep import CorridorLockstep, LockstepConfig, ev_lights_on
 from sim.scenario import load_scenario
 

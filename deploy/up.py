@@ -144,8 +144,7 @@ class Up:
             readers = [self.monitor.on_message, self._on_health, *(extra_subscribers or [])]
             self.transport.subscribe(keys.corridor_expr(self.corridor_id), lambda k, m: fan_out(readers, k, m))
             if self.record:
-                from deploy.foxglove_bridge import DdmStatePoll
-                from deploy.foxglove_scene import CorridorScene
+                from deploy.foxglove_scene import CorridorScene, DdmStatePoll
                 from deploy.record import McapRecorder
 
                 scene = CorridorScene(self.corridor)  # and the Foxglove scene, with the DDM's fused tracks

@@ -4,7 +4,7 @@ A corridor has an origin (lat/lon of the local east/north frame), a road (refere
 straight and arc segments, lanes to its left, a shoulder to its right), RSUs with their cameras and
 calibration pairs, the autonomous vehicles, and transport settings.
 
-Road frame (``protocol.road``, re-exported here): the reference line is the right edge of lane 0 (the curb
+Road frame (``protocol.road``): the reference line is the right edge of lane 0 (the curb
 line), in the direction of travel; ``s`` is the distance along it and ``d`` the signed offset, positive to the
 left. Lane ``i`` spans ``d`` in [i*w, (i+1)*w] (lane 0 = rightmost); the shoulder is d in [-shoulder, 0].
 

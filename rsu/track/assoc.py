@@ -1,6 +1,5 @@
 """Association of SORT (Bewley et al. 2016): the IoU of boxes and the reference's matching of detections to predicted
-track boxes (its unambiguous-pairs shortcut, else Hungarian on -IoU). Used by ``rsu.track.sort`` (which re-exports
-``iou_matrix`` and ``associate``) and ``rsu.classify``. Pure, no I/O."""
+track boxes (its unambiguous-pairs shortcut, else Hungarian on -IoU). Used by ``rsu.track.sort`` and ``rsu.classify``. Pure, no I/O."""
 
 from __future__ import annotations
 

@@ -62,7 +62,7 @@ def live_run(tmp_path_factory):
     node = node_harness()
     pytest.importorskip("foxglove", reason="needs the foxglove-sdk package (extra foxglove)")
     from deploy.foxglove_bridge import FoxgloveBridge, corridor_channels
-    from deploy.foxglove_scene import scene_recorder
+    from deploy.record import scene_recorder
     from protocol.corridor import load_corridor
     from scenario.lockstep import CorridorLockstep, LockstepConfig
 

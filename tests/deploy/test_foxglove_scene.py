@@ -237,7 +237,7 @@ def test_aliases_carry_the_json_view_under_corridor_free_topics(corridor):
 def test_ddm_state_poll_feeds_the_fused_tracks(corridor):
     import threading
 
-    from deploy.foxglove_bridge import DdmStatePoll
+    from deploy.foxglove_scene import DdmStatePoll
 
     asked = threading.Event()
 
