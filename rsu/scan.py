@@ -98,6 +98,9 @@ class ScanResult:
     body: str | None
     tracks: list[TrackDecision] = field(default_factory=list)
     alerts: list[AlertRecord] = field(default_factory=list)
+    track_boxes: dict[int, list[tuple[float, float, float, float, float, bool]]] = field(default_factory=dict)
+    """With ``record_boxes``: per track id, one ``(t_s, x1, y1, x2, y2, alerted)`` per frame it was reported in
+    (``alerted``: its alert was active then); what per-vehicle scoring against labels needs."""
 
     @property
     def ev_tracks(self) -> list[TrackDecision]:
@@ -156,13 +159,15 @@ class ImageOnlyLocalizer:
 
 def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
                max_s: float | None = None, annotate_path: str | Path | None = None, threads: int | None = 1,
-               progress: Callable[[float, int, int], None] | None = None) -> ScanResult:
+               progress: Callable[[float, int, int], None] | None = None,
+               record_boxes: bool = False) -> ScanResult:
     """Run ``path`` (a video file) through the RSU's EV recognition; see the module docstring.
 
     ``detector_model``: an ONNX detector or ``motion``; ``body``: ``default`` (models/ev_body.onnx),
     ``none`` or a path; ``max_s``: stop after this much video; ``threads``: onnxruntime threads of the
     detector and the body classifier; ``progress(t_s, frames, ev_tracks)``: called every
-    :data:`PROGRESS_EVERY_S` of video. Raises FileNotFoundError (video or model missing), ValueError
+    :data:`PROGRESS_EVERY_S` of video; ``record_boxes``: keep every track's box per frame
+    (:attr:`ScanResult.track_boxes`). Raises FileNotFoundError (video or model missing), ValueError
     (no frame could be decoded, or the annotated video cannot be written) and rsu.frames.SourceError.
     """
     path = Path(path)
@@ -175,6 +180,7 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
     first_seen: dict[int, float] = {}
     alerts: list[AlertRecord] = []
     active: set[int] = set()
+    track_boxes: dict[int, list[tuple[float, float, float, float, float, bool]]] = {}
     writer = None
     frames, last_t, next_progress = 0, 0.0, PROGRESS_EVERY_S
     t0 = time.perf_counter()
@@ -192,6 +198,11 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                     (active.add if e.state == AlertState.ACTIVE else active.discard)(e.track_id)
                     alerts.append(AlertRecord(now, e.track_id, e.state.value, tuple(c.value for c in e.cues),
                                               e.body_score, e.clear_reason.value if e.clear_reason else None))
+                if record_boxes:
+                    for obj in result.objects:
+                        tid = int(obj.object_id)
+                        track_boxes.setdefault(tid, []).append(
+                            (now, *(float(v) for v in obj.bbox_px), tid in active))
                 if annotate_path is not None:
                     writer = writer or _open_writer(annotate_path, source.fps, frame.image.shape)
                     writer.write(draw_scan(frame.image, result, clf, now))
@@ -207,7 +218,7 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
         raise ValueError(f"{path}: no frame could be decoded (not a video, or an unsupported codec)")
     tracks = sorted(decisions.values(), key=lambda d: (d.confirmed_s is None, d.confirmed_s or d.first_seen_s))
     return ScanResult(str(path), frames, last_t, time.perf_counter() - t0, getattr(detector, "name", "detector"),
-                      None if clf.body is None else str(body), tracks, alerts)
+                      None if clf.body is None else str(body), tracks, alerts, track_boxes)
 
 
 def _record(now: float, result: FrameResult, first_seen: dict[int, float],
