@@ -1,16 +1,20 @@
-"""EV identification on real footage and photos: clips, photos, the held-out split, cost per crop.
+"""EV recognition on real footage, scored per vehicle against labels, and on photos: the held-out split, cost per crop.
 
-    python bench/ev_real_bench.py [--json] [--clips-only] [--max-s S] [--ev-body default|none|PATH]
+    python bench/ev_real_bench.py [--json] [--quick] [--clips-only] [--split tune|held_out|all] [--clips A,B]
+                                  [--scans DIR [--rescore]]
+                                  [--max-s S] [--ev-body default|none|PATH]
 
 Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent). Four measurements:
 
-- **clips**: every clip of ``ev_videos`` (6 real EV clips) and ``traffic_videos`` (4 clips with no EV)
-  through :func:`rsu.scan.scan_video`, as an RSU runs it: COCO YOLOX-Nano, SORT, per-track lamp evidence
-  with the EV-body classifier, ``EvAlertManager``. Per clip: alerts (active onsets), first alert time,
-  the tracks alerted and their cues. ``real_ev_clips_alerted``: EV clips with at least one alert (whether
-  the alert is on the EV is for the annotated video to show: ``iea-rsu scan CLIP --annotate OUT.mp4``);
-  ``real_traffic_false_alerts``: alerted tracks on the traffic clips (every one is false; a vehicle whose
-  track is re-identified under a new id and alerted again counts twice);
+- **clips**: every clip of ``ev_videos`` and ``traffic_videos`` through :func:`rsu.scan.scan_video`, as an
+  RSU runs it (COCO YOLOX-Nano, SORT, per-track lamp evidence with the EV-body classifier,
+  ``EvAlertManager``), scored per vehicle against its label file ``bench/labels/<clip>.json``
+  (:mod:`rsu.scan_labels`): ``ev_recall`` (labelled EVs lit and >= 40 px wide for >= 1 s that an alerted
+  track overlapping them, IoU >= 0.3, found while lit), ``alert_delay_median_s`` / ``alert_delay_max_s`` (from
+  the first such frame to that alert), ``wrong_vehicle_alerts`` (alerted tracks on no EV, EV clips),
+  ``traffic_false_alerts`` and ``traffic_false_alerts_per_hour`` (alerted tracks on the clips with no EV, over
+  ``traffic_video_s``), each also per viewpoint under ``by_viewpoint``, and per clip;
+  ``real_ev_clips_alerted`` (EV clips with any alert) as before;
 - **photos**: the 105 whole-scene photos of ``ev_images``: YOLOX, the largest vehicle box grown upwards by
   the body model's ``above_fraction`` (0.25), classified by the body model at its own ``threshold``; a
   photo with no vehicle is predicted non-EV. Accuracy, precision, recall, F-measure (thesis App. A);
@@ -21,9 +25,15 @@ Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent).
   data as published;
 - **crop_ms**: one crop through the body model on one core, median of ``--crop-calls`` single-crop calls.
 
-With ``--json`` the last line is one JSON object: ``real_ev_clips_alerted``, ``real_ev_clips``,
-``real_traffic_false_alerts``, ``photo_*``, ``split_*``, ``crop_ms``, ``per_clip``, ... (photo, split and
-crop figures are null with ``--clips-only`` or ``--ev-body none``).
+The clips are split once into those that may tune the recogniser (:data:`TUNE_CLIPS`) and those held out
+(:data:`HELD_OUT_CLIPS`); ``--split`` scores one side (``tune_*`` / ``held_out_*`` figures are reported
+either way with ``--split all``). Clips of the same scene are on the same side. ``--quick``: two short
+clips (one EV, one traffic) and no photos: a CI smoke test of the whole path, in about 20 s.
+
+With ``--json`` the last line is one JSON object: ``ev_recall``, ``alert_delay_median_s``,
+``alert_delay_max_s``, ``wrong_vehicle_alerts``, ``traffic_false_alerts``, ``traffic_video_s``,
+``by_viewpoint``, ``photo_precision``, ``photo_recall``, ``split_*``, ``crop_ms``, ``per_clip``, ... (photo,
+split and crop figures are null with ``--clips-only``, ``--quick`` or ``--ev-body none``).
 
 The clips are scanned with an image-only localiser (``rsu.scan``): the corridor localiser of ``rsu1`` drops what it
 cannot place in its zone (most of the track-frames of a clip filmed elsewhere), so these figures count every track,
@@ -36,7 +46,9 @@ from bench._setup import REAL, ROOT  # noqa: F401  first: one thread per numeric
 
 # isort: split
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
+import pickle  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -49,13 +61,44 @@ from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # no
 from rsu.classify.real_data import REVIEW_CSV, crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import Detector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
+from rsu.scan_labels import LabelError, load_labels, score_clip, summarize  # noqa: E402
 
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
+LABELS = ROOT / "bench" / "labels"
+TUNE_CLIPS = (
+    "closeup_police_lightbar_cycle", "elevated_police_nyc_redbars", "handheld_ambulance_florence_blue",
+    "handheld_night_fire_engines", "incar_night_ambulance_ahead_blue", "india_ambulance_police_escort",
+    "news_ambulances_australia_redblue", "street_ambulance_japan_red",
+    "ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights",
+)
+"""Clips a threshold of the recogniser may be set on (the escort, Japanese street, NYC and Florence clips set
+the light-bar colour test and the strong-flash rule before)."""
+HELD_OUT_CLIPS = (
+    "elevated_day_ambulance_japan_red", "handheld_day_ambulance_blue", "night_ambulance_india_blue",
+    "roadside_ambulance_yellow", "roadside_night_ambulance_india_redblue",
+    "ambdet_video_4", "embankment_day_dual_carriageway", "haarcascades_video2", "overpass_day_highway",
+)
+"""Clips nothing is set on: they measure. The two night Indian clips are one scene, as are ambdet_video_4 and
+haarcascades_video2 (one motorway camera): each pair is on one side."""
+QUICK_CLIPS = ("elevated_day_ambulance_japan_red", "ambdet_video_4")
 
 
-def clip_figures(path: Path, kind: str, body: str, max_s: float | None) -> dict:
-    r = scan_video(path, detector_model=YOLOX, body=body, max_s=max_s, threads=1)
+def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: Path | None = None,
+                 rescore: bool = False) -> tuple[dict, object]:
+    """One clip's scan and, where it has a label file, its per-vehicle score (None without one). ``scans``: a
+    folder where each clip's scan is kept (``<stem>.pkl``); ``rescore``: read it from there instead of scanning
+    (scores again against the labels as they are now)."""
+    kept = None if scans is None else scans / f"{path.stem}.pkl"
+    if rescore:
+        if kept is None or not kept.is_file():
+            raise FileNotFoundError(f"--rescore: no kept scan {kept} (run once with --scans {scans} first)")
+        r = pickle.loads(kept.read_bytes())
+    else:
+        r = scan_video(path, detector_model=YOLOX, body=body, max_s=max_s, threads=1, record_boxes=True)
+        if kept is not None:
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            kept.write_bytes(pickle.dumps(r))
     ev = r.ev_tracks
     cues = sorted({c for t in ev for c in t.cues})
     out = dict(clip=path.name, kind=kind, duration_s=round(r.duration_s, 2), frames=r.frames,
@@ -65,10 +108,52 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None) -> dict:
                             alert_s=round(t.confirmed_s, 2), cues=list(t.cues),
                             body_score=None if t.body_score is None else round(t.body_score, 3)) for t in ev],
                candidate_tracks=len(r.tracks) - len(ev), ms_per_frame=round(1000 * r.wall_s / max(r.frames, 1), 2))
+    score = None
+    label_file = LABELS / f"{path.stem}.json"
+    if label_file.is_file():
+        labels = load_labels(label_file)
+        if max_s is not None:
+            labels = dataclasses.replace(labels, duration_s=min(labels.duration_s, r.duration_s))
+        score = score_clip(labels, r.track_boxes)
+        out["score"] = score.to_json()
+        out["alert_rows"] = alert_rows(r, score)
+    found = "-" if score is None else " ".join(
+        f"{e.name}:{'-' if not e.scorable else ('MISS' if e.found_s is None else f'{e.delay_s:.1f}s')}"
+        for e in score.evs) or "no EV"
+    wrong = "-" if score is None else len(score.wrong_tracks)
     first = "-" if r.first_alert_s is None else f"{r.first_alert_s:.2f} s"
-    print(f"  {kind:7s} {path.name:40s} {r.duration_s:5.1f} s  alerts {out['alerts']:2d}  first {first:>7s}  "
-          f"tracks {out['tracks_alerted']}  cues {'+'.join(cues) or '-'}  {out['ms_per_frame']:.1f} ms/frame",
+    print(f"  {kind:7s} {path.name:42s} {r.duration_s:5.1f} s  alerts {out['alerts']:2d}  first {first:>7s}  "
+          f"found {found}  wrong {wrong}  cues {'+'.join(cues) or '-'}  {out['ms_per_frame']:.1f} ms/frame",
           flush=True)
+    return out, score
+
+
+def alert_rows(r, score) -> list[dict]:
+    """Each alert onset with what it rested on (cues, body score, box width), the confidence the RSU gave it and
+    whether it was right (its track on a labelled EV): the data of ``bench/fit_alert_confidence.py``."""
+    rows = []
+    for a in r.alerts:
+        if a.state != "active":
+            continue
+        box = next((b for b in r.track_boxes.get(a.track_id, []) if abs(b[0] - a.t_s) < 1e-6), None)
+        rows.append(dict(track_id=a.track_id, t_s=round(a.t_s, 3), cues=list(a.cues),
+                         body_score=None if a.body_score is None else round(a.body_score, 3),
+                         width_px=None if box is None else round(box[3] - box[1], 1),
+                         confidence=None if a.confidence is None else round(a.confidence, 3),
+                         right=a.track_id in score.on_ev_tracks))
+    return rows
+
+
+def clip_paths(split: str, names: list[str] | None, quick: bool) -> list[tuple[str, Path]]:
+    """(kind, path) of the clips to scan, in folder then name order."""
+    wanted = set(QUICK_CLIPS) if quick else set(names) if names else None
+    if wanted is None and split != "all":
+        wanted = set(TUNE_CLIPS if split == "tune" else HELD_OUT_CLIPS)
+    out = []
+    for kind, folder in (("ev", REAL / "ev_videos"), ("traffic", REAL / "traffic_videos")):
+        for path in sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES):
+            if wanted is None or path.stem in wanted or path.name in wanted:
+                out.append((kind, path))
     return out
 
 
@@ -100,11 +185,36 @@ def split_figures(root: Path, body, crop_calls: int) -> dict:
     return dict(out, crop_ms=ms_per_crop(body, crops, crop_calls), crop_calls=crop_calls)
 
 
+def print_scores(f: dict) -> None:
+    def line(name: str, g: dict) -> str:
+        rec = "-" if g["ev_recall"] is None else f"{g['ev_recall']:.2f}"
+        med = "-" if g["alert_delay_median_s"] is None else f"{g['alert_delay_median_s']:.2f}"
+        mx = "-" if g["alert_delay_max_s"] is None else f"{g['alert_delay_max_s']:.2f}"
+        return (f"  {name:10s} EVs {g['evs_found']}/{g['evs_scorable']} (recall {rec}), delay median {med} s "
+                f"max {mx} s, wrong-vehicle alerts {g['wrong_vehicle_alerts']}, traffic false alerts "
+                f"{g['traffic_false_alerts']} in {g['traffic_video_s']:.0f} s")
+    print("per-vehicle scores:")
+    print(line("all", f))
+    for vp, g in f["by_viewpoint"].items():
+        print(line(vp, g))
+    for side in ("tune", "held_out"):
+        if f"{side}_ev_recall" in f:
+            print(line(side, {k[len(side) + 1:]: v for k, v in f.items() if k.startswith(side + "_")}))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ev-body", default="default", help="default (models/ev_body.onnx), none, or PATH.onnx")
     ap.add_argument("--clips-only", action="store_true", help="only the clips (no photo, split or cost figures)")
     ap.add_argument("--max-s", type=float, default=None, help="scan only the first S seconds of each clip")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"smoke test: only {' and '.join(QUICK_CLIPS)}, no photos (implies --clips-only)")
+    ap.add_argument("--split", choices=("all", "tune", "held_out"), default="all",
+                    help="score the tuning clips, the held-out clips, or all (default)")
+    ap.add_argument("--clips", default=None, help="comma-separated clip names (stems) to scan instead")
+    ap.add_argument("--scans", type=Path, default=None, help="keep each clip's scan in this folder (a cache)")
+    ap.add_argument("--rescore", action="store_true",
+                    help="score the scans kept in --scans against the labels as they are now, without scanning")
     ap.add_argument("--crop-calls", type=int, default=300, help="single-crop calls timed for crop_ms")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
     args = ap.parse_args(argv)
@@ -120,17 +230,34 @@ def main(argv=None) -> int:
     except (FileNotFoundError, ValueError) as exc:
         print(f"ev_real_bench: {exc} (--ev-body none measures the lamps alone)", file=sys.stderr)
         return 2
-    per_clip = []
+    per_clip, scores = [], []
+    paths = clip_paths(args.split, args.clips.split(",") if args.clips else None, args.quick)
+    if not paths:
+        print(f"ev_real_bench: no clip matches --clips {args.clips}", file=sys.stderr)
+        return 2
     print(f"clips (YOLOX-Nano, EV body {args.ev_body}{'' if args.max_s is None else f', first {args.max_s} s'}):")
-    for kind, folder in (("ev", REAL / "ev_videos"), ("traffic", REAL / "traffic_videos")):
-        for path in sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES):
-            per_clip.append(clip_figures(path, kind, args.ev_body, args.max_s))
+    try:
+        for kind, path in paths:
+            out, score = clip_figures(path, kind, args.ev_body, args.max_s, args.scans, args.rescore)
+            per_clip.append(out)
+            if score is not None:
+                scores.append(score)
+    except (LabelError, FileNotFoundError) as exc:
+        print(f"ev_real_bench: {exc}", file=sys.stderr)
+        return 2
     ev_clips = [c for c in per_clip if c["kind"] == "ev"]
     figures = dict(real_ev_clips_alerted=sum(c["alerts"] > 0 for c in ev_clips), real_ev_clips=len(ev_clips),
-                   real_traffic_false_alerts=sum(len(c["tracks_alerted"]) for c in per_clip if c["kind"] == "traffic"),
-                   real_traffic_clips=len(per_clip) - len(ev_clips), ev_body=args.ev_body, max_s=args.max_s)
-    print(f"EV clips alerted {figures['real_ev_clips_alerted']}/{figures['real_ev_clips']}, false alert tracks on "
-          f"{figures['real_traffic_clips']} traffic clips: {figures['real_traffic_false_alerts']}")
+                   real_traffic_clips=len(per_clip) - len(ev_clips), ev_body=args.ev_body, max_s=args.max_s,
+                   split=args.split if not (args.quick or args.clips) else None,
+                   clips_scored=len(scores), clips_unlabelled=[c["clip"] for c in per_clip if "score" not in c])
+    figures.update(summarize(scores))
+    if args.split == "all" and not (args.quick or args.clips):
+        for side, names in (("tune", TUNE_CLIPS), ("held_out", HELD_OUT_CLIPS)):
+            sub = summarize([s for s in scores if Path(s.clip).stem in names])
+            figures.update({f"{side}_{k}": v for k, v in sub.items() if k != "by_viewpoint"})
+    print_scores(figures)
+    if args.quick:
+        args.clips_only = True
     for key in ("photo_precision", "photo_recall", "split_precision", "split_recall", "crop_ms"):
         figures[key] = None
     if body is not None and not args.clips_only:

@@ -167,10 +167,16 @@ def build_scan_parser() -> argparse.ArgumentParser:
                     help="EV-body classifier: default (models/ev_body.onnx), none (lamps only), or PATH.onnx")
     ap.add_argument("--max-s", type=float, default=None, help="scan only the first S seconds of the clip")
     ap.add_argument("--threads", type=int, default=1, help="CPU threads for the detector and classifiers")
+    ap.add_argument("--labels", metavar="LABELS.json", default=None,
+                    help="score the alerts per vehicle against this clip's labels (format: rsu.scan_labels; "
+                         "e.g. bench/labels/<clip>.json): EVs found, alert delays, wrong-vehicle alerts; "
+                         "--json adds a line of type score before the summary")
     return ap
 
 
 def scan_main(argv: list[str]) -> int:
+    import json
+
     from rsu.scan import scan_video
 
     args = build_scan_parser().parse_args(argv)
@@ -183,27 +189,62 @@ def scan_main(argv: list[str]) -> int:
         print(f"iea-rsu scan: {t_s:6.1f} s of video, {frames} frames, {ev_tracks} EV tracks", file=sys.stderr,
               flush=True)
 
+    labels = None
+    if args.labels is not None:
+        from rsu.scan_labels import load_labels
+
+        try:
+            labels = load_labels(args.labels)
+        except (FileNotFoundError, ValueError) as exc:
+            print(f"iea-rsu scan: --labels: {exc}", file=sys.stderr)
+            return 2
     try:
         result = scan_video(args.video, detector_model=args.model, body=args.ev_body, max_s=args.max_s,
-                            annotate_path=args.annotate, threads=args.threads, progress=progress)
+                            annotate_path=args.annotate, threads=args.threads, progress=progress,
+                            record_boxes=labels is not None)
     except (FileNotFoundError, ValueError, SourceError, SourceStalled) as exc:
         hint = " (--ev-body none scans on the lamps alone)" if "ev_body" in str(exc) else ""
         print(f"iea-rsu scan: {exc}{hint}", file=sys.stderr)
         return 2
+    score_row = None
+    if labels is not None:
+        from dataclasses import replace
+
+        from rsu.scan_labels import score_clip, summarize
+
+        if args.max_s is not None:  # a partial scan is scored on the part scanned
+            labels = replace(labels, duration_s=min(labels.duration_s, result.duration_s))
+
+        score = score_clip(labels, result.track_boxes)
+        figures = {k: v for k, v in summarize([score]).items() if k != "by_viewpoint"}
+        score_row = dict(type="score", video=result.video, **figures, **score.to_json())
     if args.json:
-        print("\n".join(result.json_lines()))
+        lines = result.json_lines()
+        if score_row is not None:
+            lines.insert(len(lines) - 1, json.dumps(score_row))
+        print("\n".join(lines))
         return 0
     for t in result.ev_tracks:
         body = "-" if t.body_score is None else f"{t.body_score:.2f}"
         box = ",".join(f"{v:.0f}" for v in t.last_box)
         print(f"EV track {t.track_id}: seen {t.first_seen_s:.2f} s, alert {t.confirmed_s:.2f} s, cues "
               f"{'+'.join(t.cues) or '-'}, body {body}, last seen {t.last_seen_s:.2f} s at [{box}]")
+    if score_row is not None:
+        found = ", ".join(f"{e['name']} {_ev_outcome(e)}" for e in score_row["evs"]) or "no EV labelled"
+        print(f"labels {args.labels}: {found}; wrong-vehicle alerts {len(score_row['wrong_tracks'])} "
+              f"(tracks {score_row['wrong_tracks']})")
     s = result.summary()
     first = "-" if s["first_alert_s"] is None else f"{s['first_alert_s']:.2f} s"
     print(f"{result.video}: {s['duration_s']:.1f} s, {s['frames']} frames in {s['wall_s']:.1f} s; "
           f"{s['ev_tracks']} EV tracks (first alert {first}), {s['candidate_tracks']} candidates never confirmed; "
           f"detector {s['detector']}, EV body {s['body'] or 'none'}")
     return 0
+
+
+def _ev_outcome(e: dict) -> str:
+    if not e["scorable"]:
+        return "not scorable"
+    return "missed" if e["found_s"] is None else f"found {e['delay_s']:.2f} s after it could be"
 
 
 def pipeline_config(args: argparse.Namespace) -> PipelineConfig:

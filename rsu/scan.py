@@ -86,6 +86,8 @@ class AlertRecord:
     cues: tuple[str, ...]
     body_score: float | None
     clear_reason: str | None = None
+    confidence: float | None = None
+    """``EvAlert.confidence`` (:mod:`rsu.classify.confidence`)."""
 
 
 @dataclass
@@ -197,7 +199,8 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                         continue  # a 2 Hz refresh of an alert already raised
                     (active.add if e.state == AlertState.ACTIVE else active.discard)(e.track_id)
                     alerts.append(AlertRecord(now, e.track_id, e.state.value, tuple(c.value for c in e.cues),
-                                              e.body_score, e.clear_reason.value if e.clear_reason else None))
+                                              e.body_score, e.clear_reason.value if e.clear_reason else None,
+                                              float(e.confidence)))
                 if record_boxes:
                     for obj in result.objects:
                         tid = int(obj.object_id)

@@ -16,8 +16,8 @@ clip with no ``ev`` vehicle has no EV: every alert on it is false.
 **Scoring** (:func:`score_clip`, pure) takes the scan's tracks (per track id, one ``(t_s, x1, y1, x2, y2,
 alerted)`` per frame; ``rsu.scan.ScanResult.track_boxes``):
 
-- an EV is *found* at the first frame where an alerted track's box overlaps its box with IoU >=
-  :data:`FOUND_IOU` while its lights are on;
+- an EV is *found* at the first frame where an alerted track that is *on* an EV (below) overlaps its box
+  with IoU >= :data:`FOUND_IOU` while its lights are on;
 - it is *scorable* (counted by ``ev_recall``) when its lights are on and its box at least
   :data:`MIN_EV_WIDTH_PX` wide for at least :data:`MIN_SCORABLE_S` without a break; the alert delay runs
   from the first frame of that stretch to the frame it is found (0 when found earlier);
@@ -259,19 +259,6 @@ def _widest(vehicle: LabelledVehicle) -> float:
 def score_clip(labels: ClipLabels, tracks: TrackRows, *, min_width_px: float = MIN_EV_WIDTH_PX) -> ClipScore:
     """Per-vehicle score of one clip's scan against its labels (see the module docstring)."""
     out = ClipScore(labels.clip, labels.viewpoint, labels.has_ev, labels.duration_s)
-    times = labels.frame_times()
-    for ev in labels.evs:
-        start, widest = scorable_from(ev, times, min_width_px)
-        found_s, found_track = None, None
-        for tid, rows in tracks.items():
-            for t, x1, y1, x2, y2, alerted in rows:
-                if not alerted or (found_s is not None and t >= found_s):
-                    continue
-                at = ev.at(t)
-                if at is not None and at[1] and iou((x1, y1, x2, y2), at[0]) >= FOUND_IOU:
-                    found_s, found_track = float(t), int(tid)
-                    break
-        out.evs.append(EvScore(ev.name, start is not None, start, found_s, found_track, widest))
     flashers = [v for v in labels.vehicles if v.role == "flasher"]
     for tid, rows in sorted(tracks.items()):
         alerted = [r for r in rows if r[5]]
@@ -291,6 +278,19 @@ def score_clip(labels: ClipLabels, tracks: TrackRows, *, min_width_px: float = M
             out.wrong_tracks.append(int(tid))
             if on_flasher >= 0.5 * len(alerted):
                 out.flasher_tracks.append(int(tid))
+    times = labels.frame_times()
+    for ev in labels.evs:
+        start, widest = scorable_from(ev, times, min_width_px)
+        found_s, found_track = None, None
+        for tid in out.on_ev_tracks:  # a wrong-vehicle track that brushes the EV does not find it
+            for t, x1, y1, x2, y2, alerted in tracks[tid]:
+                if not alerted or (found_s is not None and t >= found_s):
+                    continue
+                at = ev.at(t)
+                if at is not None and at[1] and iou((x1, y1, x2, y2), at[0]) >= FOUND_IOU:
+                    found_s, found_track = float(t), int(tid)
+                    break
+        out.evs.append(EvScore(ev.name, start is not None, start, found_s, found_track, widest))
     return out
 
 

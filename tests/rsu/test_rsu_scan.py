@@ -103,6 +103,40 @@ def test_synthetic_flashing_ev_is_alerted(tmp_path, capsys):
     assert lines[0].startswith(f"EV track {t['track_id']}:") and "EV tracks" in lines[-1]
 
 
+def test_labels_score_the_alert_per_vehicle(tmp_path, capsys):
+    """With --labels, the flashing vehicle of the synthetic clip is found on its own track; a label file that
+    puts the EV elsewhere turns the same alert into a wrong-vehicle alert; a bad label file exits 2."""
+    from rsu.scan_labels import ClipLabels, LabelledVehicle, write_labels
+
+    clip = tmp_path / "ev.mp4"
+    write_ev_clip(clip)
+
+    def labels(dx: float) -> Path:
+        frames = []
+        for k in range(2, 9):  # every 0.5 s from 1.0 s: the body at x = -140 + 150 (T - 1), the bar above it
+            x = -140 + 150 * (k / 2 - 1) + dx
+            if x + 130 > 0:
+                frames.append((k / 2, max(x, 0.0), 108.0, min(x + 130, 640.0), 190.0, True))
+        v = LabelledVehicle("ev", "ev", "ambulance", tuple(frames))
+        return write_labels(ClipLabels("ev.mp4", "ev_videos", "roadside", 640, 270, 15.0, 4.4, (v,)),
+                            tmp_path / f"labels_{dx:.0f}.json")
+
+    assert main(["scan", str(clip), "--json", "--model", "motion", "--ev-body", "none",
+                 "--labels", str(labels(0.0))]) == 0
+    rows = json_rows(capsys.readouterr().out)
+    assert rows[-1]["type"] == "summary" and rows[-2]["type"] == "score"
+    score = rows[-2]
+    assert score["evs_scorable"] == 1 and score["ev_recall"] == 1.0 and score["wrong_vehicle_alerts"] == 0
+    assert score["evs"][0]["found_track"] in score["on_ev_tracks"] and score["alert_delay_max_s"] <= 3.0
+    assert main(["scan", str(clip), "--model", "motion", "--ev-body", "none", "--labels", str(labels(300.0))]) == 0
+    out = capsys.readouterr().out
+    assert "ev missed" in out and "wrong-vehicle alerts 1" in out
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"clip": "ev.mp4"}')
+    assert main(["scan", str(clip), "--model", "motion", "--ev-body", "none", "--labels", str(bad)]) == 2
+    assert "missing" in capsys.readouterr().err
+
+
 @pytest.mark.shared
 @pytest.mark.slow
 def test_real_clip_scan_is_well_formed(capsys):

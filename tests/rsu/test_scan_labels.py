@@ -80,6 +80,15 @@ def test_alert_on_a_neighbour_is_a_wrong_vehicle_and_the_ev_is_missed():
     assert f["ev_recall"] == 0.0 and f["wrong_vehicle_alerts"] == 1 and f["alert_delay_median_s"] is None
 
 
+def test_a_nearer_car_that_brushes_the_ev_does_not_find_it():
+    ev = vehicle("amb", [BOX] * 9)
+    car = (150.0, 110.0, 230.0, 170.0)  # beside the EV: IoU 0.25 with it
+    rows = track(car, 0.0, 4.0, alert_from=1.0)
+    rows = [(t, *BOX, a) if 1.0 <= t <= 1.4 else (t, *r[1:5], a) for t, *_, a in rows for r in [(t, *car, a)]]
+    s = score_clip(clip(ev), {2: rows})  # on the EV's box for 0.5 of its 3 alerted seconds
+    assert s.wrong_tracks == [2] and s.evs[0].found_s is None
+
+
 def test_alert_while_lights_are_off_does_not_find_the_ev():
     lit = [False] * 4 + [True] * 5  # lit from 2.0 s
     ev = vehicle("amb", [BOX] * 9, lit=lit)
