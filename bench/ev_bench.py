@@ -53,6 +53,7 @@ import numpy as np  # noqa: E402
 
 from protocol.enums import AlertState  # noqa: E402
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
+from rsu.classify.confidence import expected_calibration_error  # noqa: E402
 from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
@@ -110,6 +111,7 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
     first_lit_visible: dict[str, float] = {}  # actor -> first time a camera sees it lit
     votes = defaultdict(Counter)              # (rsu, track) -> Counter(actor id)
     alert_match: dict[tuple, tuple] = {}      # (rsu, track) -> (actor or None, ok, t)
+    alert_confidence: list[tuple[float, bool]] = []  # each alert's first EvAlert.confidence, and whether it was right
     found: set[tuple] = set()
     first_alert_ev: dict[str, float] = {}
     decoys = {a.actor_id: style_signal(a.style).mode for a in world.snapshot().actors if style_signal(a.style)}
@@ -166,6 +168,7 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
                 ev_iou = float(iou_matrix(box, np.array([lb.bbox_px for lb in evl], float)).max()) if evl else 0.0
                 alert_match[key] = (actor, ok, snap.sim_time_s, round(ev_iou, 2),
                                     tuple(int(v) for v in e.row.boxes[0]))
+                alert_confidence.append((round(float(e.confidence), 4), bool(ok)))
                 if DEBUG and not ok:
                     evd = clf.tracks[e.track_id].evidence
                     print("  FALSE", rsu_id, e.track_id, actor, round(snap.sim_time_s, 2), "cues",
@@ -197,7 +200,8 @@ def run_one(scenario_name: str, seed: int, detector: str, duration_s: float | No
                 false_alerts=len(false), false_detail=[[*k_, m[0], round(m[2], 2), *m[3:]] for k_, m in false],
                 lights_on_to_alert_s=latency, frames=frames, pipeline_ms_per_frame=1000 * t_pipe / max(frames, 1),
                 decoy_lamp_vehicles=len(decoys_seen), decoy_lamp_modes=dict(seen_modes),
-                false_alerts_on_decoy_lamps=sum(1 for _k, m in false if m[0] in decoys))
+                false_alerts_on_decoy_lamps=sum(1 for _k, m in false if m[0] in decoys),
+                alert_confidence=alert_confidence)
 
 
 def main(argv=None) -> int:
@@ -259,6 +263,8 @@ def main(argv=None) -> int:
         decoy_lamp_vehicles=sum(r["decoy_lamp_vehicles"] for r in runs),
         decoy_lamp_modes=dict(sum((Counter(r["decoy_lamp_modes"]) for r in runs), Counter())),
         false_alerts_on_decoy_lamps=sum(r["false_alerts_on_decoy_lamps"] for r in runs),
+        alert_confidence_ece=expected_calibration_error([c for r in runs for c, _ in r["alert_confidence"]],
+                                                        [int(ok) for r in runs for _, ok in r["alert_confidence"]]),
         detector=args.detector, box_gate=args.box_gate, crop_classifier=args.crop_classifier, ev_body=args.ev_body, seeds=args.seeds, scenarios=args.scenarios, duration_s=args.duration_s,
         fps=15.0, keep_fraction=args.keep_fraction, runtime_s=time.perf_counter() - t0)
     print(f"track recall {figures['track_recall']}  false alerts {figures['false_alerts']}  "

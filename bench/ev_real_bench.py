@@ -32,7 +32,7 @@ clips (one EV, one traffic) and no photos: a CI smoke test of the whole path, in
 
 With ``--json`` the last line is one JSON object: ``ev_recall``, ``alert_delay_median_s``,
 ``alert_delay_max_s``, ``wrong_vehicle_alerts``, ``traffic_false_alerts``, ``traffic_video_s``,
-``by_viewpoint``, ``photo_precision``, ``photo_recall``, ``split_*``, ``crop_ms``, ``per_clip``, ... (photo,
+``by_viewpoint``, ``alert_confidence_ece`` (``tune_`` / ``held_out_``), ``photo_precision``, ``photo_recall``, ``split_*``, ``crop_ms``, ``per_clip``, ... (photo,
 split and crop figures are null with ``--clips-only``, ``--quick`` or ``--ev-body none``).
 
 The clips are scanned with an image-only localiser (``rsu.scan``): the corridor localiser of ``rsu1`` drops what it
@@ -57,6 +57,7 @@ import numpy as np  # noqa: E402
 
 from rsu.build import PipelineConfig, build_detector  # noqa: E402
 from rsu.classify.body import load_body_classifier  # noqa: E402
+from rsu.classify.confidence import expected_calibration_error  # noqa: E402
 from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # noqa: E402
 from rsu.classify.real_data import REVIEW_CSV, crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import Detector  # noqa: E402
@@ -185,6 +186,19 @@ def split_figures(root: Path, body, crop_calls: int) -> dict:
     return dict(out, crop_ms=ms_per_crop(body, crops, crop_calls), crop_calls=crop_calls)
 
 
+def confidence_figures(per_clip: list[dict]) -> dict:
+    """Expected calibration error of ``EvAlert.confidence`` over the alerts of the clips scanned (all, tuning,
+    held-out): the model of :mod:`rsu.classify.confidence` was fitted on the tuning clips' alerts."""
+    out = {}
+    for prefix, names in (("", None), ("tune_", TUNE_CLIPS), ("held_out_", HELD_OUT_CLIPS)):
+        rows = [a for c in per_clip if names is None or Path(c["clip"]).stem in names for a in c.get("alert_rows", [])
+                if a["confidence"] is not None]
+        ece = expected_calibration_error([a["confidence"] for a in rows], [int(a["right"]) for a in rows])
+        out[f"{prefix}alert_confidence_ece"] = None if ece is None else round(ece, 3)
+        out[f"{prefix}alerts_scored"] = len(rows)
+    return out
+
+
 def print_scores(f: dict) -> None:
     def line(name: str, g: dict) -> str:
         rec = "-" if g["ev_recall"] is None else f"{g['ev_recall']:.2f}"
@@ -197,6 +211,8 @@ def print_scores(f: dict) -> None:
     print(line("all", f))
     for vp, g in f["by_viewpoint"].items():
         print(line(vp, g))
+    print(f"  EvAlert.confidence ECE {f['alert_confidence_ece']} over {f['alerts_scored']} alerts (tuning "
+          f"{f['tune_alert_confidence_ece']}, held-out {f['held_out_alert_confidence_ece']})")
     for side in ("tune", "held_out"):
         if f"{side}_ev_recall" in f:
             print(line(side, {k[len(side) + 1:]: v for k, v in f.items() if k.startswith(side + "_")}))
@@ -255,6 +271,7 @@ def main(argv=None) -> int:
         for side, names in (("tune", TUNE_CLIPS), ("held_out", HELD_OUT_CLIPS)):
             sub = summarize([s for s in scores if Path(s.clip).stem in names])
             figures.update({f"{side}_{k}": v for k, v in sub.items() if k != "by_viewpoint"})
+    figures.update(confidence_figures(per_clip))
     print_scores(figures)
     if args.quick:
         args.clips_only = True

@@ -2,7 +2,9 @@
 localised tracks (the ``ev_states`` and ``evidence`` columns of ``rsu.perception.Detections``) into alert events
 (pure: the caller gives the frame time): ``active`` when a track becomes confirmed, a refresh every
 ``refresh_period_s`` (2 Hz) while active, ``cleared`` when its evidence clears (lights off) or the track has not
-been seen for ``leave_after_s`` (it left the view). ``rsu.wire.ev_alert`` makes the wire message of an event.
+been seen for ``leave_after_s`` (it left the view). ``rsu.wire.ev_alert`` makes the wire message of an event. Each
+event's ``confidence`` is the calibrated probability of :mod:`rsu.classify.confidence` that the track is an EV with
+its lights on, from the cues, body score and box width it rests on.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from protocol.enums import AlertState, ClearReason, EvCue, EvState
+from rsu.classify.confidence import DEFAULT_MODEL, ConfidenceModel, alert_features
 from rsu.perception import Detections
 
 
@@ -55,6 +58,7 @@ class EvAlertManager:
 
     refresh_period_s: float = 0.5
     leave_after_s: float = 1.0
+    confidence_model: ConfidenceModel = DEFAULT_MODEL
     active: dict[int, _Active] = field(default_factory=dict)
 
     def update(self, now_s: float, tracks: Detections) -> list[AlertEvent]:
@@ -72,12 +76,13 @@ class EvAlertManager:
             if states[k] == EvState.CONFIRMED:
                 row = tracks[k]
                 ev = info.evidence if info is not None else None
-                conf = float(scores[k])
                 frames = ev.frames if ev is not None else 0
                 hz = ev.flash_hz if ev is not None else None
-                mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else conf
+                mean = ev.mean_crop_score if ev is not None and ev.score_sum > 0 else float(scores[k])
                 cues = ev.cues if ev is not None else ()
                 body = ev.body_score if ev is not None else None
+                box = row.boxes[0]
+                conf = self.confidence_model(alert_features(cues, body, float(box[2]) - float(box[0])))
                 if a is None:
                     first = info.first_seen_s if info is not None else now_s
                     a = self.active[tid] = _Active(row, first, now_s, now_s, conf, frames, hz, mean, cues, body)
