@@ -1,0 +1,46 @@
+"""bench/label_tool.py: choices on the proposals turn into a valid label file (pure part, no video)."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.label_tool import build_labels, parse_ranges, parse_vehicle
+
+PROPOSALS = dict(clip="c.mp4", folder="ev_videos", width=640, height=360, fps=25.0, duration_s=2.0, boxes={
+    "0.000": {"3": [10, 10, 60, 50], "4": [200, 10, 260, 50]},
+    "0.500": {"3": [20, 10, 70, 50]},
+    "1.000": {"7": [30, 10, 80, 50]},   # the detector gave the EV a new track id
+    "1.500": {},                         # and missed it
+    "2.000": {"7": [50, 10, 100, 50]},
+})
+
+
+def test_tracks_boxes_and_lit_ranges_become_frames():
+    ev = parse_vehicle("amb kind=ambulance tracks=3,7 lit=0-0.75", "ev", 2.0)
+    labels = build_labels(PROPOSALS, "elevated", [ev], ["amb 1.5 40 10 90 50"], [], "note")
+    (v,) = labels.vehicles
+    assert [f[0] for f in v.frames] == [0.0, 0.5, 1.0, 1.5, 2.0]
+    assert v.frames[3][1:5] == (40.0, 10.0, 90.0, 50.0)           # the box read off the grid
+    assert [f[5] for f in v.frames] == [True, True, False, False, False]
+    assert labels.has_ev and labels.viewpoint == "elevated" and labels.note == "note"
+
+
+def test_gone_ranges_and_flashers():
+    ev = parse_vehicle("amb tracks=3,7", "ev", 2.0)
+    hz = parse_vehicle("hz kind=hazard tracks=4 lit=all", "flasher", 2.0)
+    labels = build_labels(PROPOSALS, "roadside", [ev, hz], [], ["amb 0.9-1.1"], "")
+    amb, flasher = labels.vehicles
+    assert 1.0 not in [f[0] for f in amb.frames]
+    assert flasher.role == "flasher" and len(flasher.frames) == 1 and labels.evs == [amb]
+
+
+def test_bad_choices_say_what_is_wrong():
+    with pytest.raises(ValueError, match="A-B"):
+        parse_ranges("1to2", 5.0)
+    with pytest.raises(ValueError, match="unknown field"):
+        parse_vehicle("amb colour=red", "ev", 5.0)
+    ev = parse_vehicle("amb tracks=99", "ev", 2.0)
+    with pytest.raises(ValueError, match="no box"):
+        build_labels(PROPOSALS, "elevated", [ev], [], [], "")
+    with pytest.raises(ValueError, match="NAME T X1"):
+        build_labels(PROPOSALS, "elevated", [parse_vehicle("amb tracks=3", "ev", 2.0)], ["amb 1.0 1 2"], [], "")
