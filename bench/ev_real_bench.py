@@ -73,8 +73,9 @@ TUNE_CLIPS = (
     "news_ambulances_australia_redblue", "street_ambulance_japan_red",
     "ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights",
 )
-"""Clips a threshold of the recogniser may be set on (the escort, Japanese street, NYC and Florence clips set
-the light-bar colour test and the strong-flash rule before)."""
+"""Clips a threshold of the recogniser may be set on: the escort, Japanese street, NYC and Florence clips set the
+light-bar colour test and the strong-flash rule before; the alerts of all of them fit ``EvAlert.confidence``
+(``bench/fit_alert_confidence.py``, :data:`rsu.classify.confidence.DEFAULT_MODEL`)."""
 HELD_OUT_CLIPS = (
     "elevated_day_ambulance_japan_red", "handheld_day_ambulance_blue", "night_ambulance_india_blue",
     "roadside_ambulance_yellow", "roadside_night_ambulance_india_redblue",
