@@ -202,10 +202,10 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                                               e.body_score, e.clear_reason.value if e.clear_reason else None,
                                               float(e.confidence)))
                 if record_boxes:
-                    for obj in result.objects:
-                        tid = int(obj.object_id)
-                        track_boxes.setdefault(tid, []).append(
-                            (now, *(float(v) for v in obj.bbox_px), tid in active))
+                    published = result.published
+                    for tid, box in zip(published.column("track_ids"), published.boxes, strict=True):
+                        track_boxes.setdefault(int(tid), []).append(
+                            (now, *(float(v) for v in box), int(tid) in active))
                 if annotate_path is not None:
                     writer = writer or _open_writer(annotate_path, source.fps, frame.image.shape)
                     writer.write(draw_scan(frame.image, result, clf, now))
