@@ -66,6 +66,24 @@ def json_view(payload: bytes) -> Any:
     return json.loads(text)
 
 
+CAMERA_SUFFIX, CAMERA_KIND = "/camera/jpeg", "foxglove.CompressedImage"
+"""An RSU's annotated camera frames (docs/protocol.md): Foxglove's CompressedImage as JSON, not a msgpack message."""
+
+
+def camera_frame_error(payload: bytes) -> str | None:
+    """Why ``payload`` is not a ``foxglove.CompressedImage`` JSON object holding a JPEG (None: it is)."""
+    try:
+        value = json.loads(payload)
+        image = base64.b64decode(value["data"], validate=True)
+    except (ValueError, KeyError, TypeError) as exc:
+        return f"not a CompressedImage JSON object with base64 data: {exc}"
+    if value.get("format") != "jpeg" or not image.startswith(b"\xff\xd8"):
+        return "a camera frame is a JPEG (format 'jpeg', data starting with the JPEG marker)"
+    if not isinstance(value.get("frame_id"), str) or not isinstance(value.get("timestamp"), dict):
+        return "a CompressedImage has a frame_id string and a timestamp {sec, nsec}"
+    return None
+
+
 def key_matches(pattern: str, key: str) -> bool:
     """Zenoh-style match where ``*`` stands for exactly one chunk (all the schemas' patterns use)."""
     p, k = pattern.split("/"), key.split("/")
@@ -93,6 +111,8 @@ class WireChecker:
         return self._classify(key, payload)[1]
 
     def _classify(self, key: str, payload: bytes) -> tuple[str, str | None]:
+        if key.endswith(CAMERA_SUFFIX):
+            return CAMERA_KIND, camera_frame_error(payload)
         try:
             value = json_view(payload)
         except ValueError as exc:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
+import shutil
 import subprocess
 import sys
 import uuid
@@ -55,3 +58,34 @@ def spawn(request):
             p.communicate(timeout=5)
         except Exception:
             pass
+
+
+# ------------------------------------------------------------------ the Node readers (tests/node)
+NODE_DIR = ROOT / "tests" / "node"
+NEEDED = ("@mcap/core", "@mcap/support", "@foxglove/ws-protocol", "@foxglove/schemas", "ajv", "ws")
+
+
+def node_harness() -> str:
+    """The node executable, with tests/node's packages installed (``npm ci`` once); skips when impossible."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("needs Node.js and npm on PATH (apt-get install nodejs npm) for the outside readers")
+    modules = NODE_DIR / "node_modules"
+    with open(NODE_DIR / ".install.lock", "w") as lock:  # one install even with parallel test workers
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not all((modules / name / "package.json").is_file() for name in NEEDED):
+            try:
+                r = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=NODE_DIR, capture_output=True,
+                                   text=True, timeout=240)
+            except subprocess.TimeoutExpired:
+                pytest.skip("npm ci in tests/node took over 240 s (registry unreachable?)")
+            if r.returncode != 0:
+                pytest.skip(f"npm ci in tests/node failed (registry unreachable?): {r.stderr.strip()[-400:]}")
+    return node
+
+
+def run_node(node: str, script: str, *args: str, timeout_s: float = 120.0) -> tuple[int, dict]:
+    r = subprocess.run([node, script, *args], cwd=NODE_DIR, capture_output=True, text=True, timeout=timeout_s)
+    lines = [ln for ln in r.stdout.splitlines() if ln.startswith("{")]
+    assert lines, f"{script} printed no result: {r.stdout[-1000:]} {r.stderr[-2000:]}"
+    return r.returncode, json.loads(lines[-1])

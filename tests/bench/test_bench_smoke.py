@@ -12,7 +12,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, require_shared
+from conftest import ROOT, node_harness, require_shared
 
 from bench.suite import BENCHES, Bench, bench_scripts
 
@@ -43,24 +43,6 @@ def run_quick(bench: Bench) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
-def install_node_harness() -> None:
-    """tests/node's packages (Foxglove's WebSocket client, the MCAP reader), installed once with ``npm ci``; skips
-    when npm or the registry is not there."""
-    node_dir = ROOT / "tests" / "node"
-    if (node_dir / "node_modules").is_dir():
-        return
-    npm = shutil.which("npm")
-    if npm is None:
-        pytest.skip("needs npm on PATH (apt-get install npm) to install tests/node's packages")
-    try:
-        r = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=node_dir, capture_output=True, text=True,
-                           timeout=240)
-    except subprocess.TimeoutExpired:
-        pytest.skip("npm ci in tests/node took over 240 s (registry unreachable?)")
-    if r.returncode != 0:
-        pytest.skip(f"npm ci in tests/node failed (registry unreachable?): {r.stderr.strip()[-400:]}")
-
-
 def test_every_bench_script_has_a_row_in_the_suite():
     assert bench_scripts() == sorted(b.name for b in BENCHES), "add the bench to bench/suite.py's BENCHES"
 
@@ -80,7 +62,7 @@ def test_quick_run_ends_with_its_figures_as_json(bench: Bench):
     if bench.needs_tool and shutil.which(bench.needs_tool) is None:
         pytest.skip(f"{bench.name} needs {bench.needs_tool} on PATH (Debian: apt-get install {bench.needs_tool})")
     if bench.needs_tool == "node":
-        install_node_harness()
+        node_harness()
     r = run_quick(bench)
     assert r.returncode == 0, f"{bench.name} exited {r.returncode}\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}"
     lines = r.stdout.strip().splitlines()

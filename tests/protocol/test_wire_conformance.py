@@ -10,6 +10,7 @@ import importlib.util
 import json
 import math
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -19,6 +20,7 @@ from typing import Any
 
 import msgpack
 import pytest
+from conftest import node_harness, run_node
 
 from protocol import keys
 from protocol.codec import ProtocolError, decode, encode
@@ -242,7 +244,9 @@ def test_json_view_maps_bin_to_base64_and_refuses_what_json_cannot_hold():
 @pytest.mark.slow
 def test_every_message_of_an_iea_demo_run_validates(tmp_path, spawn):
     """`iea demo` (12 s of scenario: the EV alert, the signed command and its ack happen) while the outside
-    client listens on iea/**; every payload of the demo's corridor validates."""
+    client listens on iea/**; every payload of the demo's corridor validates. Its recording is read by the
+    reference MCAP reader in Node (@mcap/core): every channel JSON, every message valid against its schema, the
+    Foxglove scene, map and camera channels there."""
     client = spawn(str(CLIENTS[0]), "--duration-s", "120", "--idle-stop-s", "6", "--json")
     assert client.stdout.readline().startswith("listening")
     assert client.stdout.readline().strip() == "ready"
@@ -260,6 +264,16 @@ def test_every_message_of_an_iea_demo_run_validates(tmp_path, spawn):
     assert {"ObjectList", "EvAlert", "PathSwitchCommand", "CommandAck", "VehicleState", "Health",
             "WorldSnapshot"} <= kinds, kinds
     assert time.monotonic() - t0 < 150
+    recordings = sorted(tmp_path.glob("demo-*/run.mcap"))
+    assert recordings, demo.stdout[-2000:]
+    if shutil.which("node") is None:
+        return  # the Node reader is optional here: tests/deploy/test_foxglove_node.py says why it skips
+    rc, rep = run_node(node_harness(), "read_mcap.mjs", str(recordings[-1]))
+    assert rc == 0 and rep["problemCount"] == 0, rep["problems"]
+    assert rep["encodings"] == {"json": rep["channels"]}
+    for kind in ("ObjectList", "EvAlert", "PathSwitchCommand", "foxglove.SceneUpdate", "foxglove.LocationFix",
+                 "foxglove.CompressedImage"):
+        assert rep["perSchema"].get(kind, 0) > 0, (kind, rep["perSchema"])
 
 
 # ------------------------------------------------------------------ the documented example
