@@ -112,13 +112,12 @@ class Decider:
         within ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it). Returns how many EV commands were issued."""
         now = picture.now
         egos = self._due(picture, unreachable, near)
-        ctx = self.context
-        ev = {i.vehicle_id: i for i in ev_intents(picture, egos, {e.vehicle_id: self.memory[e.vehicle_id].ev
-                                                                   for e in egos}, ctx)}
+        ev = {i.vehicle_id: i for i in ev_intents(picture, egos, self._responses(egos, "ev"), self.context)}
+        # EV over hazard: the hazard policy decides for the vehicles the EV policy leaves alone
         left = [e for e in egos if (i := ev.get(e.vehicle_id)) is None
                 or (i.action == "none" and self.memory[e.vehicle_id].ev.phase == "normal")]
-        hazard = {i.vehicle_id: i for i in hazard_intents(picture, left, {e.vehicle_id: self.memory[e.vehicle_id].hazard
-                                                                            for e in left}, ctx)}
+        hazard = {i.vehicle_id: i for i in hazard_intents(picture, left, self._responses(left, "hazard"),
+                                                            self.context)}
         issued = 0
         for ego in egos:
             mem = self.memory[ego.vehicle_id]
@@ -152,6 +151,10 @@ class Decider:
             self.memory.setdefault(ego.vehicle_id, VehicleMemory())
             out.append(ego)
         return out
+
+    def _responses(self, egos: list[Ego], concern: Concern) -> dict[str, Response]:
+        """Each vehicle's memory of what it was commanded about ``concern`` (what the policies read)."""
+        return {e.vehicle_id: self.memory[e.vehicle_id].response(concern) for e in egos}
 
     def _note_ev(self, picture: Picture, ego: Ego, mem: VehicleMemory, intent: Intent) -> None:
         """What an EV intent tells the memory whatever it commands: an EV near, and where the EV was."""

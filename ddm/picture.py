@@ -61,5 +61,8 @@ class Picture:
         d = np.hypot(self._xy[:, 0] - x_m, self._xy[:, 1] - y_m)
         return [self.tracks[k] for k in np.nonzero(d <= radius_m)[0].tolist()]
 
+    def track(self, track_id: int) -> Track | None:
+        return next((t for t in self.tracks if t.track_id == track_id), None)
+
     def vehicle(self, vehicle_id: str) -> Ego | None:
         return next((v for v in self.vehicles if v.vehicle_id == vehicle_id), None)

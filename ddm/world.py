@@ -336,24 +336,6 @@ class CorridorWorld:
         """Every live track, predicted to ``now``, ordered by id."""
         return sorted(self._tracks(self.store.live_slots(), now), key=lambda t: t.track_id)
 
-    def track(self, track_id: int, now: float) -> Track | None:
-        s = self.store.slot_of(track_id)
-        return None if s is None else self._tracks(np.array([s]), now)[0]
-
-    def tracks_near(self, x_m: float, y_m: float, radius_m: float, now: float) -> list[Track]:
-        live = self.store.live_slots()
-        if not len(live):
-            return []
-        c = self.store.cols
-        dt = now - c.t_s[live]
-        d = np.hypot(c.x_m[live] + c.vx_mps[live] * dt - x_m, c.y_m[live] + c.vy_mps[live] * dt - y_m)
-        return self._tracks(live[d <= radius_m], now)
-
-    def ev_tracks(self, now: float) -> list[Track]:
-        """Tracks currently marked EV (by an active alert or a confirmed detection)."""
-        live = self.store.live_slots()
-        return self._tracks(live[self.is_ev_mask(live, now)], now)
-
     def snapshot(self, now: float) -> Picture:
         """The immutable picture at ``now``: every live track predicted to it (store order), the hazards, and
         the vehicles (in the order first heard) with the track bound to each."""
