@@ -15,11 +15,12 @@ one step reads one consistent picture however the world changes afterwards.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from ddm.intent import Ego
-from ddm.tracks import Track
+from ddm.tracks import Track, TrackTable
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,27 +43,30 @@ class Picture:
     """Tracks, EVs, hazards and autonomous vehicles at ``now`` (see the module docstring)."""
 
     now: float
-    tracks: tuple[Track, ...] = ()
+    table: TrackTable
+    """Every live track (copies, read-only); its records are built when read."""
     hazards: tuple[Hazard, ...] = ()
     vehicles: tuple[Ego, ...] = ()
     evs: tuple[Track, ...] = field(init=False)
-    _xy: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "evs", tuple(t for t in self.tracks if t.is_ev))
-        xy = np.array([(t.x_m, t.y_m) for t in self.tracks], dtype=float).reshape(-1, 2)
-        xy.setflags(write=False)
-        object.__setattr__(self, "_xy", xy)
+        object.__setattr__(self, "evs", tuple(self.table.records(np.nonzero(self.table.is_ev)[0])))
+
+    @cached_property
+    def tracks(self) -> tuple[Track, ...]:
+        """Every live track, in store order."""
+        return tuple(self.table.records())
 
     def tracks_near(self, x_m: float, y_m: float, radius_m: float) -> list[Track]:
         """The tracks within ``radius_m`` of (x, y), in store order."""
-        if not self.tracks:
+        t = self.table
+        if not len(t):
             return []
-        d = np.hypot(self._xy[:, 0] - x_m, self._xy[:, 1] - y_m)
-        return [self.tracks[k] for k in np.nonzero(d <= radius_m)[0].tolist()]
+        return t.records(np.nonzero(np.hypot(t.x_m - x_m, t.y_m - y_m) <= radius_m)[0])
 
     def track(self, track_id: int) -> Track | None:
-        return next((t for t in self.tracks if t.track_id == track_id), None)
+        rows = np.nonzero(self.table.gid == track_id)[0]
+        return self.table.records(rows)[0] if len(rows) else None
 
     def vehicle(self, vehicle_id: str) -> Ego | None:
         return next((v for v in self.vehicles if v.vehicle_id == vehicle_id), None)

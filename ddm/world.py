@@ -339,8 +339,9 @@ class CorridorWorld:
     def snapshot(self, now: float) -> Picture:
         """The immutable picture at ``now``: every live track predicted to it (store order), the hazards, and
         the vehicles (in the order first heard) with the track bound to each."""
-        tracks = tuple(self._tracks(self.store.live_slots(), now))
+        live = self.store.live_slots()
+        table = self.store.table(live, now, self.is_ev_mask(live, now))
         vehicles = tuple(Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
                              s.active_command_id, rec.track_id, rec.received_s)
                          for vid, rec in self.vehicles.items() for s in (rec.state,))
-        return Picture(now, tracks, self.hazards.records(), vehicles)
+        return Picture(now, table, self.hazards.records(), vehicles)
