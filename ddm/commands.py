@@ -1,9 +1,9 @@
 """Command manager: turns intents into path-switch commands that are never lost. Pure state machine,
-explicit clock. The only place a ``PathSwitchCommand`` is made (SPEC.md "Response and control").
+explicit clock. The only place a ``PathSwitchCommand`` is made (docs/architecture.md §DDM).
 
 ``issue_intent`` makes the command of an intent with a manoeuvre and a planned path (the policies'
-output, :class:`ddm.intent.Intent`). One outstanding command per vehicle. Each command has a unique id and a per-vehicle ``command_seq``
-(the vehicle never lets a lower value override a higher one). Life cycle of one command:
+output, :class:`ddm.intent.Intent`). One outstanding command per vehicle. Each command has a unique id
+and a per-vehicle ``command_seq`` (the vehicle never lets a lower value override a higher one). Life cycle of one command:
 
     issue -> SENT --ack accepted--> ACCEPTED --ack completed--> COMPLETED
                |  \\--ack rejected--> REJECTED (reason logged; the caller re-plans)

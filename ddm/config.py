@@ -1,8 +1,8 @@
 """DDM configuration: every threshold of fusion, EV response, planning and command delivery, with defaults.
 
-Defaults are chosen for the RELLIS scenario (SPEC.md "Response and control": AV at 13.4 m/s, EV 50 m
-behind, closing at 5-10 m/s) and justified next to each field. CARMA's approaching-emergency-vehicle
-plugin (SPEC.md "What comparable systems do") is the reference; its thresholds are for highway speeds
+Defaults are chosen for the RELLIS scenario (the thesis's test, ch. 4: AV at 13.4 m/s, EV 50 m behind,
+closing at 5-10 m/s) and justified next to each field. CARMA's approaching-emergency-vehicle plugin
+(docs/architecture.md §DDM, comparable systems) is the reference; its thresholds are for highway speeds
 and are scaled down here where noted.
 """
 
@@ -138,7 +138,7 @@ class DdmConfig:
     max_lat_accel_mps2: float = 2.0
     """Largest lateral acceleration of a commanded path (comfort; curvature limit = a / v^2)."""
     max_curvature_1pm: float = 0.19
-    """Vehicle limit: tan(max road-wheel steer 0.5 rad) / wheelbase 2.84 m (SPEC.md mid-size car)."""
+    """Vehicle limit: tan(max road-wheel steer 0.5 rad) / wheelbase 2.84 m (the mid-size car of docs/architecture.md §Vehicle controller)."""
     lane_change_min_s: float = 3.0
     """A lane change takes at least this long (its length is at least v * 3 s)."""
     lane_change_min_m: float = 15.0
@@ -147,8 +147,8 @@ class DdmConfig:
     stop_on_shoulder: bool = False
     """True: stop on the shoulder when it is at least car width + 2 clearances wide (clears lane 0 too).
     Default: stop at the curb side of lane 0, one lane to the right of the EV's lane (Texas 545.156:
-    'as close as possible to the right-hand edge or curb'; SPEC.md "Response and control": the car
-    'changes one lane to the right and stops')."""
+    'as close as possible to the right-hand edge or curb'; the thesis, ch. 4: the car changes one lane
+    to the right and stops)."""
     waypoint_step_m: float = 1.0
     path_tail_m: float = 10.0
     """Waypoints continue this far past the stop point (the controller's look-ahead needs them)."""

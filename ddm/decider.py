@@ -1,7 +1,7 @@
 """Decider: one decision step, from the world's picture to commands, for every autonomous vehicle. Pure:
 no I/O, no clock.
 
-One direction (DESIGN.md "Layout": a pure core behind the service): the service takes the world's immutable picture
+One direction (docs/architecture.md §DDM): the service takes the world's immutable picture
 (:meth:`ddm.world.CorridorWorld.snapshot`) and hands it to :meth:`Decider.decide`, which
 
 1. picks the vehicles to decide for: all, or those within the EV look-behind + ``ALERT_RADIUS_MARGIN_M``

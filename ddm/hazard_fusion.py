@@ -5,7 +5,7 @@ same debris, each with its own id); the fused position is the confidence-weighte
 latest report, its size the largest reported (conservative). A source leaves on ``clear`` or when it has
 not been refreshed for ``source_timeout_s`` (RSUs repeat ``persist`` at 1 Hz); a hazard without sources is
 gone. The world model (:class:`ddm.world.CorridorWorld`) owns one and puts its hazards in every picture
-(Clemson hazard navigation report, SPEC.md "Hazards").
+(Clemson hazard navigation report; docs/architecture.md §DDM).
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Policies: pure functions from the DDM's picture (:class:`ddm.picture.Picture`) to intents.
 
 - :mod:`ddm.policy.ev`: yield to emergency vehicles (Texas Transportation Code 545.156; CARMA's
-  approaching-emergency-vehicle plugin, SPEC.md "What comparable systems do").
+  approaching-emergency-vehicle plugin; docs/architecture.md §DDM).
 - :mod:`ddm.policy.hazard`: steer around or stop before road hazards (Clemson hazard navigation report,
-  SPEC.md "Hazards").
+  eq. 2-3; docs/architecture.md §DDM).
 
 Both read the picture, the vehicle's :class:`ddm.intent.Response` (what was commanded before) and a
 :class:`PolicyContext`; neither writes anything. The manoeuvre rules they share are in

@@ -5,7 +5,7 @@ For one AV, from the picture's EV tracks (road frame via ``RoadFrame``):
 - an EV is *relevant* when it moves (>= ``min_ev_speed_mps``) in the road's direction (velocity within
   60 deg of the lane direction), is on the carriageway, and is behind the AV by at most
   ``ev_lookbehind_m``. Opposite-direction EVs and EVs already ahead are not threats.
-- time until it passes, as CARMA's approaching-emergency-vehicle plugin does (SPEC.md):
+- time until it passes, as CARMA's approaching-emergency-vehicle plugin does (docs/architecture.md §DDM):
   ``ttp = (s_ego - s_ev) / (v_ev - v_ego)`` (infinite when not closing).
 - it *triggers* a response when ``ttp <= act_time_to_pass_s`` or it is within ``act_gap_m``.
 

@@ -1,7 +1,7 @@
 """Hazard response policy: what each autonomous vehicle should do about road hazards. Pure.
 
 Per autonomous vehicle, on the road (Frenet) frame, from the picture's hazards (Clemson hazard navigation
-report, SPEC.md "Hazards"):
+report, eq. 2-3; docs/architecture.md §DDM):
 
 - a hazard *blocks* the AV when, driving at its lane centre, the lateral clearance between the car's
   side and the hazard's side would be under ``min_clearance_m + position_margin_m``; hazards behind the
