@@ -1,4 +1,4 @@
-"""One DDM assembled in one place (issue 20, item 3): the corridor, the decision settings, the command signer
+"""One DDM assembled in one place: the corridor, the decision settings, the command signer
 and the alert verification from one :class:`DdmOptions`.
 
 ``iea-ddm run`` calls :func:`run_ddm`; anything that runs a DDM on another transport (a test on a

@@ -1,4 +1,4 @@
-"""What a starting DDM asks the corridor, and what it tells an operator (issue 21).
+"""What a starting DDM asks the corridor, and what it tells an operator.
 
 - ``catch_up_queries``: a DDM that starts or restarts queries the RSUs' latest object lists, their
   active EV and hazard alerts and health, and the vehicles' latest states, instead of waiting for the
@@ -69,7 +69,7 @@ def state_document(ddm: Any, now: float) -> dict[str, Any]:
     alerts = [{"alert_id": aid, "track_id": a.track_id} for aid, a in sorted(ddm.world.alerts.items())]
     hazards = [{"hazard_id": str(h), **{k: (_r(v) if isinstance(v, float) else v)
                                         for k, v in _hazard_fields(rec).items()}}
-               for h, rec in sorted(ddm.hazards.hazards.items(), key=lambda kv: str(kv[0]))]
+               for h, rec in sorted(ddm.world.hazards.hazards.items(), key=lambda kv: str(kv[0]))]
     return {
         "ddm_id": ddm.ddm_id, "corridor_id": ddm.corridor_id, "stamp": now,
         "uptime_s": _r(now - ddm.started_s), "listening": now < ddm.listen_until_s,
@@ -99,7 +99,7 @@ def encode_state(doc: dict[str, Any]) -> bytes:
 
 
 class CorridorPresence:
-    """Liveliness, queryables and the start-up catch-up of the DDM (issue 21); see ``ddm.service``."""
+    """Liveliness, queryables and the start-up catch-up of the DDM; see ``ddm.service``."""
 
     def _on_presence(self, key: str, alive: bool) -> None:
         now = self.clock.now()
@@ -132,8 +132,7 @@ class CorridorPresence:
 
     def _count_missed(self, key: str, seq: int) -> None:
         """Sample-miss detection on the alert and ack streams: a gap in a publisher's ``seq``. The sum
-        saturates at ``MAX_COUNT``: a peer's seq jumps (each up to 2**53) must not make Health unpublishable
-        (found by fuzzing, issue 24)."""
+        saturates at ``MAX_COUNT``: a peer's seq jumps (each up to 2**53) must not make Health unpublishable."""
         last = self._last_seq.get(key)
         self._last_seq[key] = seq
         if last is not None and seq > last + 1:

@@ -1,7 +1,9 @@
-"""Command manager: path-switch commands that are never lost. Pure state machine, explicit clock.
+"""Command manager: turns intents into path-switch commands that are never lost. Pure state machine,
+explicit clock. The only place a ``PathSwitchCommand`` is made (docs/architecture.md §DDM).
 
-One outstanding command per vehicle. Each command has a unique id and a per-vehicle ``command_seq``
-(the vehicle never lets a lower value override a higher one). Life cycle of one command:
+``issue_intent`` makes the command of an intent with a manoeuvre and a planned path (the policies'
+output, :class:`ddm.intent.Intent`). One outstanding command per vehicle. Each command has a unique id
+and a per-vehicle ``command_seq`` (the vehicle never lets a lower value override a higher one). Life cycle of one command:
 
     issue -> SENT --ack accepted--> ACCEPTED --ack completed--> COMPLETED
                |  \\--ack rejected--> REJECTED (reason logged; the caller re-plans)
@@ -23,6 +25,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from ddm.config import DdmConfig
+from ddm.intent import Intent
 from protocol.enums import AckStatus, Manoeuvre
 from protocol.messages import CommandAck, PathSwitchCommand
 
@@ -40,6 +43,8 @@ class CommandState(StrEnum):
 
 @dataclass
 class Outstanding:
+    """A vehicle's latest command, its state and its retransmission schedule."""
+
     command: PathSwitchCommand | None
     command_id: str
     state: CommandState
@@ -51,6 +56,8 @@ class Outstanding:
 
 @dataclass(frozen=True)
 class Event:
+    """A change in a command's life (for the caller to log, count and roll back on)."""
+
     kind: str  # "issued" | "accepted" | "completed" | "rejected" | "expired" | "superseded" | "retransmit" | "ignored_ack" | "adopted"
     vehicle_id: str
     command_id: str
@@ -60,6 +67,8 @@ class Event:
 
 @dataclass
 class CommandManager:
+    """Every vehicle's latest command (ids, sequence numbers, retransmission, acks, expiry)."""
+
     config: DdmConfig = field(default_factory=DdmConfig)
     source_id: str = "ddm"
     seq_base: int = 0
@@ -102,6 +111,18 @@ class CommandManager:
                                                next_send_s=now, interval_s=self.config.retransmit_initial_s)
         self._emit(Event("issued", vehicle_id, cid, reason, manoeuvre))
         return cmd
+
+    def issue_intent(self, intent: Intent, now: float) -> PathSwitchCommand:
+        """The command of ``intent`` (a manoeuvre with its planned path, for ``intent.vehicle_id``), issued
+        as ``issue`` does; ValueError for an intent that is no command."""
+        path = intent.path
+        if intent.manoeuvre is None or path is None or not intent.vehicle_id:
+            raise ValueError(f"intent {intent.action!r} for vehicle {intent.vehicle_id!r} is no command: it needs a "
+                             "manoeuvre, a planned path and a vehicle id")
+        return self.issue(intent.vehicle_id, now, manoeuvre=intent.manoeuvre, reason=intent.reason,
+                          target_lane=intent.target_lane if intent.target_lane is not None else 0,
+                          waypoints=path.waypoints, speed_profile_mps=path.speeds_mps,
+                          target_speed_mps=path.target_speed_mps, stop_point=path.stop_point)
 
     def adopt(self, vehicle_id: str, command_id: str) -> None:
         """After a restart: the vehicle executes ``command_id``; the next command will supersede it."""

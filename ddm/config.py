@@ -1,14 +1,17 @@
 """DDM configuration: every threshold of fusion, EV response, planning and command delivery, with defaults.
 
-Defaults are chosen for the RELLIS scenario (SPEC.md "Response and control": AV at 13.4 m/s, EV 50 m
-behind, closing at 5-10 m/s) and justified next to each field. CARMA's approaching-emergency-vehicle
-plugin (SPEC.md "What comparable systems do") is the reference; its thresholds are for highway speeds
+Defaults are chosen for the RELLIS scenario (the thesis's test, ch. 4: AV at 13.4 m/s, EV 50 m behind,
+closing at 5-10 m/s) and justified next to each field. CARMA's approaching-emergency-vehicle plugin
+(docs/architecture.md §DDM, comparable systems) is the reference; its thresholds are for highway speeds
 and are scaled down here where noted.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
+
+from ddm.threat import LX_MAX_M
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,7 @@ class DdmConfig:
     """Two tracks closer than this with similar velocity and no RSU in common are merged (older id kept)."""
     rsu_stale_s: float = 0.3
     """An RSU whose object stream is silent this long is stale (RSUs publish at 10-15 Hz: 3-4 frames
-    missed). With the 20 Hz loop it is marked within 0.35 s (issue: within 0.5 s)."""
+    missed). With the 20 Hz loop it is marked within 0.35 s (a stale RSU is to be marked within 0.5 s)."""
     rsu_health_stale_s: float = 2.5
     """An RSU whose 1 Hz health is silent this long is stale too (2 missed beats + jitter)."""
     vehicle_gate_m: float = 3.0
@@ -56,13 +59,13 @@ class DdmConfig:
     """An object reported ``ev_state=confirmed`` keeps its EV mark this long (RSUs confirm at
     different times; avoids flicker in the overlap)."""
     ev_from_objects_alone: bool = False
-    """True: an object list's unsigned EV state marks a track as EV on its own (before issue 18; a forged
-    object list could then move a car). False: only on a track an EvAlert has named."""
+    """True: an object list's unsigned EV state marks a track as EV on its own (a forged object list could
+    then move a car; kept to measure what the rule costs). False: only on a track an EvAlert has named."""
     ev_alert_timeout_s: float = 5.0
     """An active EvAlert not refreshed for this long is forgotten (alerts repeat at 2 Hz: 10 missed;
     CARMA forgets after 15 s at highway speeds, our corridor is ~10 s of driving)."""
 
-    # ------------------------------------------------------------------ EV response (ddm/policy.py)
+    # ------------------------------------------------------------------ EV response (ddm/policy/ev.py)
     ev_lookbehind_m: float = 200.0
     """Only EVs at most this far behind are considered (2 RSU spans; CARMA's 152.4 m pass margin
     is of the same order)."""
@@ -83,11 +86,11 @@ class DdmConfig:
     still accelerating: RELLIS EV 19 m/s vs AV 13.4 m/s)."""
     let_faster_pass: bool = True
     """No safe gap in lane 0 because a faster car is coming by there: keep speed and let it pass, then pull
-    over (issue 18); False: slow in lane for the gap (before issue 18)."""
+    over; False: slow in lane for the gap."""
     pull_over_hold_speed: bool = True
-    """A pull-over keeps its speed until its lane change is done, then brakes to the stop (issue 18: an AV that
+    """A pull-over keeps its speed until its lane change is done, then brakes to the stop (an AV that
     brakes while still in the lane of an EV closing from behind brings the EV onto it sooner); False: brake
-    from the start (before issue 18)."""
+    from the start."""
     urgent_within_s: float = 8.0
     """With the EV's time to pass below this, a held-speed pull-over steers at ``urgent_lat_accel_mps2``
     without the ``lane_change_min_s`` floor."""
@@ -125,7 +128,7 @@ class DdmConfig:
 
     # ------------------------------------------------------------------ planning (ddm/paths.py)
     comfort_decel_mps2: float = 2.0
-    """Deceleration to the stop (<= 3 m/s^2 asked by the issue; Apollo's pull-over allows 4.5)."""
+    """Deceleration to the stop (<= 3 m/s^2 for comfort; Apollo's pull-over allows 4.5)."""
     max_decel_mps2: float = 3.0
     creep_speed_mps: float = 2.0
     """A pull-over with less room ahead than its lane change needs brakes hard to this speed and creeps on."""
@@ -135,7 +138,7 @@ class DdmConfig:
     max_lat_accel_mps2: float = 2.0
     """Largest lateral acceleration of a commanded path (comfort; curvature limit = a / v^2)."""
     max_curvature_1pm: float = 0.19
-    """Vehicle limit: tan(max road-wheel steer 0.5 rad) / wheelbase 2.84 m (SPEC.md mid-size car)."""
+    """Vehicle limit: tan(max road-wheel steer 0.5 rad) / wheelbase 2.84 m (the mid-size car of docs/architecture.md §Vehicle controller)."""
     lane_change_min_s: float = 3.0
     """A lane change takes at least this long (its length is at least v * 3 s)."""
     lane_change_min_m: float = 15.0
@@ -144,7 +147,8 @@ class DdmConfig:
     stop_on_shoulder: bool = False
     """True: stop on the shoulder when it is at least car width + 2 clearances wide (clears lane 0 too).
     Default: stop at the curb side of lane 0, one lane to the right of the EV's lane (Texas 545.156:
-    'as close as possible to the right-hand edge or curb'; issue 8: 'stops one lane to the right')."""
+    'as close as possible to the right-hand edge or curb'; the thesis, ch. 4: the car changes one lane
+    to the right and stops)."""
     waypoint_step_m: float = 1.0
     path_tail_m: float = 10.0
     """Waypoints continue this far past the stop point (the controller's look-ahead needs them)."""
@@ -178,3 +182,38 @@ class DdmConfig:
             raise ValueError("comfort_decel_mps2 must be in (0, max_decel_mps2]")
         if self.rate_hz <= 0 or self.max_attempts < 1:
             raise ValueError("rate_hz must be > 0 and max_attempts >= 1")
+
+
+@dataclass(frozen=True)
+class HazardConfig:
+    """Hazard fusion (:mod:`ddm.hazard_fusion`) and hazard response (:mod:`ddm.policy.hazard`) thresholds."""
+
+    fuse_m: float = 3.0
+    """Alerts of different RSUs within this distance are one hazard (RSU localisation differs by ~1 m)."""
+    source_timeout_s: float = 3.5
+    """A source not refreshed for this long is dropped (persist comes at 1 Hz: 3 missed + jitter)."""
+    lx_max_m: float = LX_MAX_M
+    ly_max_m: float | None = None
+    """Report eq. 2-3 limits; None: the corridor's lane width."""
+    threat_threshold: float = 0.3
+    """Respond once T_f exceeds this (a hazard dead ahead has T_f = 0.71 at lx = 60 m; one 1.5 m off the
+    centre line 0.42; one that barely blocks, 2.5 m off, reaches 0.3 at 43 m)."""
+    min_clearance_m: float = 1.0
+    """Lateral clearance the AV keeps between its side and a hazard's side (at least 1 m)."""
+    position_margin_m: float = 0.3
+    """Added to the clearance for the RSU localisation error of the hazard (~0.2-0.3 m laterally)."""
+    stop_gap_m: float = 10.0
+    """Front bumper to the hazard's near edge when stopped before it (room to steer around it later)."""
+    pass_margin_m: float = 5.0
+    """A hazard is passed once the AV's rear bumper is this far beyond its far edge."""
+    max_stop_decel_mps2: float = 4.5
+    """Hardest deceleration a stop before a hazard may ask (Apollo's emergency stop: 4.5 m/s^2)."""
+
+    def __post_init__(self) -> None:
+        for name in ("fuse_m", "source_timeout_s", "lx_max_m", "min_clearance_m", "stop_gap_m",
+                     "max_stop_decel_mps2"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"HazardConfig.{name} must be > 0, got {v!r}")
+        if not 0.0 <= self.threat_threshold < 1.0:
+            raise ValueError("threat_threshold must be in [0, 1)")

@@ -1,25 +1,28 @@
-"""Decider: from the DDM's picture to commands, for every autonomous vehicle. Pure: no I/O, no clock.
+"""Decider: one decision step, from the world's picture to commands, for every autonomous vehicle. Pure:
+no I/O, no clock.
 
-The service (:mod:`ddm.service`, the imperative shell) feeds it the time and the inputs that concern
-commands, and publishes what ``due_commands`` returns; everything between an EvAlert in the picture and a
-command issued happens here:
+One direction (docs/architecture.md §DDM): the service takes the world's immutable picture
+(:meth:`ddm.world.CorridorWorld.snapshot`) and hands it to :meth:`Decider.decide`, which
 
-- ``decide(now)``: per vehicle (all, or those within the EV look-behind + ``ALERT_RADIUS_MARGIN_M`` of
-  an alert): the EV policy (:func:`ddm.policy.decide`); while it has nothing to do (no EV to yield to,
-  not yielding), the hazard policy (:func:`ddm.hazard.decide_hazard`). EV over hazard: an EV command
-  resets the vehicle's hazard memory.
-- Issuing: a decision with a manoeuvre is planned (hazard decisions carry their path), issued through the
-  :class:`ddm.commands.CommandManager` and committed to the vehicle's memory (:class:`VehicleMemory`:
-  one :class:`ddm.decision.Response` per concern); the memory as it was is kept by command id.
+1. picks the vehicles to decide for: all, or those within the EV look-behind + ``ALERT_RADIUS_MARGIN_M``
+   of an EV alert (``near``); none whose state is older than ``vehicle_state_timeout_s``, whose session
+   is gone (``unreachable``) or who waits out ``replan_backoff_s`` after a rejected or expired command;
+2. asks the EV policy (:func:`ddm.policy.ev.ev_intents`), then the hazard policy
+   (:func:`ddm.policy.hazard.hazard_intents`) for the vehicles the EV policy leaves alone (no EV to
+   yield to, not yielding): EV over hazard;
+3. turns each intent with a manoeuvre into a command through the :class:`ddm.commands.CommandManager`
+   and commits it to the vehicle's memory (:class:`VehicleMemory`: one :class:`ddm.intent.Response` per
+   concern; an EV command resets the hazard one); the memory as it was is kept by command id.
+
+The policies read the picture and the memory; only this module writes the memory, only the command
+manager makes commands, and nothing here reads or writes the world.
+
 - Rollback: a command rejected or expired restores that memory and delays the vehicle's next decision by
   ``replan_backoff_s``; a vehicle heard again after ``relink_gap_s`` of silence with its command still
   unacknowledged has it rolled back and planned again at once (``check_relink``).
 - Adoption after a restart (``adopt``): a vehicle executing a command this DDM never issued (a
   predecessor did) is treated as yielding; no RESUME before the RSUs' alerts have had
   ``ev_alert_timeout_s`` to reach the new DDM.
-
-The world (:class:`ddm.world.CorridorWorld`) and the hazards (:class:`ddm.hazard.HazardBook`) are read
-through their public API only.
 """
 
 from __future__ import annotations
@@ -32,21 +35,19 @@ from collections.abc import Collection
 from dataclasses import dataclass, field
 
 from ddm.commands import CommandManager, CommandState
-from ddm.config import DdmConfig
-from ddm.decision import Concern, Decision, Ego, Response
+from ddm.config import DdmConfig, HazardConfig
 from ddm.geometry import RoadFrame
-from ddm.hazard import HazardBook, HazardConfig, decide_hazard
-from ddm.policy import decide, plan
-from ddm.tracks import Track
-from ddm.world import CorridorWorld
+from ddm.intent import Concern, Ego, Intent, Response
+from ddm.picture import Picture
+from ddm.policy import NEIGHBOUR_RADIUS_M, PolicyContext
+from ddm.policy.ev import ev_intents
+from ddm.policy.hazard import hazard_intents
 from protocol.corridor import Corridor
 from protocol.enums import VehicleMode
 from protocol.messages import CommandAck, PathSwitchCommand, VehicleState
 
 log = logging.getLogger("ddm")
 
-NEIGHBOUR_RADIUS_M = 150.0
-"""Tracks within this distance of an AV are considered for its gap checks."""
 ALERT_RADIUS_MARGIN_M = 50.0
 """An EV alert is decided at once for vehicles within the EV look-behind + this of it (it may be passing)."""
 
@@ -60,7 +61,7 @@ class VehicleMemory:
     replan_after_s: float = -1.0
     """No decision before this time (after a rejected or expired command)."""
     logged: dict[Concern, tuple[str, int | None]] = field(default_factory=dict)
-    """Per concern, the (action, cause) last logged: a decision is logged when it changes."""
+    """Per concern, the (action, cause) last logged: an intent is logged when it changes."""
 
     def response(self, concern: Concern) -> Response:
         return self.ev if concern == "ev" else self.hazard
@@ -73,36 +74,31 @@ class VehicleMemory:
 
 
 class Decider:
-    """Per-vehicle decisions, response memory, rollback and adoption over one corridor's picture."""
+    """Per-vehicle decisions, response memory, rollback and adoption over one corridor's pictures."""
 
-    def __init__(self, world: CorridorWorld, hazards: HazardBook, corridor: Corridor, frame: RoadFrame,
-                 config: DdmConfig, hazard_config: HazardConfig, *, ddm_id: str, started_s: float,
-                 counters: Counter | None = None) -> None:
+    def __init__(self, corridor: Corridor, frame: RoadFrame, config: DdmConfig, hazard_config: HazardConfig, *,
+                 ddm_id: str, started_s: float, counters: Counter | None = None) -> None:
         """``counters``: where decisions (``decisions``, ``hazard_decisions``) and command events
         (``cmd_<kind>``) are counted (the service's, for its Health)."""
-        self.world, self.hazards, self.frame = world, hazards, frame
-        self.config, self.hazard_config = config, hazard_config
+        self.config = config
         self.started_s = started_s
         self.commands = CommandManager(config, source_id=ddm_id, seq_base=int(started_s * 1000))
         self.counters = Counter() if counters is None else counters
         self.memory: dict[str, VehicleMemory] = {}
         self._rollback: dict[str, tuple[Concern, Response]] = {}  # command id -> memory before it
-        self._speed_limit_mps = corridor.road.speed_limit_mps
-        self._cruise_mps = {v.vehicle_id: v.cruise_speed_mps for v in corridor.vehicles}
-        self._width_m = {v.vehicle_id: v.width_m for v in corridor.vehicles}
+        self.context = PolicyContext(frame, config, hazard_config, corridor.road.speed_limit_mps,
+                                     {v.vehicle_id: v.cruise_speed_mps for v in corridor.vehicles},
+                                     {v.vehicle_id: v.width_m for v in corridor.vehicles})
         self.ev_aware_s: float | None = None
         """Time of the first decision made with an EV in the picture (restart -> EV-aware)."""
 
     # ------------------------------------------------------------------ reading
-    def ego(self, vid: str, now: float, unreachable: Collection[str] = ()) -> Ego | None:
-        """The vehicle as the policies see it; None when its state is older than
-        ``vehicle_state_timeout_s`` or it is ``unreachable`` (its session is gone)."""
-        rec = self.world.vehicles.get(vid)
-        if rec is None or now - rec.received_s > self.config.vehicle_state_timeout_s or vid in unreachable:
-            return None
-        s = rec.state
-        return Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
-                   s.active_command_id, rec.track_id)
+    def egos(self, picture: Picture, unreachable: Collection[str] = ()) -> list[Ego]:
+        """The vehicles of the picture the policies may decide for: state no older than
+        ``vehicle_state_timeout_s``, session not gone (``unreachable``)."""
+        timeout = self.config.vehicle_state_timeout_s
+        return [v for v in picture.vehicles
+                if picture.now - v.received_s <= timeout and v.vehicle_id not in unreachable]
 
     def sizes(self) -> dict[str, int]:
         """How much the decider remembers (bounded by the vehicles and the outstanding commands)."""
@@ -110,91 +106,89 @@ class Decider:
                 "commands_current": len(self.commands.current), "command_events": len(self.commands.events)}
 
     # ------------------------------------------------------------------ deciding
-    def decide(self, now: float, unreachable: Collection[str] = (), near: tuple[float, float] | None = None) -> int:
-        """Decide for every vehicle; ``near`` (an EV alert's position): only for those within
-        ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it. Returns how many EV commands were issued."""
-        evs: list[Track] | None = None
-        radius = self.config.ev_lookbehind_m + ALERT_RADIUS_MARGIN_M
+    def decide(self, picture: Picture, unreachable: Collection[str] = (), near: tuple[float, float] | None = None
+               ) -> int:
+        """One decision step over ``picture`` (``near``: an EV alert's position, to decide only for the vehicles
+        within ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it). Returns how many EV commands were issued."""
+        now = picture.now
+        egos = self._due(picture, unreachable, near)
+        ev = {i.vehicle_id: i for i in ev_intents(picture, egos, self._responses(egos, "ev"), self.context)}
+        # EV over hazard: the hazard policy decides for the vehicles the EV policy leaves alone
+        left = [e for e in egos if (i := ev.get(e.vehicle_id)) is None
+                or (i.action == "none" and self.memory[e.vehicle_id].ev.phase == "normal")]
+        hazard = {i.vehicle_id: i for i in hazard_intents(picture, left, self._responses(left, "hazard"),
+                                                            self.context)}
         issued = 0
-        for vid in list(self.world.vehicles):
-            mem = self.memory.get(vid)
-            if mem is not None and now < mem.replan_after_s:
-                continue
-            ego = self.ego(vid, now, unreachable)
-            if ego is None or (near is not None and math.hypot(ego.x_m - near[0], ego.y_m - near[1]) > radius):
-                continue
-            if evs is None:
-                evs = self.world.ev_tracks(now)
-            issued += self._decide_vehicle(ego, self.memory.setdefault(vid, VehicleMemory()), evs, now)
+        for ego in egos:
+            mem = self.memory[ego.vehicle_id]
+            intent = ev.get(ego.vehicle_id)
+            if intent is not None:
+                self._note_ev(picture, ego, mem, intent)
+                if intent.manoeuvre is not None:
+                    self._issue(intent, mem, now)
+                    self.counters["decisions"] += 1
+                    mem.hazard = Response()  # the EV command supersedes any hazard command
+                    issued += 1
+                    continue
+            intent = hazard.get(ego.vehicle_id)
+            if intent is not None:
+                self._log_change(picture, ego, mem, intent)
+                if intent.manoeuvre is not None:
+                    self._issue(intent, mem, now)
+                    self.counters["hazard_decisions"] += 1
         return issued
 
-    def _decide_vehicle(self, ego: Ego, mem: VehicleMemory, evs: list[Track], now: float) -> int:
-        """The EV policy, then the hazard policy when the EV policy leaves the vehicle alone."""
-        resp = mem.ev
-        if not evs and resp.phase == "normal":
-            self._decide_hazard(ego, mem, now)  # nothing to yield to, nothing to resume from
-            return 0
-        others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
-        decision = decide(ego, evs, others, self.frame, self.config, resp, now)
-        if evs and self.ev_aware_s is None:
+    def _due(self, picture: Picture, unreachable: Collection[str], near: tuple[float, float] | None) -> list[Ego]:
+        """The vehicles to decide for now, each with its memory (made on its first decision)."""
+        radius = self.config.ev_lookbehind_m + ALERT_RADIUS_MARGIN_M
+        out = []
+        for ego in self.egos(picture, unreachable):
+            mem = self.memory.get(ego.vehicle_id)
+            if mem is not None and picture.now < mem.replan_after_s:
+                continue
+            if near is not None and math.hypot(ego.x_m - near[0], ego.y_m - near[1]) > radius:
+                continue
+            self.memory.setdefault(ego.vehicle_id, VehicleMemory())
+            out.append(ego)
+        return out
+
+    def _responses(self, egos: list[Ego], concern: Concern) -> dict[str, Response]:
+        """Each vehicle's memory of what it was commanded about ``concern`` (what the policies read)."""
+        return {e.vehicle_id: self.memory[e.vehicle_id].response(concern) for e in egos}
+
+    def _note_ev(self, picture: Picture, ego: Ego, mem: VehicleMemory, intent: Intent) -> None:
+        """What an EV intent tells the memory whatever it commands: an EV near, and where the EV was."""
+        now = picture.now
+        if picture.evs and self.ev_aware_s is None:
             self.ev_aware_s = now
-            log.info("first EV-aware decision %.3f s after start (%s)", now - self.started_s, decision.action)
-        if decision.ev_near:
+            log.info("first EV-aware decision %.3f s after start (%s)", now - self.started_s, intent.action)
+        resp = mem.ev
+        if intent.ev_near:
             resp.ev_near_s = now
-        if decision.ev_s_m is not None and decision.ev_speed_mps is not None:
-            resp.ev_last = (decision.ev_s_m, decision.ev_speed_mps, now)
-        self._log_change(ego, mem, decision, others)
-        if decision.manoeuvre is not None:
-            self._issue(ego.vehicle_id, decision, mem, now)
-            self.counters["decisions"] += 1
-            mem.hazard = Response()  # the EV command supersedes any hazard command
-            return 1
-        if resp.phase == "normal" and decision.action == "none":
-            self._decide_hazard(ego, mem, now, others)
-        return 0
+        if intent.ev_s_m is not None and intent.ev_speed_mps is not None:
+            resp.ev_last = (intent.ev_s_m, intent.ev_speed_mps, now)
+        self._log_change(picture, ego, mem, intent)
 
-    def _decide_hazard(self, ego: Ego, mem: VehicleMemory, now: float, others: list[Track] | None = None) -> None:
-        """The hazard policy for one vehicle (``others``: the tracks near it, when already looked up)."""
-        active = self.hazards.active()
-        if not active and mem.hazard.phase == "normal":
-            return
-        if others is None:
-            others = self.world.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M, now)
-        decision = decide_hazard(ego, active, others, self.frame, self.config, self.hazard_config, mem.hazard,
-                                 self._cruise_mps.get(ego.vehicle_id, self._speed_limit_mps))
-        self._log_change(ego, mem, decision, others)
-        if decision.manoeuvre is not None:
-            self._issue(ego.vehicle_id, decision, mem, now)
-            self.counters["hazard_decisions"] += 1
-
-    def _log_change(self, ego: Ego, mem: VehicleMemory, d: Decision, others: list[Track]) -> None:
+    def _log_change(self, picture: Picture, ego: Ego, mem: VehicleMemory, d: Intent) -> None:
         what = (str(d.action), d.cause_id)
         if what != mem.logged.get(d.about):
             log.info("%s: %s%s (%s)", ego.vehicle_id, "hazard " if d.about == "hazard" else "", d.action, d.reason)
             if d.about == "ev" and log.isEnabledFor(logging.DEBUG):
+                others = picture.tracks_near(ego.x_m, ego.y_m, NEIGHBOUR_RADIUS_M)
                 log.debug("%s at (%.1f, %.1f), track %s; tracks near: %s", ego.vehicle_id, ego.x_m, ego.y_m,
                           ego.track_id, ", ".join(f"{o.track_id}:({o.x_m:.1f}, {o.y_m:.1f}) {o.obj_type} lane "
                                                   f"{o.lane}" for o in others) or "none")
         mem.logged[d.about] = what
 
-    def _issue(self, vid: str, decision: Decision, mem: VehicleMemory, now: float) -> None:
-        """Plan (unless the policy did), issue the command and commit it to the vehicle's memory; the
-        memory as it was is kept by command id, to restore if the command is rejected or expires."""
-        path = decision.path
-        if path is None:
-            path = plan(decision, self.frame, self.config, self._width_m.get(vid, 1.9),
-                        self._cruise_mps.get(vid, self._speed_limit_mps))
-        memory = mem.response(decision.about)
-        cmd = self.commands.issue(
-            vid, now, manoeuvre=decision.manoeuvre, reason=decision.reason,
-            target_lane=decision.target_lane if decision.target_lane is not None else 0,
-            waypoints=path.waypoints, speed_profile_mps=path.speeds_mps, target_speed_mps=path.target_speed_mps,
-            stop_point=path.stop_point,
-        )
-        self._rollback[cmd.command_id] = (decision.about, copy.deepcopy(memory))
-        memory.commit(decision, now)
+    def _issue(self, intent: Intent, mem: VehicleMemory, now: float) -> None:
+        """Issue the intent's command and commit it to the vehicle's memory; the memory as it was is kept by
+        command id, to restore if the command is rejected or expires."""
+        memory = mem.response(intent.about)
+        cmd = self.commands.issue_intent(intent, now)
+        self._rollback[cmd.command_id] = (intent.about, copy.deepcopy(memory))
+        memory.commit(intent, now)
         self._process_events(now)
-        memory.note_stop(decision, path.stop_distance_m)  # where a pull-over counts on an empty lane
+        memory.note_stop(intent, intent.path.stop_distance_m)  # where a pull-over counts on an empty lane
 
     # ------------------------------------------------------------------ commands' life
     def due_commands(self, now: float) -> list[PathSwitchCommand]:

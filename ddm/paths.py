@@ -129,11 +129,12 @@ def min_stop_distance_m(delta_d_m: float, v0_mps: float, road_curvature_1pm: flo
 def plan_stop_holding_speed(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
                             d_target: float, cfg: DdmConfig, *, stop_within_s: float | None = None,
                             max_stop_dist_m: float | None = None) -> PlannedPath | None:
-    """Move to offset d_target at the current speed, then stop there (issue 18): the speed profile holds
-    ``speed_mps`` over the lane change and brakes after it at the comfort deceleration; with a car ahead
-    (``max_stop_dist_m``) it holds as long as braking at up to ``max_decel_mps2`` still stops in the room. With the EV's time to pass below
-    ``urgent_within_s`` the change steers at ``urgent_lat_accel_mps2`` (peak curvature 5.77 dd / L^2) without
-    the ``lane_change_min_s`` floor. None when the room ahead is too short for that (``plan_stop`` then)."""
+    """Move to offset d_target at the current speed, then stop there (an AV braking in the EV's lane brings
+    the EV onto it sooner): the speed profile holds ``speed_mps`` over the lane change and brakes after it at
+    the comfort deceleration; with a car ahead (``max_stop_dist_m``) it holds as long as braking at up to
+    ``max_decel_mps2`` still stops in the room. With the EV's time to pass below ``urgent_within_s`` the
+    change steers at ``urgent_lat_accel_mps2`` (peak curvature 5.77 dd / L^2) without the
+    ``lane_change_min_s`` floor. None when the room ahead is too short for that (``plan_stop`` then)."""
     v0 = max(speed_mps, MIN_PLAN_SPEED_MPS)
     kroad = frame.road.curvature_at(s0)
     dd = d_target - d0
@@ -270,3 +271,32 @@ def stop_offset_m(frame: RoadFrame, vehicle_width_m: float, shoulder_width_m: fl
     if cfg.stop_on_shoulder and shoulder_width_m >= vehicle_width_m + 2 * cfg.curb_clearance_m:
         return -(cfg.curb_clearance_m + half)
     return cfg.curb_clearance_m + half
+
+
+def plan_stop_at(frame: RoadFrame, s0: float, d0: float, heading_error_rad: float, speed_mps: float,
+                 d_lane: float, s_stop: float, cfg: DdmConfig, max_decel_mps2: float) -> PlannedPath:
+    """Re-centre on the lane (quintic) and stop the car's centre at road s ``s_stop`` with a constant
+    deceleration (at most ``max_decel_mps2``; harder needs stop earlier than possible, then the stop
+    comes where that deceleration ends)."""
+    v0 = max(speed_mps, 0.0)
+    dist = max(s_stop - s0, 0.5)
+    decel = v0 * v0 / (2.0 * dist) if v0 > 0 else 0.0
+    if decel > max_decel_mps2:
+        decel = max_decel_mps2
+        dist = v0 * v0 / (2.0 * decel)
+    lc = lane_change_length(d_lane - d0, max(v0, MIN_PLAN_SPEED_MPS), frame.road.curvature_at(s0), cfg)
+    length = dist + cfg.path_tail_m
+    n = max(3, int(math.ceil(length / cfg.waypoint_step_m)) + 1)
+    s = s0 + np.linspace(0.0, length, min(n, 200))
+    rel = s - s0
+    d = quintic_offset(rel / lc, d0, d_lane, math.tan(heading_error_rad) * lc)
+    v = np.sqrt(np.maximum(0.0, v0 * v0 - 2.0 * decel * rel)) if decel > 0 else np.zeros_like(rel)
+    v[rel >= dist - 1e-6] = 0.0
+    x, y, _ = frame.road.pose_at(s, d)
+    sx, sy, _ = frame.road.pose_at(s0 + dist, d_lane)
+    kappa = polyline_curvature(np.asarray(x), np.asarray(y))
+    return PlannedPath(waypoints=[(float(a), float(b)) for a, b in zip(x, y, strict=True)],
+                       speeds_mps=[float(max(0.0, w)) for w in v], target_speed_mps=0.0,
+                       stop_point=(float(sx), float(sy)), target_offset_m=float(d_lane),
+                       lane_change_length_m=float(lc), stop_distance_m=float(dist), decel_mps2=float(decel),
+                       max_curvature_1pm=float(kappa.max()) if len(kappa) else 0.0)

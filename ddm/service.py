@@ -1,21 +1,23 @@
 """DDM service: the imperative shell around the world model and the decider (transport, clock, checks).
 
-Subscribes to every RSU topic (``iea/{c}/rsu/*/objects``, ``ev``, ``hazard``, ``health``; the bulk object lists apart) and to every vehicle's
-``state`` and ``ack``; publishes ``PathSwitchCommand`` on ``iea/{c}/vehicle/{v}/cmd`` and ``Health``
-on ``iea/{c}/ddm/health`` at 1 Hz.
+Subscribes to every RSU topic (``iea/{c}/rsu/*/objects``, ``ev``, ``hazard``, ``health``; the bulk object
+lists apart) and to every vehicle's ``state`` and ``ack``; publishes ``PathSwitchCommand`` on
+``iea/{c}/vehicle/{v}/cmd`` and ``Health`` on ``iea/{c}/ddm/health`` at 1 Hz.
 
-- ``step(now)`` is one loop iteration (maintain tracks, decide for every AV, retransmit, health); a
+One direction: inputs update the world (:class:`ddm.world.CorridorWorld`: tracks, EVs,
+hazards, vehicles); a decision step takes its immutable picture (``world.snapshot``) and hands it to the
+decider (:class:`ddm.decider.Decider`: policies -> intents -> command manager); the service publishes the
+commands due.
+
+- ``step(now)`` is one loop iteration (maintain the world, decide for every AV, retransmit, health); a
   lockstep test calls it with a ``SimClock`` + ``LocalBus``, ``run()`` calls it at ``rate_hz``.
 - An EvAlert is acted on in its callback (not at the next tick): the decision latency is the time
   from the alert's arrival to the command's publication, measured and reported in ``Health``.
 - Boundary checks beyond the codec: the RSU / vehicle id inside a message must match its key, and
   object lists stamped in the future are refused; each refusal is counted by reason.
-- Decisions (:class:`ddm.decider.Decider`): per-vehicle response memory, rollback, EV-over-hazard
-  arbitration and adoption live in the decider; the service hands it the inputs and the time and
-  publishes the commands it has due.
 - Restart: for ``startup_listen_s`` after start the service only listens. A vehicle that reports an
   active command the service does not know (issued by its predecessor) has it adopted by the decider.
-- Security (issue 9): with a ``signer`` every ``PathSwitchCommand`` is signed on publication
+- Security: with a ``signer`` every ``PathSwitchCommand`` is signed on publication
   (``protocol.security.SecureTransport``; deterministic, so retransmissions are identical); when the
   corridor trusts RSU keys, EvAlerts/HazardAlerts must carry a valid RSU signature (refusals counted
   as ``decode_auth_<reason>``). Whatever a peer sends, the picture stays bounded: at most
@@ -23,11 +25,9 @@ on ``iea/{c}/ddm/health`` at 1 Hz.
   (refusals counted as ``*_limit``), and numbers nothing physical produces (``MAX_ABS_POSITION_M``...)
   are kept from the fusion: such alerts and vehicle states are refused (``implausible``), such
   objects dropped from their list (``implausible_object``).
-- Hazards (issue 10): ``HazardAlert``s of every RSU are fused in a :class:`ddm.hazard.HazardBook`, which
-  the decider reads (EV > hazard).
-- Presence and state (issue 21, ``protocol.presence``, ``ddm.catchup``): the service declares its
-  liveliness token and watches the RSUs' and vehicles'; an RSU whose token is lost is stale at once
-  (not after ``rsu_stale_s`` of silence), a vehicle whose token is lost gets no decisions. It answers
+- Presence and state (``protocol.presence``, ``ddm.catchup``): the service declares its liveliness token
+  and watches the RSUs' and vehicles'; an RSU whose token is lost is stale at once (not after
+  ``rsu_stale_s`` of silence), a vehicle whose token is lost gets no decisions. It answers
   ``iea/{c}/ddm/state`` (its picture, JSON) and ``iea/{c}/ddm/health`` (its latest Health). At start it
   queries the RSUs' latest object lists and active alerts and the vehicles' states; once every RSU of
   the corridor has answered, the listen period ends and it decides at once (EV-aware without waiting
@@ -45,10 +45,9 @@ import numpy as np
 
 from ddm.catchup import CorridorPresence
 from ddm.commands import CommandState
-from ddm.config import DdmConfig
+from ddm.config import DdmConfig, HazardConfig
 from ddm.decider import Decider
 from ddm.geometry import RoadFrame
-from ddm.hazard import HazardBook, HazardConfig
 from ddm.world import CorridorWorld
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
@@ -85,9 +84,9 @@ MAX_SPEED_MPS = 1000.0
 MAX_SIZE_M = 1000.0
 MAX_POS_VAR_M2 = 1e8
 """Plausibility limits, far outside anything physical: the codec lets any finite number through, and
-a 1e16 m/s velocity overflowed the fusion's arithmetic (found by fuzzing: the KD-tree of the
-duplicate merge then raised on every step). The limits are loose on purpose: a SORT track running
-away at 110 m/s, which real RSU output contains, still passes as before."""
+a 1e16 m/s velocity overflows the fusion's arithmetic (the KD-tree of the duplicate merge then raises
+on every step). The limits are loose on purpose: a SORT track running away at 110 m/s, which real RSU
+output contains, still passes."""
 
 
 RATE_NAMES = ("object_lists", "object_updates", "ev_alerts", "vehicle_states", "commands_published")
@@ -95,8 +94,7 @@ RATE_NAMES = ("object_lists", "object_updates", "ev_alerts", "vehicle_states", "
 
 def period_rates(counts: Counter, before: Counter, period_s: float, names: tuple[str, ...]) -> dict[str, float]:
     """Per-second rates of ``names`` over the last health period; none over a period under 1 ms (a Health
-    published at once after another: its count over ~0 s is no rate, and 1,920 updates / 1 us broke the
-    RateHz range, which made every ddm_bench run fail at its first step)."""
+    published at once after another: its count over ~0 s is no rate, and would overflow the RateHz range)."""
     if period_s < MIN_RATE_PERIOD_S:
         return {}
     return {k: min((counts[k] - before[k]) / period_s, MAX_RATE_HZ) for k in names}
@@ -134,9 +132,9 @@ class DdmService(CorridorPresence):
                  verify_alerts: bool | None = None, catch_up: bool = True) -> None:
         """``signer``: signs every command. ``verify_alerts``: refuse alerts without a valid RSU signature
         (default: when the corridor's trust list names RSU keys). ``catch_up``: query the corridor's state
-        at start (False: learn it from the streams only, as before issue 21; for comparisons)."""
+        at start (False: learn it from the streams only; for comparisons)."""
         self.config = cfg = config or DdmConfig()
-        corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start (issue 19)
+        corridor.road.prepare()  # its first road query would otherwise cost 0.4 s at the scenario's start
         trust = TrustList.from_corridor(corridor)
         if verify_alerts is None:
             verify_alerts = trust.has_role("rsu")
@@ -149,15 +147,15 @@ class DdmService(CorridorPresence):
         self.corridor_id = corridor_id or corridor.corridor_id
         self.ddm_id = ddm_id
         self.frame = RoadFrame(corridor.road)
-        self.world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in corridor.rsus))
+        self.hazard_config = hazard_config or HazardConfig()
+        self.world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in corridor.rsus), frame=self.frame,
+                                   hazard_config=self.hazard_config)
         now = clock.now()
         self.started_s = now
         self.rejected: Counter = Counter()
         self.counters: Counter = Counter()
-        self.hazard_config = hazard_config or HazardConfig()
-        self.hazards = HazardBook(self.frame, self.hazard_config)
-        self.decider = Decider(self.world, self.hazards, corridor, self.frame, cfg, self.hazard_config,
-                               ddm_id=ddm_id, started_s=now, counters=self.counters)
+        self.decider = Decider(corridor, self.frame, cfg, self.hazard_config, ddm_id=ddm_id, started_s=now,
+                               counters=self.counters)
         self.commands = self.decider.commands
         """The decider's command manager (read by Health, the state answer and the runners)."""
         self.decision_latency_ms: deque[float] = deque(maxlen=20000)
@@ -223,7 +221,7 @@ class DdmService(CorridorPresence):
                 self._on_ev_alert(key, msg, now, t0)
             elif isinstance(msg, HazardAlert):
                 self._count_missed(key, msg.seq)
-                self.hazards.ingest(msg, now)
+                self.world.ingest_hazard_alert(msg, now)
                 self.counters["hazard_alerts"] += 1
 
     def _plausible(self, key: str, msg):
@@ -308,12 +306,12 @@ class DdmService(CorridorPresence):
         return {v for v in self.presence.lost("vehicle") if not self.presence.is_alive("vehicle", v)}
 
     def _decide_all(self, now: float, t0: float | None = None, near: tuple[float, float] | None = None) -> None:
-        """The decider decides (``near``: an EV alert's position, for the vehicles it can concern), then
-        the due commands are published; an alert's decision latency (``t0``: its callback's entry) is
-        measured to the publication."""
+        """The decider decides on the world's picture at ``now`` (``near``: an EV alert's position, for the
+        vehicles it can concern), then the due commands are published; an alert's decision latency (``t0``:
+        its callback's entry) is measured to the publication."""
         if now < self.listen_until_s:
             return
-        issued = self.decider.decide(now, self.unreachable_vehicles(), near)
+        issued = self.decider.decide(self.world.snapshot(now), self.unreachable_vehicles(), near)
         self._send_due(now)
         if t0 is not None and issued:
             ms = (time.perf_counter() - t0) * 1000.0
@@ -337,8 +335,7 @@ class DdmService(CorridorPresence):
             t0 = time.perf_counter()
             self.world.maintain(now)
             changed = self._refresh_stale(now, publish=False)
-            self.hazards.maintain(now)
-            for what, hid in self.hazards.drain():
+            for what, hid in self.world.drain_hazard_events():
                 log.info("hazard %d %s", hid, what)
             self._decide_all(now)
             self._step_time_s = time.perf_counter() - t0
@@ -364,7 +361,7 @@ class DdmService(CorridorPresence):
         stale = sorted(self._stale_reported)
         n_rsu = len(self.world.rsu_ids)
         counts = {"tracks": self.world.track_count, "vehicles": len(self.world.vehicles),
-                  "outstanding": self.commands.outstanding(), "hazards": len(self.hazards.hazards),
+                  "outstanding": self.commands.outstanding(), "hazards": len(self.world.hazards.hazards),
                   "rsus_lost": len(self.presence.lost("rsu")), "vehicles_lost": len(self.presence.lost("vehicle"))}
         return Health(
             src=self.ddm_id, seq=self._health_seq, stamp=now, role=Role.DDM,

@@ -1,4 +1,4 @@
-"""Threat value of a road hazard (Clemson hazard navigation report, SPEC.md "Hazards"). Pure.
+"""Threat value of a road hazard (Clemson hazard navigation report; docs/architecture.md §DDM). Pure.
 
 Procedure 1, distance based (report eq. 2-3)::
 

@@ -10,7 +10,9 @@ binding in :mod:`ddm.world`; reading builds :class:`Track` records predicted to 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from types import MappingProxyType
 
 import numpy as np
 
@@ -109,6 +111,53 @@ def _dtype(column: str) -> type:
     return bool if column in _BOOL_COLUMNS else np.int64 if column in _INT_COLUMNS else float
 
 
+@dataclass(frozen=True)
+class TrackTable:
+    """Tracks at one instant as columns, one row per track in store (slot) order: copies, read-only.
+    :class:`Track` records are built on demand (``records``), so a picture of a thousand tracks costs
+    a few array copies, and the records of the few tracks a decision reads."""
+
+    gid: np.ndarray
+    x_m: np.ndarray
+    """Predicted to the table's time, as ``y_m``."""
+    y_m: np.ndarray
+    vx_mps: np.ndarray
+    vy_mps: np.ndarray
+    length_m: np.ndarray
+    width_m: np.ndarray
+    type_code: np.ndarray
+    is_ev: np.ndarray
+    lane: np.ndarray
+    hits: np.ndarray
+    first_s: np.ndarray
+    seen_s: np.ndarray
+    pos_var_m2: np.ndarray
+    slot: np.ndarray
+    rsu_names: tuple[str, ...]
+    keys_of_slot: Mapping[int, frozenset[tuple[int, int]]]
+    alert_of_slot: Mapping[int, str]
+    vehicle_of_slot: Mapping[int, str]
+
+    def __len__(self) -> int:
+        return len(self.gid)
+
+    def records(self, rows: np.ndarray | None = None) -> list[Track]:
+        """The :class:`Track` of each row (``rows``: indexes, in the order given; None: every row)."""
+        if rows is None:
+            rows = np.arange(len(self.gid))
+        if not len(rows):
+            return []
+        cols = zip(*(a[rows].tolist() for a in (
+            self.gid, self.x_m, self.y_m, self.vx_mps, self.vy_mps, self.length_m, self.width_m, self.type_code,
+            self.is_ev, self.lane, self.hits, self.first_s, self.seen_s, self.pos_var_m2, self.slot)), strict=True)
+        names, keys, alerts, vehicles = self.rsu_names, self.keys_of_slot, self.alert_of_slot, self.vehicle_of_slot
+        return [
+            Track(g, x, y, vx, vy, ln, wd, TYPES[ot], ev, alerts.get(s), None if lane < 0 else lane,
+                  vehicles.get(s), hits, first, seen, var, tuple(sorted({names[ri] for ri, _ in keys.get(s, ())})))
+            for g, x, y, vx, vy, ln, wd, ot, ev, lane, hits, first, seen, var, s in cols
+        ]
+
+
 class TrackStore:
     """Slots, global ids and the RSU object bindings of the corridor's tracks."""
 
@@ -122,7 +171,8 @@ class TrackStore:
         self.lists_per_rsu: list[int] = []
         self._bound: list[dict[int, tuple[int, int]]] = []  # per RSU: object id -> (slot, gid)
         self._listed_s: list[dict[int, float]] = []  # per RSU: object id -> last time it was in a list
-        self._keys_of_slot: dict[int, set[tuple[int, int]]] = {}  # slot -> {(rsu index, object id)}
+        self._keys_of_slot: dict[int, frozenset[tuple[int, int]]] = {}  # slot -> {(rsu index, object id)}
+        """Frozen sets, replaced on change: a table (``table``) keeps a shallow copy that later binds leave alone."""
         self.alert_of_slot: dict[int, str] = {}
         self.vehicle_of_slot: dict[int, str] = {}
 
@@ -230,9 +280,16 @@ class TrackStore:
     def bind(self, ri: int, oid: int, slot: int) -> None:
         old = self._bound[ri].get(oid)
         if old is not None and old[0] != slot:
-            self._keys_of_slot.get(old[0], set()).discard((ri, oid))
+            self._unkey(old[0], (ri, oid))
         self._bound[ri][oid] = (slot, int(self.cols.gid[slot]))
-        self._keys_of_slot.setdefault(slot, set()).add((ri, oid))
+        keys = self._keys_of_slot.get(slot, frozenset())
+        if (ri, oid) not in keys:
+            self._keys_of_slot[slot] = keys | {(ri, oid)}
+
+    def _unkey(self, slot: int, key: tuple[int, int]) -> None:
+        keys = self._keys_of_slot.get(slot)
+        if keys is not None and key in keys:
+            self._keys_of_slot[slot] = keys - {key}
 
     def note_listed(self, ri: int, oids: list[int], now: float) -> None:
         listed = self._listed_s[ri]
@@ -246,7 +303,7 @@ class TrackStore:
             del listed[oid]
             b = bound.pop(oid, None)
             if b is not None:
-                self._keys_of_slot.get(b[0], set()).discard((ri, oid))
+                self._unkey(b[0], (ri, oid))
 
     def share_an_rsu(self, slot_a: int, slot_b: int) -> bool:
         """Objects of one RSU are bound to both tracks (that RSU sees two cars)."""
@@ -254,24 +311,22 @@ class TrackStore:
         return bool({ri for ri, _ in keys.get(slot_a, ())} & {ri for ri, _ in keys.get(slot_b, ())})
 
     # ------------------------------------------------------------------ reading
-    def records(self, slots: np.ndarray, now: float, is_ev: np.ndarray) -> list[Track]:
-        """Track records for ``slots`` predicted to ``now`` (columns gathered once, vectorised)."""
-        if not len(slots):
-            return []
+    def table(self, slots: np.ndarray, now: float, is_ev: np.ndarray) -> TrackTable:
+        """The tracks of ``slots`` predicted to ``now``, as a table of copies (later updates leave it alone)."""
         c = self.cols
         dt = now - c.t_s[slots]
-        cols = zip(
-            c.gid[slots].tolist(), (c.x_m[slots] + c.vx_mps[slots] * dt).tolist(),
-            (c.y_m[slots] + c.vy_mps[slots] * dt).tolist(), c.vx_mps[slots].tolist(), c.vy_mps[slots].tolist(),
-            c.length_m[slots].tolist(), c.width_m[slots].tolist(), c.type_code[slots].tolist(), is_ev.tolist(),
-            c.lane[slots].tolist(), c.hits[slots].tolist(), c.first_s[slots].tolist(), c.seen_s[slots].tolist(),
-            (0.5 * (c.var_x_m2[slots] + c.var_y_m2[slots])).tolist(), slots.tolist(), strict=True)
-        names, keys, alerts, vehicles = self.rsu_names, self._keys_of_slot, self.alert_of_slot, self.vehicle_of_slot
-        return [
-            Track(g, x, y, vx, vy, ln, wd, TYPES[ot], ev, alerts.get(s), None if lane < 0 else lane,
-                  vehicles.get(s), hits, first, seen, var, tuple(sorted({names[ri] for ri, _ in keys.get(s, ())})))
-            for g, x, y, vx, vy, ln, wd, ot, ev, lane, hits, first, seen, var, s in cols
-        ]
+        cols = (c.gid[slots], c.x_m[slots] + c.vx_mps[slots] * dt, c.y_m[slots] + c.vy_mps[slots] * dt, c.vx_mps[slots],
+                c.vy_mps[slots], c.length_m[slots], c.width_m[slots], c.type_code[slots], np.array(is_ev, dtype=bool),
+                c.lane[slots], c.hits[slots], c.first_s[slots], c.seen_s[slots],
+                0.5 * (c.var_x_m2[slots] + c.var_y_m2[slots]), np.array(slots, dtype=np.int64))
+        for a in cols:
+            a.setflags(write=False)
+        return TrackTable(*cols, tuple(self.rsu_names), MappingProxyType(dict(self._keys_of_slot)),
+                          MappingProxyType(dict(self.alert_of_slot)), MappingProxyType(dict(self.vehicle_of_slot)))
+
+    def records(self, slots: np.ndarray, now: float, is_ev: np.ndarray) -> list[Track]:
+        """Track records for ``slots`` predicted to ``now``."""
+        return self.table(slots, now, is_ev).records()
 
     def sizes(self) -> dict[str, int]:
         """How much the store holds (slots, bindings, listed objects)."""

@@ -1,24 +1,28 @@
-"""Corridor world model: the RSUs' object lists fused into corridor tracks with global ids. Pure core
-(no I/O, no clock: every call takes ``now``, the DDM's time of reception).
+"""Corridor world model: everything the DDM knows of the corridor, in one place. Pure core (no I/O, no
+clock: every call takes ``now``, the DDM's time of reception).
 
-The tracks live in a :class:`ddm.tracks.TrackStore` (named columns by slot); :mod:`ddm.fusion` predicts,
-associates, updates and merges them. This module keeps what else the DDM knows of the corridor and is
-its public API (the decider and the service read the picture through it only):
+Inputs (``ingest_*``) update it; :meth:`CorridorWorld.snapshot` returns the immutable
+:class:`ddm.picture.Picture` the policies decide on (fuse, decide, command, in that order: nothing
+downstream writes back into the world).
 
 - Object lists (``ingest_objects``): lists older than ``max_measurement_age_s`` are dropped; the others
-  are fused at their ``measurement_time``; overlapping fields of view give one track per car, and a car
-  handed over from one RSU to the next keeps its global id.
-- EVs (issue 18: only authenticated evidence moves a car): an active EvAlert (signed, in a signed
-  corridor: the DDM verifies alerts) marks the track it names (via the RSU's object id, else by
+  are fused at their ``measurement_time`` (:mod:`ddm.fusion`, into the :class:`ddm.tracks.TrackStore`);
+  overlapping fields of view give one track per car, and a car handed over from one RSU to the next
+  keeps its global id.
+- EVs (``ingest_ev_alert``; only authenticated evidence moves a car): an active EvAlert (signed, in a
+  signed corridor: the DDM verifies alerts) marks the track it names (via the RSU's object id, else by
   position) until cleared or not refreshed for ``ev_alert_timeout_s``. An object list's unsigned
   ``obj_type=ev`` / ``ev_state=confirmed`` only holds the mark for ``ev_object_hold_s`` on a track an
   EvAlert has named (``ev_named``), never makes an EV on its own (``DdmConfig.ev_from_objects_alone``
-  restores that, to measure the cost); a cleared alert removes the mark and suppresses the object-level
+  allows it, to measure the cost); a cleared alert removes the mark and suppresses the object-level
   mark on that track until a new alert; an alert cleared because the EV left that RSU's view
   (``clear_reason=out_of_view``) leaves the mark to time out, so the EV stays an EV while the next RSU
   gathers its own evidence.
+- Hazards (``ingest_hazard_alert``): every RSU's HazardAlerts fused into corridor hazards
+  (:class:`ddm.hazard_fusion.HazardFusion`).
+- Autonomous vehicles (``ingest_vehicle_state``): each VehicleState is bound to the nearest track
+  (``vehicle_gate_m``).
 - RSU liveness: last object list and last health per RSU; ``stale_rsus(now)``.
-- Autonomous vehicles: each VehicleState is bound to the nearest track (``vehicle_gate_m``).
 """
 
 from __future__ import annotations
@@ -28,12 +32,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ddm import fusion
-from ddm.config import DdmConfig
+from ddm.config import DdmConfig, HazardConfig
+from ddm.geometry import RoadFrame
+from ddm.hazard_fusion import HazardFusion
+from ddm.intent import Ego
+from ddm.picture import Picture
 from ddm.tracks import EV_CODE, Track, TrackStore
 from protocol.enums import AlertState, ClearReason
-from protocol.messages import EvAlert, ObjectList, VehicleState
-
-__all__ = ["AlertRecord", "CorridorWorld", "IngestStats", "Track", "VehicleRecord"]
+from protocol.messages import EvAlert, HazardAlert, ObjectList, VehicleState
 
 EV_ALERT_LENGTH_M, EV_ALERT_WIDTH_M = 5.5, 2.0
 """Size of a track started from an EvAlert alone (no RSU object of it yet)."""
@@ -41,6 +47,8 @@ EV_ALERT_LENGTH_M, EV_ALERT_WIDTH_M = 5.5, 2.0
 
 @dataclass(slots=True)
 class AlertRecord:
+    """The latest of one EvAlert and the track it named."""
+
     alert_id: str
     rsu_id: str
     object_id: int
@@ -57,6 +65,8 @@ class AlertRecord:
 
 @dataclass(slots=True)
 class VehicleRecord:
+    """An autonomous vehicle's latest state, when it came, and the track bound to it."""
+
     state: VehicleState
     received_s: float
     track_id: int | None = None
@@ -64,6 +74,8 @@ class VehicleRecord:
 
 @dataclass
 class IngestStats:
+    """Counts of what the object lists brought (for Health and the benches)."""
+
     lists: int = 0
     objects: int = 0
     dropped_old: int = 0
@@ -73,10 +85,13 @@ class IngestStats:
 
 
 class CorridorWorld:
-    """The corridor's fused tracks, EV alerts, autonomous vehicles and RSU liveness."""
+    """The corridor's fused tracks, EV alerts, hazards, autonomous vehicles and RSU liveness."""
 
-    def __init__(self, config: DdmConfig | None = None, rsu_ids: tuple[str, ...] = (), capacity: int = 256) -> None:
+    def __init__(self, config: DdmConfig | None = None, rsu_ids: tuple[str, ...] = (), capacity: int = 256, *,
+                 frame: RoadFrame | None = None, hazard_config: HazardConfig | None = None) -> None:
+        """``frame``: the road, to name each hazard's lane (None: hazard lanes unknown)."""
         self.config = config or DdmConfig()
+        self.hazards = HazardFusion(frame, hazard_config)
         self.store = TrackStore(capacity)
         self.rsu_last_objects: dict[str, float] = {}
         self.rsu_last_health: dict[str, float] = {}
@@ -102,7 +117,7 @@ class CorridorWorld:
     def sizes(self) -> dict[str, int]:
         """How much the world holds (tracks, slots, alerts, vehicles, RSUs, object bindings)."""
         return {"tracks": self.track_count, "alerts": len(self.alerts), "vehicles": len(self.vehicles),
-                "rsus": len(self.store.rsu_names), **self.store.sizes()}
+                "rsus": len(self.store.rsu_names), "hazards": len(self.hazards.hazards), **self.store.sizes()}
 
     def _heard(self, now: float) -> None:
         if self.started_s is None:
@@ -222,6 +237,16 @@ class CorridorWorld:
         k = int(np.argmin(d))
         return int(live[k]) if d[k] <= self.config.vehicle_gate_m else None
 
+    # ------------------------------------------------------------------ hazards
+    def ingest_hazard_alert(self, alert: HazardAlert, now: float) -> int | None:
+        """Fuse one HazardAlert; returns the id of the hazard it belongs to (None after a clear)."""
+        hz = self.hazards.ingest(alert, now)
+        return None if hz is None else hz.hazard_id
+
+    def drain_hazard_events(self) -> list[tuple[str, int]]:
+        """(what, hazard id) since the last drain: appeared, cleared, expired."""
+        return self.hazards.drain()
+
     # ------------------------------------------------------------------ autonomous vehicles
     def ingest_vehicle_state(self, vs: VehicleState, now: float) -> int | None:
         """Record an AV's own state and bind it to its corridor track; returns the track id."""
@@ -252,7 +277,8 @@ class CorridorWorld:
 
     # ------------------------------------------------------------------ maintenance
     def maintain(self, now: float) -> None:
-        """Delete tracks not updated for ``track_timeout_s``, merge duplicates, forget old alerts."""
+        """Delete tracks not updated for ``track_timeout_s``, merge duplicates, forget old alerts, drop
+        hazard sources not refreshed for ``HazardConfig.source_timeout_s``."""
         cfg = self.config
         c = self.store.cols
         dead = np.nonzero(c.alive & (now - c.seen_s > cfg.track_timeout_s))[0]
@@ -262,6 +288,7 @@ class CorridorWorld:
         self._merge_duplicates(now)
         for aid in [a for a, r in self.alerts.items() if now - r.last_seen_s > cfg.ev_alert_timeout_s]:
             del self.alerts[aid]
+        self.hazards.maintain(now)
 
     def _delete(self, slot: int) -> None:
         vehicle = self.store.delete(slot)
@@ -309,20 +336,12 @@ class CorridorWorld:
         """Every live track, predicted to ``now``, ordered by id."""
         return sorted(self._tracks(self.store.live_slots(), now), key=lambda t: t.track_id)
 
-    def track(self, track_id: int, now: float) -> Track | None:
-        s = self.store.slot_of(track_id)
-        return None if s is None else self._tracks(np.array([s]), now)[0]
-
-    def tracks_near(self, x_m: float, y_m: float, radius_m: float, now: float) -> list[Track]:
+    def snapshot(self, now: float) -> Picture:
+        """The immutable picture at ``now``: every live track predicted to it (store order), the hazards, and
+        the vehicles (in the order first heard) with the track bound to each."""
         live = self.store.live_slots()
-        if not len(live):
-            return []
-        c = self.store.cols
-        dt = now - c.t_s[live]
-        d = np.hypot(c.x_m[live] + c.vx_mps[live] * dt - x_m, c.y_m[live] + c.vy_mps[live] * dt - y_m)
-        return self._tracks(live[d <= radius_m], now)
-
-    def ev_tracks(self, now: float) -> list[Track]:
-        """Tracks currently marked EV (by an active alert or a confirmed detection)."""
-        live = self.store.live_slots()
-        return self._tracks(live[self.is_ev_mask(live, now)], now)
+        table = self.store.table(live, now, self.is_ev_mask(live, now))
+        vehicles = tuple(Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
+                             s.active_command_id, rec.track_id, rec.received_s)
+                         for vid, rec in self.vehicles.items() for s in (rec.state,))
+        return Picture(now, table, self.hazards.records(), vehicles)

@@ -8,7 +8,7 @@ the infrastructure-guided controller and a camera-steered car, all in lockstep o
   and longitudinal controllers, fail-safe) stepped at 100 Hz with the DDM's heartbeat, so the speed profile
   is the same for every driver.
 - ``teacher``: the DDM's hazard rule with perfect knowledge: once the debris blocks the AV's lane
-  (``ddm.hazard`` geometry) and its threat value (report eq. 2-3, ``ddm.threat``) exceeds the DDM's
+  (``ddm.policy.hazard`` geometry) and its threat value (report eq. 2-3, ``ddm.threat``) exceeds the DDM's
   threshold, a LANE_CHANGE planned by ``ddm.paths.plan_lane_change`` to the other lane, at once.
 - ``iea``: the same rule as the infrastructure runs it: the debris position the RSUs report (N(0, 0.3 m)
   each axis, ``RSU_POSITION_SIGMA_M``), the AV's position as the DDM knows it (its own EKF estimate,
@@ -51,9 +51,9 @@ COMMAND_LATENCY_S = 0.25
 """DDM decision to the car (DDM cycle jitter, transport, validation)."""
 RSU_POSITION_SIGMA_M = 0.3
 THREAT_THRESHOLD = 0.3
-"""The DDM's (``ddm.hazard.HazardConfig.threat_threshold``)."""
+"""The DDM's (``ddm.config.HazardConfig.threat_threshold``)."""
 CLEARANCE_M = 1.3
-"""``ddm.hazard``: min_clearance_m + position_margin_m: a hazard closer than this to the car's side blocks."""
+"""``ddm.config.HazardConfig``: min_clearance_m + position_margin_m: a hazard closer than this to the car's side blocks."""
 RADAR_RANGE_M, RADAR_HALF_FOV_RAD = 60.0, math.radians(45.0)
 RADAR_RANGE_SIGMA_M, RADAR_BEARING_SIGMA_RAD = 0.25, math.radians(0.5)
 SPEED_MPS = 10.0

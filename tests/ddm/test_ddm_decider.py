@@ -1,15 +1,14 @@
-"""The decider alone (no service, no bus, no clock): an EvAlert in the world reaches a command through it;
-rollback, EV over hazard and adoption after a restart."""
+"""The decider alone (no service, no bus, no clock): an EvAlert in the world's picture reaches a command
+through it; rollback, EV over hazard and adoption after a restart."""
 
 from __future__ import annotations
 
 from ddm_rig import lane_y
 
 from ddm.commands import CommandState
-from ddm.config import DdmConfig
+from ddm.config import DdmConfig, HazardConfig
 from ddm.decider import Decider
 from ddm.geometry import RoadFrame
-from ddm.hazard import HazardBook, HazardConfig
 from ddm.world import CorridorWorld
 from protocol.corridor import load_corridor
 from protocol.enums import AckStatus, AlertState, Manoeuvre, VehicleMode
@@ -19,12 +18,12 @@ CORRIDOR = load_corridor()
 T0 = 100.0
 
 
-def setup(cfg: DdmConfig | None = None) -> tuple[Decider, CorridorWorld, HazardBook]:
+def setup(cfg: DdmConfig | None = None) -> tuple[Decider, CorridorWorld]:
     cfg = cfg or DdmConfig()
     frame = RoadFrame(CORRIDOR.road)
-    world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in CORRIDOR.rsus))
-    hazards = HazardBook(frame, HazardConfig())
-    return Decider(world, hazards, CORRIDOR, frame, cfg, HazardConfig(), ddm_id="ddm", started_s=T0), world, hazards
+    world = CorridorWorld(cfg, rsu_ids=tuple(r.rsu_id for r in CORRIDOR.rsus), frame=frame,
+                          hazard_config=HazardConfig())
+    return Decider(CORRIDOR, frame, cfg, HazardConfig(), ddm_id="ddm", started_s=T0), world
 
 
 def av_state(t: float, x: float = 20.0, *, mode: VehicleMode = VehicleMode.DRIVING, active: str | None = None,
@@ -46,11 +45,11 @@ def hazard_alert(t: float, x: float) -> HazardAlert:
 
 
 def test_an_ev_alert_in_the_world_becomes_a_pull_over_command_through_the_decider():
-    decider, world, _ = setup()
+    decider, world = setup()
     world.ingest_vehicle_state(av_state(T0), T0)
-    assert decider.decide(T0) == 0 and decider.due_commands(T0) == []  # nothing to yield to
+    assert decider.decide(world.snapshot(T0)) == 0 and decider.due_commands(T0) == []  # nothing to yield to
     world.ingest_ev_alert(ev_alert(T0), T0)  # 50 m behind in the AV's lane, closing at 6.6 m/s
-    assert decider.decide(T0, near=(-30.0, lane_y(1))) == 1
+    assert decider.decide(world.snapshot(T0), near=(-30.0, lane_y(1))) == 1
     (cmd,) = decider.due_commands(T0)
     assert cmd.vehicle_id == "av1" and cmd.manoeuvre == Manoeuvre.PULL_OVER and cmd.target_lane == 0
     mem = decider.memory["av1"].ev
@@ -61,18 +60,18 @@ def test_an_ev_alert_in_the_world_becomes_a_pull_over_command_through_the_decide
 
 
 def test_an_alert_far_from_the_vehicle_is_left_to_the_next_step():
-    decider, world, _ = setup()
+    decider, world = setup()
     world.ingest_vehicle_state(av_state(T0, x=400.0), T0)
     world.ingest_ev_alert(ev_alert(T0), T0)
-    assert decider.decide(T0, near=(-30.0, lane_y(1))) == 0 and "av1" not in decider.memory
+    assert decider.decide(world.snapshot(T0), near=(-30.0, lane_y(1))) == 0 and "av1" not in decider.memory
 
 
 def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_again():
     cfg = DdmConfig()
-    decider, world, _ = setup(cfg)
+    decider, world = setup(cfg)
     world.ingest_vehicle_state(av_state(T0), T0)
     world.ingest_ev_alert(ev_alert(T0), T0)
-    decider.decide(T0)
+    decider.decide(world.snapshot(T0))
     (cmd,) = decider.due_commands(T0)
     decider.on_ack(CommandAck(src="av1", stamp=T0 + 0.05, command_id=cmd.command_id, vehicle_id="av1",
                               status=AckStatus.REJECTED, reason="path starts behind the car"), T0 + 0.05)
@@ -82,26 +81,26 @@ def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_agai
     t = T0 + 0.1
     world.ingest_vehicle_state(av_state(t, x=21.3), t)
     world.ingest_ev_alert(ev_alert(t, x=-28.0), t)
-    assert decider.decide(t) == 0  # inside the backoff
+    assert decider.decide(world.snapshot(t)) == 0  # inside the backoff
     t = T0 + 0.6
     world.ingest_vehicle_state(av_state(t, x=28.0), t)
     world.ingest_ev_alert(ev_alert(t, x=-18.0), t)
-    assert decider.decide(t) == 1  # planned anew
+    assert decider.decide(world.snapshot(t)) == 1  # planned anew
     assert decider.commands.state_of("av1").state == CommandState.SENT
     assert decider.commands.state_of("av1").command_id != cmd.command_id
 
 
 def test_an_ev_command_supersedes_a_hazard_command_and_resets_the_hazard_memory():
-    decider, world, hazards = setup()
+    decider, world = setup()
     world.ingest_vehicle_state(av_state(T0), T0)
-    hazards.ingest(hazard_alert(T0, 60.0), T0)  # 40 m ahead in the AV's lane
-    assert decider.decide(T0) == 0  # a hazard command: not an EV command
+    world.ingest_hazard_alert(hazard_alert(T0, 60.0), T0)  # 40 m ahead in the AV's lane
+    assert decider.decide(world.snapshot(T0)) == 0  # a hazard command: not an EV command
     (hz_cmd,) = decider.due_commands(T0)
     assert hz_cmd.manoeuvre in (Manoeuvre.LANE_CHANGE, Manoeuvre.STOP_IN_LANE)
     assert decider.memory["av1"].hazard.phase in ("avoiding", "stopping")
     assert decider.counters["hazard_decisions"] == 1
     world.ingest_ev_alert(ev_alert(T0 + 0.05), T0 + 0.05)
-    assert decider.decide(T0 + 0.05) == 1
+    assert decider.decide(world.snapshot(T0 + 0.05)) == 1
     (ev_cmd,) = decider.due_commands(T0 + 0.05)
     assert ev_cmd.supersedes == hz_cmd.command_id
     mem = decider.memory["av1"]
@@ -110,7 +109,7 @@ def test_an_ev_command_supersedes_a_hazard_command_and_resets_the_hazard_memory(
 
 def test_a_command_from_a_previous_ddm_is_adopted_and_not_resumed_before_the_evs_can_be_heard():
     cfg = DdmConfig()
-    decider, world, _ = setup(cfg)
+    decider, world = setup(cfg)
     vs = av_state(T0, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0)
     world.ingest_vehicle_state(vs, T0)
     decider.adopt(vs, T0)
@@ -118,10 +117,10 @@ def test_a_command_from_a_previous_ddm_is_adopted_and_not_resumed_before_the_evs
     assert decider.memory["av1"].ev.phase == "yielding"
     t = T0 + cfg.ev_alert_timeout_s  # no EV heard: still holding
     world.ingest_vehicle_state(av_state(t, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0), t)
-    decider.decide(t)
+    decider.decide(world.snapshot(t))
     assert decider.due_commands(t) == []
     t = T0 + cfg.ev_alert_timeout_s + cfg.resume_hold_s + 0.1
     world.ingest_vehicle_state(av_state(t, mode=VehicleMode.STOPPED, active="ddm-old-1", speed=0.0), t)
-    decider.decide(t)
+    decider.decide(world.snapshot(t))
     (cmd,) = decider.due_commands(t)
     assert cmd.manoeuvre == Manoeuvre.RESUME and decider.memory["av1"].ev.phase == "normal"

@@ -8,17 +8,12 @@ import numpy as np
 import pytest
 from ddm_rig import lane_y
 
-from ddm.config import DdmConfig
-from ddm.decision import Ego, Response
+from ddm.config import DdmConfig, HazardConfig
 from ddm.geometry import RoadFrame
-from ddm.hazard import (
-    HazardBook,
-    HazardConfig,
-    HazardTrack,
-    assess_hazards,
-    decide_hazard,
-    path_clearance,
-)
+from ddm.hazard_fusion import HazardFusion
+from ddm.intent import Ego, Response
+from ddm.picture import Hazard
+from ddm.policy.hazard import assess_hazards, decide_hazard, path_clearance
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
 from protocol.enums import Manoeuvre, ObjectType
@@ -39,8 +34,8 @@ def alert(aid: str, x: float, y: float, state: str = "persist", conf: float = 0.
                        first_seen=0.0)
 
 
-def hz(hid: int, x: float, lane: int, y_off: float = 0.0, length: float = 1.2, width: float = 0.9) -> HazardTrack:
-    return HazardTrack(hid, x, lane_y(lane) + y_off, length, width, lane, 0.5, 0.0, 0.0)
+def hz(hid: int, x: float, lane: int, y_off: float = 0.0, length: float = 1.2, width: float = 0.9) -> Hazard:
+    return Hazard(hid, x, lane_y(lane) + y_off, length, width, lane, 0.5, 0.0, 0.0)
 
 
 def trk(tid: int, x: float, lane: int, vx: float) -> Track:
@@ -58,11 +53,11 @@ def decide(e, hazards, others=(), resp=None):
 
 # ------------------------------------------------------------------------------------------------ fusion
 def test_book_fuses_rsus_and_follows_the_life_cycle():
-    book = HazardBook(FRAME)
+    book = HazardFusion(FRAME)
     a = book.ingest(alert("rsu2-hz-1", 119.0, 5.3, "appear", conf=0.25, rsu="rsu2"), 1.0)
     b = book.ingest(alert("rsu3-hz-4", 120.0, 5.6, "appear", conf=0.75), 1.1)
-    assert a.hazard_id == b.hazard_id and len(book.active()) == 1
-    h = book.active()[0]
+    assert a.hazard_id == b.hazard_id and len(book.records()) == 1
+    h = book.records()[0]
     assert h.x_m == pytest.approx(0.25 * 119.0 + 0.75 * 120.0) and h.lane == 1   # confidence-weighted
     far = book.ingest(alert("rsu3-hz-5", 135.0, 1.6, "appear"), 1.2)           # another object: its own hazard
     assert far.hazard_id != h.hazard_id and far.lane == 0
@@ -72,7 +67,7 @@ def test_book_fuses_rsus_and_follows_the_life_cycle():
     assert h.hazard_id not in book.hazards
     book.ingest(alert("rsu3-hz-5", 135.0, 1.6), 3.0)
     book.maintain(3.0 + HCFG.source_timeout_s + 0.1)                          # no refresh: expires
-    assert book.active() == []
+    assert book.records() == ()
     assert [e[0] for e in book.drain()] == ["appeared", "appeared", "cleared", "expired"]
 
 
@@ -184,7 +179,7 @@ def test_service_lane_change_around_a_hazard_then_resume_with_clearance():
         if abs(av.x - 120.0) < (4.9 + 1.2) / 2:
             clearances.append(abs(av.y - lane_y(1)) - (1.9 + 0.9) / 2)
     assert rig.manoeuvres()[:2] == ["lane_change", "resume"]
-    assert rig.svc.counters["hazard_alerts"] >= 5 and len(rig.svc.hazards.hazards) == 1
+    assert rig.svc.counters["hazard_alerts"] >= 5 and len(rig.svc.world.hazards.hazards) == 1
     assert clearances and min(clearances) >= HCFG.min_clearance_m
     assert rig.cars["av1"].x > 130.0
     first = next(c for c in rig.commands if c.manoeuvre == Manoeuvre.LANE_CHANGE)
@@ -215,7 +210,7 @@ def test_service_rejects_a_hazard_alert_from_the_wrong_rsu_key():
 
     rig = Rig()
     rig.bus.publish(rsu_key_of(rig), alert("rsu2-hz-1", 120.0, 5.5, "appear", rsu="rsu2"))
-    assert rig.svc.rejected["rsu_mismatch"] == 1 and not rig.svc.hazards.hazards
+    assert rig.svc.rejected["rsu_mismatch"] == 1 and not rig.svc.world.hazards.hazards
 
 
 def test_a_second_hazard_beside_the_first_does_not_repeat_the_lane_change():

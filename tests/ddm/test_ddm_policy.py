@@ -10,9 +10,10 @@ import pytest
 from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
-from ddm.decision import Ego, Response
 from ddm.geometry import RoadFrame
-from ddm.policy import decide, gap_check, plan
+from ddm.intent import Ego, Response
+from ddm.manoeuvre import gap_check
+from ddm.policy.ev import decide, plan
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
 from protocol.enums import Manoeuvre, ObjectType

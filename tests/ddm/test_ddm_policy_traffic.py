@@ -10,9 +10,10 @@ from __future__ import annotations
 from ddm_rig import lane_y
 
 from ddm.config import DdmConfig
-from ddm.decision import Ego, Response
 from ddm.geometry import RoadFrame
-from ddm.policy import ENTER_FRACTION, MIN_START_GAP_M, decide, gap_check
+from ddm.intent import Ego, Response
+from ddm.manoeuvre import ENTER_FRACTION, MIN_START_GAP_M, gap_check
+from ddm.policy.ev import decide
 from ddm.tracks import Track
 from protocol.corridor import load_corridor
 from protocol.enums import Manoeuvre, ObjectType

@@ -235,7 +235,7 @@ def test_an_ev_alert_is_decided_at_once_only_for_the_vehicles_it_can_concern(mon
 
     from ddm_rig import lane_y
 
-    import ddm.decider as decider
+    import ddm.policy.ev as ev_policy
     from protocol.clock import SimClock
     from protocol.corridor import VehicleConfig, load_corridor
     from protocol.enums import VehicleMode
@@ -248,8 +248,8 @@ def test_an_ev_alert_is_decided_at_once_only_for_the_vehicles_it_can_concern(mon
     bus, clock = LocalBus(), SimClock(100.0)
     svc = DdmService(bus, clock, cor, DdmConfig(startup_listen_s=0.0))
     decided: list[str] = []
-    real_decide = decider.decide
-    monkeypatch.setattr(decider, "decide", lambda ego, *a, **k: decided.append(ego.vehicle_id) or real_decide(ego, *a, **k))
+    real_decide = ev_policy.decide
+    monkeypatch.setattr(ev_policy, "decide", lambda ego, *a, **k: decided.append(ego.vehicle_id) or real_decide(ego, *a, **k))
     for vid, x in (("av1", 20.0), ("av2", 350.0)):
         bus.publish(vehicle_key(cor.corridor_id, vid, "state"),
                     VehicleState(src=vid, stamp=100.0, vehicle_id=vid, pos_x_m=x, pos_y_m=lane_y(1), lat_deg=30.6,

@@ -121,14 +121,14 @@ def test_ev_alert_marks_track_and_clear_unmarks_it():
                        pos_y_m=lane_y(1), lat_deg=lat, lon_deg=lon, vel_x_mps=20.0, confidence=0.9, first_seen=t)
 
     tid = w.ingest_ev_alert(alert(AlertState.ACTIVE, 1.0), 1.0)
-    assert [t.track_id for t in w.ev_tracks(1.0)] == [tid] and w.track(tid, 1.0).ev_alert_id == "a1"
+    assert [t.track_id for t in w.snapshot(1.0).evs] == [tid] and w.snapshot(1.0).track(tid).ev_alert_id == "a1"
     w.ingest_ev_alert(alert(AlertState.CLEARED, 1.5), 1.5)
-    assert w.ev_tracks(1.5) == []
+    assert w.snapshot(1.5).evs == ()
     # an alert alone (object never reported) starts an EV track; not refreshed, it is forgotten
     w2 = CorridorWorld(DdmConfig())
     w2.ingest_ev_alert(alert(AlertState.ACTIVE, 1.0), 1.0)
-    assert len(w2.ev_tracks(1.0)) == 1
-    assert w2.ev_tracks(1.0 + DdmConfig().ev_alert_timeout_s + 0.1) == []
+    assert len(w2.snapshot(1.0).evs) == 1
+    assert w2.snapshot(1.0 + DdmConfig().ev_alert_timeout_s + 0.1).evs == ()
 
 
 def test_object_level_ev_state_alone_marks_no_track():
@@ -136,10 +136,10 @@ def test_object_level_ev_state_alone_marks_no_track():
     measure the cost)."""
     w = CorridorWorld(DdmConfig())
     w.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
-    assert w.ev_tracks(1.0) == []
+    assert w.snapshot(1.0).evs == ()
     old = CorridorWorld(DdmConfig(ev_from_objects_alone=True))
     old.ingest_objects(object_list("rsu1", 1, 1.0, [det(COR, 5, 30.0, lane_y(1), 20.0, ev=True)]), 1.0)
-    assert len(old.ev_tracks(1.0)) == 1
+    assert len(old.snapshot(1.0).evs) == 1
 
 
 def test_object_level_ev_state_holds_the_mark_of_a_track_an_alert_named():
@@ -150,11 +150,11 @@ def test_object_level_ev_state_holds_the_mark_of_a_track_an_alert_named():
     tid = w.ingest_ev_alert(EvAlert(src="rsu1", stamp=1.0, alert_id="rsu1-ev-5", state=AlertState.ACTIVE,
                                     rsu_id="rsu1", object_id=5, pos_x_m=30.0, pos_y_m=lane_y(1), lat_deg=lat,
                                     lon_deg=lon, vel_x_mps=20.0, speed_mps=20.0, confidence=0.9, first_seen=1.0), 1.0)
-    assert [t.track_id for t in w.ev_tracks(1.0)] == [tid]
+    assert [t.track_id for t in w.snapshot(1.0).evs] == [tid]
     # after the alert has timed out, the object lists' EV state keeps the named track an EV
     t = 1.0 + cfg.ev_alert_timeout_s + 0.1
     w.ingest_objects(object_list("rsu1", 2, t, [det(COR, 5, 30.0 + 20.0 * (t - 1.0), lane_y(1), 20.0, ev=True)]), t)
-    assert [x.track_id for x in w.ev_tracks(t)] == [tid]
+    assert [x.track_id for x in w.snapshot(t).evs] == [tid]
 
 
 def test_vehicle_state_is_bound_to_its_track():
@@ -165,7 +165,7 @@ def test_vehicle_state_is_bound_to_its_track():
     vs = VehicleState(src="av1", stamp=1.0, vehicle_id="av1", pos_x_m=30.5, pos_y_m=lane_y(1), lat_deg=lat,
                       lon_deg=lon, heading_rad=0.0, speed_mps=13.0, mode=VehicleMode.DRIVING)
     tid = w.ingest_vehicle_state(vs, 1.0)
-    assert w.track(tid, 1.0).vehicle_id == "av1" and abs(w.track(tid, 1.0).x_m - 30.0) < 0.1
+    assert w.snapshot(1.0).track(tid).vehicle_id == "av1" and abs(w.snapshot(1.0).track(tid).x_m - 30.0) < 0.1
 
 
 def test_stale_rsu_detection():

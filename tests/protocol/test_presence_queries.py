@@ -154,7 +154,9 @@ def test_ddm_marks_an_rsu_stale_at_once_when_its_token_is_lost():
     assert ddm.stale_now == {"rsu1"}  # no step, no clock advance: the token's loss alone
     assert len(healths) == n + 1 and healths[-1].stale == ["rsu1"] and healths[-1].counts["rsus_lost"] == 1
     stub.handles[-1].close()  # the vehicle's token
-    assert ddm.decider.ego("av1", clock.now(), ddm.unreachable_vehicles()) is None
+    picture = ddm.world.snapshot(clock.now())
+    assert picture.vehicle("av1") is not None
+    assert "av1" not in [e.vehicle_id for e in ddm.decider.egos(picture, ddm.unreachable_vehicles())]
 
 
 def test_late_ddm_is_ev_aware_at_construction_with_catch_up_and_not_without():

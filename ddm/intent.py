@@ -1,11 +1,13 @@
-"""What the DDM decides for one vehicle, and what it remembers of it: one type each for EV and hazard.
+"""What a policy wants for one vehicle, and what the DDM remembers of it: one type each for EV and hazard.
 
-- :class:`Ego`: an autonomous vehicle's own state, as the policies read it.
-- :class:`Decision`: the outcome of one policy for one vehicle, ``about`` an EV (:func:`ddm.policy.decide`)
-  or a hazard (:func:`ddm.hazard.decide_hazard`); a decision whose action is a ``Manoeuvre`` becomes a
-  command. EV-only and hazard-only fields stay at their defaults in the other kind.
+- :class:`Ego`: an autonomous vehicle's own state, as the policies read it (from the world's picture).
+- :class:`Intent`: the outcome of one policy for one vehicle, ``about`` an EV (:mod:`ddm.policy.ev`) or a
+  hazard (:mod:`ddm.policy.hazard`); an intent whose action is a ``Manoeuvre`` carries its planned path
+  and becomes a command (:meth:`ddm.commands.CommandManager.issue_intent`). EV-only and hazard-only
+  fields stay at their defaults in the other kind.
 - :class:`Response`: the per-vehicle memory of what was commanded about one concern (the decider keeps
-  one for EVs and one for hazards per vehicle), updated by ``commit`` when a command is issued.
+  one for EVs and one for hazards per vehicle), updated by ``commit`` when a command is issued; the
+  policies read it, never write it.
 
 Pure data: no I/O, no clock.
 """
@@ -30,6 +32,9 @@ SlowBecause = Literal["gap", "too_late", "ev_in_lane0", ""]
 
 @dataclass(frozen=True)
 class Ego:
+    """An autonomous vehicle as its last VehicleState reported it (``track_id``: the corridor track bound
+    to it; ``received_s``: when the DDM received that state)."""
+
     vehicle_id: str
     x_m: float
     y_m: float
@@ -40,10 +45,11 @@ class Ego:
     mode: VehicleMode = VehicleMode.DRIVING
     active_command_id: str | None = None
     track_id: int | None = None
+    received_s: float = 0.0
 
 
 @dataclass(frozen=True)
-class Decision:
+class Intent:
     """One policy's outcome for one vehicle (the ``ego_*`` fields: its road-frame pose when decided)."""
 
     action: Action
@@ -57,7 +63,7 @@ class Decision:
     stop_within_m: float | None = None
     """EV PULL_OVER: stop within this distance (room behind a leader in the target lane)."""
     ev_s_m: float | None = None
-    """Station of the EV the decision is about (behind the AV)."""
+    """Station of the EV the intent is about (behind the AV)."""
     ev_speed_mps: float | None = None
     ev_near: bool = False
     """An EV is behind the AV (within ``ev_lookbehind_m``) or passing it (ahead by < ``pass_margin_m``)."""
@@ -67,7 +73,8 @@ class Decision:
     stop_s_m: float | None = None
     """Hazard STOP_IN_LANE: road s of the AV centre's stop."""
     path: PlannedPath | None = None
-    """The planned path, when the policy planned it (hazards); EV decisions are planned by ``policy.plan``."""
+    """The commanded path of an intent with a manoeuvre (None otherwise)."""
+    vehicle_id: str = ""
     ego_s_m: float = 0.0
     ego_d_m: float = 0.0
     ego_heading_error_rad: float = 0.0
@@ -79,12 +86,12 @@ class Decision:
 
     @property
     def cause_id(self) -> int | None:
-        """The EV track or the hazard the decision responds to."""
+        """The EV track or the hazard the intent responds to."""
         return self.ev_track_id if self.about == "ev" else self.hazard_id
 
     @property
     def phase_after(self) -> Phase:
-        """The vehicle's phase once the decision's command is issued."""
+        """The vehicle's phase once the intent's command is issued."""
         if self.manoeuvre in (None, Manoeuvre.RESUME):
             return "normal"
         if self.about == "ev":
@@ -104,37 +111,37 @@ class Response:
     slow_because: SlowBecause = ""
     since_s: float = 0.0
     ev_near_s: float = 0.0
-    """Last time an EV was behind the AV or passing it (the decider updates it from ``Decision.ev_near``)."""
+    """Last time an EV was behind the AV or passing it (the decider updates it from ``Intent.ev_near``)."""
     ev_last: tuple[float, float, float] | None = None
     """(station m, speed along the road m/s, time s) of the nearest EV behind when last seen (the decider
-    updates it from ``Decision.ev_s_m``/``ev_speed_mps``): a lost EV is assumed to drive on."""
+    updates it from ``Intent.ev_s_m``/``ev_speed_mps``): a lost EV is assumed to drive on."""
     stop_s_m: float | None = None
     """EV PULL_OVER: station up to which the command plans for the lane ahead to be free: its stop, or the
     room behind a vehicle ahead it already allowed for (then it creeps). Set with ``note_stop`` once the
     path is planned; a vehicle that turns up in lane 0 later is checked against it."""
 
-    def note_stop(self, decision: Decision, stop_distance_m: float | None) -> None:
+    def note_stop(self, intent: Intent, stop_distance_m: float | None) -> None:
         """Remember how far the commanded pull-over counts on an empty lane (station along the road)."""
-        if decision.manoeuvre == Manoeuvre.PULL_OVER and stop_distance_m is not None:
-            room = stop_distance_m if decision.stop_within_m is None else min(stop_distance_m, decision.stop_within_m)
-            self.stop_s_m = decision.ego_s_m + room
+        if intent.manoeuvre == Manoeuvre.PULL_OVER and stop_distance_m is not None:
+            room = stop_distance_m if intent.stop_within_m is None else min(stop_distance_m, intent.stop_within_m)
+            self.stop_s_m = intent.ego_s_m + room
 
-    def commit(self, decision: Decision, now: float) -> None:
-        """The decision's command was issued: remember it (RESUME forgets what was responded to)."""
-        m = decision.manoeuvre
+    def commit(self, intent: Intent, now: float) -> None:
+        """The intent's command was issued: remember it (RESUME forgets what was responded to)."""
+        m = intent.manoeuvre
         if m is None:
             return
         self.stop_s_m = None
-        self.phase = decision.phase_after
+        self.phase = intent.phase_after
         if m == Manoeuvre.RESUME:
             self.manoeuvre, self.target_lane, self.cause_ids = None, None, set()
             self.slow_because = ""
             self.ev_last = None
         else:
-            self.manoeuvre, self.target_lane = m, decision.target_lane
-            if decision.cause_id is not None:
-                self.cause_ids.add(decision.cause_id)
-            self.slow_because = decision.slow_because
-            if decision.about == "ev":
+            self.manoeuvre, self.target_lane = m, intent.target_lane
+            if intent.cause_id is not None:
+                self.cause_ids.add(intent.cause_id)
+            self.slow_because = intent.slow_because
+            if intent.about == "ev":
                 self.ev_near_s = now
         self.since_s = now
