@@ -153,8 +153,9 @@ def test_camera_loop_of_the_vehicle_process_steers_from_the_world_and_withdraws_
 
 @pytest.mark.timeout(60)
 def test_vehicle_process_steers_from_its_dashcam_over_zenoh(nets):
-    """iea-vehicle run --steering learned:2 as a real process: the world published over Zenoh (the test plays
-    the simulator) engages the learned steering, the car keeps publishing its state, and it exits cleanly."""
+    """``python -m studies.clemson vehicle --case 2`` (iea-vehicle run with the learned steering attached) as a real
+    process: the world published over Zenoh (the test plays the simulator) engages the learned steering, the car
+    keeps publishing its state, and it exits cleanly."""
     import os
     import subprocess
     import sys
@@ -171,8 +172,8 @@ def test_vehicle_process_steers_from_its_dashcam_over_zenoh(nets):
 
     root = Path(__file__).resolve().parents[2]
     cid = f"t{uuid4().hex[:8]}"
-    proc = subprocess.Popen([sys.executable, "-m", "vehicle", "run", "--corridor-id", cid, "--duration", "8",
-                             "--steering", "learned:2"], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+    proc = subprocess.Popen([sys.executable, "-m", "studies.clemson", "vehicle", "--case", "2", "--corridor-id", cid,
+                             "--duration", "8"], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     transport = ZenohTransport(ZenohSettings())
     states = []
