@@ -135,12 +135,11 @@ class V2xGateway:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m rsu.v2x_gateway --rsu-id rsu1 [--key K.pem]``: one RSU's gateway over Zenoh until Ctrl-C."""
-    from protocol.channel import ChannelModel
     from protocol.clock import WallClock
     from protocol.corridor import CorridorError, load_corridor
+    from protocol.radio import ChannelModel, DsrcLink
     from protocol.runtime import stop_on_ctrl_c
     from protocol.security import load_signer
-    from protocol.transport import DsrcLink
     from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     stop_on_ctrl_c()

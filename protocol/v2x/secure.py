@@ -12,7 +12,8 @@ key the EV's envelope arrived on) and ``rx_time_s``. The signature covers
 
     b"iea-v2x-sig-v1\\0" + key + b"\\0" + msgpack([payload, rsu_id, heard_on, rx_time_s]) + not_before + not_after
 
-so it is bound to the key it is published on and to its validity window (1 s for a CAM sent at 10 Hz).
+so it is bound to the key it is published on and to its validity window (1 s for a CAM sent at 10 Hz, with
+0.2 s of clock skew: a CAM recorded off the air and played back 1.2 s later is ``expired``).
 ``verify_relayed_cam`` refuses, each with ``AuthError``'s reason: an unsigned envelope, an unknown key, a bad
 signature (a forged or altered CAM), an expired one, a signer out of scope (an RSU key speaking for another
 RSU, an EV key for another station id), and, through :class:`CamReplayGuard`, a CAM older than the newest one
@@ -147,8 +148,12 @@ class RelayedCam:
     """Start of the EV's signature window: its generation time less the signer's skew."""
 
 
+V2X_SKEW_S = 0.2
+"""Clock skew allowed on a V2X signature's window: ITS stations keep GNSS time (TS 102 894-2 TimestampIts)."""
+
+
 def verify_relayed_cam(key: str, data: bytes, trust: TrustList, now_s: float, replay: CamReplayGuard | None = None,
-                       skew_s: float = 1.0) -> RelayedCam | None:
+                       skew_s: float = V2X_SKEW_S) -> RelayedCam | None:
     """The CAM an RSU passed on, checked end to end: the RSU's envelope (role ``rsu``, its own RSU), the EV's
     envelope inside it (role ``ev``, its own station id), the CAM itself. None for a duplicate. Raises
     ``AuthError`` (with its reason) or ``V2xError`` (bad bytes)."""
