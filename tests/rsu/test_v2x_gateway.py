@@ -40,7 +40,7 @@ def _collect(bus: LocalBus, expr: str) -> list[tuple[str, bytes]]:
 
 def test_objects_become_cpms_and_alerts_denms(signer):
     bus, clock, corridor = LocalBus(), SimClock(10.0), load_corridor()
-    gw = V2xGateway(bus, corridor, C, "rsu1", clock=clock.now, signer=signer).start()
+    gw = V2xGateway(bus, corridor, C, "rsu1", clock=clock.now, signer=signer, cpm_period_s=0.1).start()
     cpms, denms = _collect(bus, v2x_rsu_key(C, "rsu1", "cpm")), _collect(bus, v2x_rsu_key(C, "rsu1", "denm"))
     for i in range(5):  # 5 lists within 0.1 s: one CPM (at most 10 Hz)
         bus.publish(rsu_key(C, "rsu1", "objects"), object_list(4, 10.0, seq=i))
