@@ -97,3 +97,21 @@ class EvRadio:
         except ProtocolError:
             return
         self.sent += 1
+
+
+def start_radio(transport: Transport, corridor: Corridor, corridor_id: str, key_path: str | None = None, *,
+                seed: int = 0, loss: float | None = None) -> EvRadio:
+    """The EV's radio on ``transport`` behind the corridor's DSRC model (a ``DsrcLink`` from the EV to the RSU
+    masts: latency, jitter, ``dsrc_loss`` or ``loss``, ``dsrc_range_m``), signing with ``key_path`` when given."""
+    from protocol.radio import ChannelModel, DsrcLink
+    from protocol.security import load_signer
+
+    t = corridor.transport
+    model = ChannelModel(latency_s=t.dsrc_latency_s, jitter_s=t.dsrc_jitter_s,
+                         loss=t.dsrc_loss if loss is None else loss, range_m=t.dsrc_range_m)
+    holder: list[EvRadio] = []
+    link = DsrcLink(transport, model, seed=seed, directions=("tx",), position=lambda: holder[0].position,
+                    peers=[r.position for r in corridor.rsus])
+    radio = EvRadio(link, corridor, corridor_id, signer=load_signer(key_path) if key_path else None, seed=seed)
+    holder.append(radio)
+    return radio.start()
