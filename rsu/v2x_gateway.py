@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     from protocol.corridor import CorridorError, load_corridor
     from protocol.radio import ChannelModel, DsrcLink
     from protocol.runtime import stop_on_ctrl_c
-    from protocol.security import load_signer
+    from protocol.security import TrustList, load_signer
     from protocol.zenoh_transport import ZenohSettings, ZenohTransport
 
     stop_on_ctrl_c()
@@ -150,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corridor", default=None)
     ap.add_argument("--corridor-id", default=None)
     ap.add_argument("--key", default=None, help="the RSU's signing key (PEM): without it, no CAM is passed on")
+    ap.add_argument("--key-id", default=None, help="its key id (default: the corridor's trust entry of its public key)")
     ap.add_argument("--radio-loss", type=float, default=None, help="the radio's loss (default: the corridor's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration-s", type=float, default=None)
@@ -159,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         corridor = load_corridor(args.corridor)
         cid = args.corridor_id or corridor.corridor_id
         corridor.rsu(args.rsu_id)
-        signer = load_signer(args.key) if args.key else None
+        signer = load_signer(args.key, args.key_id, TrustList.from_corridor(corridor)) if args.key else None
         settings = ZenohSettings.from_args(args)
     except (CorridorError, KeyError, ValueError, OSError) as exc:
         print(f"v2x gateway: {exc}", file=sys.stderr)

@@ -104,7 +104,7 @@ def start_radio(transport: Transport, corridor: Corridor, corridor_id: str, key_
     """The EV's radio on ``transport`` behind the corridor's DSRC model (a ``DsrcLink`` from the EV to the RSU
     masts: latency, jitter, ``dsrc_loss`` or ``loss``, ``dsrc_range_m``), signing with ``key_path`` when given."""
     from protocol.radio import ChannelModel, DsrcLink
-    from protocol.security import load_signer
+    from protocol.security import TrustList, load_signer
 
     t = corridor.transport
     model = ChannelModel(latency_s=t.dsrc_latency_s, jitter_s=t.dsrc_jitter_s,
@@ -112,6 +112,7 @@ def start_radio(transport: Transport, corridor: Corridor, corridor_id: str, key_
     holder: list[EvRadio] = []
     link = DsrcLink(transport, model, seed=seed, directions=("tx",), position=lambda: holder[0].position,
                     peers=[r.position for r in corridor.rsus])
-    radio = EvRadio(link, corridor, corridor_id, signer=load_signer(key_path) if key_path else None, seed=seed)
+    signer = load_signer(key_path, None, TrustList.from_corridor(corridor)) if key_path else None
+    radio = EvRadio(link, corridor, corridor_id, signer=signer, seed=seed)
     holder.append(radio)
     return radio.start()

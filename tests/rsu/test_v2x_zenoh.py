@@ -1,0 +1,53 @@
+"""Over Zenoh, as processes: an RSU's V2X gateway turns the RSU's objects into CPMs and passes on a CAM its radio
+hears, signed; `iea v2x dump` decodes both off the corridor's V2X keys."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from protocol.examples import object_list
+from protocol.keys import rsu_key
+from protocol.security import Signer, load_private_key, new_key_pair
+from protocol.v2x.build import ev_cam
+from protocol.v2x.codec import encode
+from protocol.v2x.keys import v2x_obu_cam_key
+from protocol.v2x.secure import seal
+from protocol.zenoh_transport import ZenohSettings, ZenohTransport
+
+pytestmark = pytest.mark.serial  # processes and Zenoh: make test runs it alone
+
+
+def test_gateway_and_dump_over_zenoh(tmp_path, spawn, corridor_id):
+    pem, _ = new_key_pair()
+    key = tmp_path / "rsu1.pem"
+    key.write_bytes(pem)
+    key.chmod(0o600)
+    ev = Signer("ev-key", load_private_key(key))
+    gw = spawn("-m", "rsu.v2x_gateway", "--rsu-id", "rsu1", "--corridor-id", corridor_id, "--key", str(key), "--key-id", "rsu1-key",
+               "--radio-loss", "0", "--duration-s", "40")
+    dump = spawn("-m", "deploy.cli", "v2x", "dump", "--corridor-id", corridor_id, "--duration-s", "40")
+    seen: set[str] = set()
+    with ZenohTransport(ZenohSettings()) as zt:
+        deadline = time.monotonic() + 20.0  # both processes start (asn1tools loads its schema) and hear for a while
+        while time.monotonic() < deadline and gw.poll() is None:
+            now = time.time()
+            zt.publish(rsu_key(corridor_id, "rsu1", "objects"), object_list(3, now))
+            cam = encode("CAM", ev_cam(42, now, 30.6329, -96.4789, 0.0, 20.0, True, True))
+            k = v2x_obu_cam_key(corridor_id, "ev1")
+            zt.publish_bytes(k, seal(ev, k, cam, now))
+            time.sleep(0.25)
+    dump.terminate()
+    out, err = dump.communicate(timeout=20)
+    for line in out.splitlines():
+        doc = json.loads(line)
+        if doc.get("kind") == "CPM":
+            seen.add("cpm")
+            assert doc["value"]["payload"]["cpmContainers"][1]["containerData"]["numberOfPerceivedObjects"] == 3
+        if doc.get("key", "").endswith("/rsu1/rx"):
+            seen.add("rx")
+            assert doc["envelope"]["rsu_id"] == "rsu1" and doc["inner"]["envelope"]["signer"] == "ev-key"
+            assert doc["inner"]["inner"]["kind"] == "CAM" and doc["inner"]["inner"]["stationId"] == 42
+    assert seen == {"cpm", "rx"}, (out[-2000:], err[-2000:])
