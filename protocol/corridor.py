@@ -126,7 +126,7 @@ class Corridor:
     vehicles: tuple[VehicleConfig, ...] = ()
     transport: TransportConfig = field(default_factory=TransportConfig)
     trust: tuple[dict[str, Any], ...] = ()
-    """``[[trust]]`` entries (key_id, role, public_key, vehicles / rsu_id): see protocol/security.py."""
+    """``[[trust]]`` entries (key_id, role, public_key, vehicles / rsu_id / station_id): see protocol/security.py."""
     source: str = ""
 
     def rsu(self, rsu_id: str) -> RsuConfig:
@@ -263,7 +263,7 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
     )
     trust = []
     for tr in top.tables("trust", required=False):
-        entry = {"key_id": tr.text("key_id", ident=True), "role": tr.text("role", choices=("ddm", "rsu")),
+        entry = {"key_id": tr.text("key_id", ident=True), "role": tr.text("role", choices=("ddm", "rsu", "ev")),
                  "public_key": tr.text("public_key")}
         if tr.has("vehicles"):
             entry["vehicles"] = tr.str_list("vehicles")
@@ -271,6 +271,8 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
             entry["rsu_id"] = tr.text("rsu_id", ident=True)
         elif entry["role"] == "rsu":
             raise tr.fail("rsu_id", "the RSU id this key speaks for (role = 'rsu')")
+        if entry["role"] == "ev":  # an EV's V2X key signs the CAMs of one StationId (protocol/v2x/secure.py)
+            entry["station_id"] = tr.integer("station_id", lo=0, hi=2**32 - 1)
         trust.append(entry)
     return Corridor(
         corridor_id=corridor_id,

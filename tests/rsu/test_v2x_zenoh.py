@@ -51,3 +51,20 @@ def test_gateway_and_dump_over_zenoh(tmp_path, spawn, corridor_id):
             assert doc["envelope"]["rsu_id"] == "rsu1" and doc["inner"]["envelope"]["signer"] == "ev-key"
             assert doc["inner"]["inner"]["kind"] == "CAM" and doc["inner"]["inner"]["stationId"] == 42
     assert seen == {"cpm", "rx"}, (out[-2000:], err[-2000:])
+
+
+def test_iea_up_v2x_lays_out_a_gateway_per_rsu_and_an_ev_key(tmp_path):
+    from deploy.up import Up
+    from protocol.corridor import load_corridor
+    from protocol.security import TrustList, load_private_key
+
+    up = Up(scenario="ev_equipped_unseen", run_dir=tmp_path / "run", port=0, v2x=True)
+    names = [s.name for s in up.specs]
+    assert {f"rsu{i}-v2x" for i in range(1, 5)} <= set(names)
+    gw = next(s for s in up.specs if s.name == "rsu2-v2x")
+    assert gw.args[:4] == ["-m", "rsu.v2x_gateway", "--rsu-id", "rsu2"] and "--key" in gw.args
+    sim = next(s for s in up.specs if s.name == "sim")
+    ev_key = sim.args[sim.args.index("--ev-key") + 1]
+    trust = TrustList.from_corridor(load_corridor(up.corridor_file))
+    kid = trust.key_id_of(load_private_key(ev_key))
+    assert kid == "ev1-up" and trust.keys[kid].role == "ev" and trust.has_role("rsu")
