@@ -14,11 +14,13 @@
 
     python bench/v2x_bench.py --json                       # everything, 10 seeds (long: 40 corridor runs)
     python bench/v2x_bench.py --json --seeds 2 --skip-runs  # codec and captures only
+    python bench/v2x_bench.py --json --skip-runs --zenoh-seeds 10  # the equipped / unequipped runs as processes
 
 The last line with ``--json``: one JSON object with cam_codec_us, denm_codec_us, cpm30_codec_us, captures_total,
 captures_as_expected, equipped_response_median_s, equipped_response_p99_s, unequipped_response_median_s,
 unequipped_response_p99_s, equipped_loss30_response_median_s, equipped_runs, equipped_runs_yielded,
-unequipped_runs_yielded, forged_commands, replayed_commands, contradicted_commands, runs_mode.
+unequipped_runs_yielded, forged_commands, replayed_commands, contradicted_commands, runs_mode (and with
+``--zenoh-seeds``: zenoh_equipped_* and zenoh_unequipped_* response median, p99, runs, runs_yielded).
 """
 
 from __future__ import annotations
@@ -139,6 +141,46 @@ def run_figures(seeds: list[int], attack_seeds: list[int], say) -> dict[str, Any
     return out
 
 
+def zenoh_run(seed: int, equipped: bool, run_root: Path, duration_s: float) -> dict[str, Any]:
+    """One ``ev_equipped_unseen`` run as processes (``iea up``: router, DDM, RSUs, vehicle, simulator), with
+    ``--v2x`` (gateways, the EV's key) when ``equipped``; the response and the strict judge's verdict."""
+    from deploy.up import Up
+    from scenario.outcome import judge_run
+
+    up = Up(scenario="ev_equipped_unseen", port=0, run_dir=run_root / f"v2x-{'eq' if equipped else 'uneq'}-{seed}",
+            duration_s=duration_s, seed=seed, restart="no", v2x=equipped)
+    try:
+        up.start()
+        deadline = time.monotonic() + duration_s + 40
+        while up.group.running("sim") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(0.5)
+    finally:
+        up.stop()
+    m = up.metrics()
+    passed, why = judge_run(m, ev_lights_on=True)
+    rel = m.get("events_since_lights_on_s") or {}
+    return {"seed": seed, "response_s": rel.get("command_published"), "first_camera_alert_s": rel.get("first_ev_alert"),
+            "passed": passed, "why": why}
+
+
+def zenoh_figures(seeds: list[int], say, run_root: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, equipped in (("zenoh_equipped", True), ("zenoh_unequipped", False)):
+        runs = []
+        for s in seeds:
+            r = zenoh_run(s, equipped, run_root, 24.0)
+            runs.append(r)
+            say(f"{name} seed {s}: response {r['response_s']} s, first camera alert {r['first_camera_alert_s']} s, "
+                f"{r['why']}")
+        resp = [r["response_s"] for r in runs if r["response_s"] is not None]
+        out[f"{name}_response_median_s"] = None if not resp else round(statistics.median(resp), 3)
+        out[f"{name}_response_p99_s"] = _percentile(resp, 0.99)
+        out[f"{name}_runs"] = len(runs)
+        out[f"{name}_runs_yielded"] = sum(r["passed"] for r in runs)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="end with one JSON line of figures")
@@ -146,6 +188,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--attack-seeds", type=int, default=3, help="seeds per attack (default 3)")
     ap.add_argument("--codec-n", type=int, default=500)
     ap.add_argument("--skip-runs", action="store_true", help="codec and captures only")
+    ap.add_argument("--zenoh-seeds", type=int, default=0,
+                    help="also run ev_equipped_unseen as processes over Zenoh (iea up), equipped and not, N seeds each")
+    ap.add_argument("--runs-dir", default=str(ROOT / "runs"), help="where the Zenoh runs' folders go")
     args = ap.parse_args(argv)
 
     def say(s: str) -> None:
@@ -159,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     say(f"captures: {figures['captures_as_expected']} of {figures['captures_total']} as their table says")
     if not args.skip_runs:
         figures.update(run_figures(list(range(1, args.seeds + 1)), list(range(1, args.attack_seeds + 1)), say))
+    if args.zenoh_seeds:
+        figures.update(zenoh_figures(list(range(1, args.zenoh_seeds + 1)), say, Path(args.runs_dir)))
     if args.json:
         print(json.dumps(figures))
     return 0
