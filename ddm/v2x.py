@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 DEFAULT_VIEW_RANGE_M = 120.0
 """Ground range of a camera's view when the corridor gives its RSU no ``max_range_m``."""
 CAM_ONLY_CONFIDENCE = 0.9
+COUNTER_OF_EVIDENCE = {"vision+v2x": "v2x_with_vision", "v2x": "v2x_alone", "contradicted": "v2x_contradicted"}
+"""The service's counter of each evidence (names that are key chunks, as Health's)."""
 NO_OBJECT_ID = 2**31 - 1
 """The object id of a V2X alert: no RSU object (the DDM's track is found by position)."""
 
@@ -126,7 +128,7 @@ class V2xInput:
         a = self.fusion.assess(obs, self._tracks(), views, now)
         self.evidence[station] = a.evidence
         self.counts[a.evidence] += 1
-        svc.counters[f"v2x_{a.evidence}"] += 1
+        svc.counters[COUNTER_OF_EVIDENCE[a.evidence]] += 1
         if not a.believed:
             return
         conf = a.association.probability if a.evidence == "vision+v2x" else CAM_ONLY_CONFIDENCE
