@@ -109,7 +109,9 @@ def one_run(scenario: str, seed: int, duration_s: float | None = None, **setup: 
     m = run.run()
     passed, why = judge_run(m, ev_lights_on=ev_lights_on(run.scenario, run.duration_s))
     rel = m.get("events_since_lights_on_s") or {}
-    return {"seed": seed, "response_s": rel.get("command_published"), "passed": passed, "why": why,
+    verdict = m.get("yield") or {}
+    return {"seed": seed, "response_s": rel.get("command_published"), "first_camera_alert_s": rel.get("first_ev_alert"),
+            "ev_delay_s": verdict.get("ev_delay_s"), "passed": passed, "why": why,
             "commands": len(m.get("commands") or []), "v2x": m.get("v2x"), "wall_s": m.get("wall_s")}
 
 
@@ -123,10 +125,13 @@ def run_figures(seeds: list[int], attack_seeds: list[int], say) -> dict[str, Any
         for s in seeds:
             r = one_run("ev_equipped_unseen", s, **setup)
             runs[name].append(r)
-            say(f"{name} seed {s}: response {r['response_s']} s, {r['why']} ({r['wall_s']} s wall)")
+            say(f"{name} seed {s}: response {r['response_s']} s, first camera alert {r['first_camera_alert_s']} s, "
+                f"{r['why']} ({r['wall_s']} s wall)")
         resp = [r["response_s"] for r in runs[name] if r["response_s"] is not None]
         out[f"{name}_response_median_s"] = None if not resp else round(statistics.median(resp), 3)
         out[f"{name}_response_p99_s"] = _percentile(resp, 0.99)
+        delays = [r["ev_delay_s"] for r in runs[name] if r["ev_delay_s"] is not None]
+        out[f"{name}_ev_delay_median_s"] = None if not delays else round(statistics.median(delays), 3)
         out[f"{name}_runs"] = len(runs[name])
         out[f"{name}_runs_yielded"] = sum(r["passed"] for r in runs[name])
     for attack in ("forged", "replayed", "contradicted"):
@@ -137,7 +142,8 @@ def run_figures(seeds: list[int], attack_seeds: list[int], say) -> dict[str, Any
             say(f"{attack} seed {s}: {r['commands']} commands; DDM V2X {r['v2x']['ddm']} refused "
                 f"{r['v2x']['ddm_rejected']}")
         out[f"{attack}_commands"] = total
-    out["runs"] = {k: [{kk: r[kk] for kk in ("seed", "response_s", "passed", "why")} for r in v] for k, v in runs.items()}
+    out["runs"] = {k: [{kk: r[kk] for kk in ("seed", "response_s", "first_camera_alert_s", "ev_delay_s", "passed", "why")}
+                       for r in v] for k, v in runs.items()}
     return out
 
 
