@@ -30,8 +30,13 @@ def test_gateway_and_dump_over_zenoh(tmp_path, spawn, corridor_id):
                "--radio-loss", "0", "--duration-s", "40")
     dump = spawn("-m", "deploy.cli", "v2x", "dump", "--corridor-id", corridor_id, "--duration-s", "40")
     seen: set[str] = set()
+    heard: set[str] = set()
     with ZenohTransport(ZenohSettings()) as zt:
-        deadline = time.monotonic() + 20.0  # both processes start (asn1tools loads its schema) and hear for a while
+        zt.subscribe_bytes(f"iea/{corridor_id}/v2x/rsu/rsu1/*", lambda k, _p: heard.add(k.rsplit("/", 1)[-1]))
+        # the dump is subscribed (only it matches this key) before anything is sent
+        assert zt.wait_for_subscribers(f"iea/{corridor_id}/v2x/probe", 25.0), dump.stderr.read() if dump.poll() else ""
+        deadline = time.monotonic() + 25.0  # the gateway starts (asn1tools loads its schema), then hears
+        done_at = None
         while time.monotonic() < deadline and gw.poll() is None:
             now = time.time()
             zt.publish(rsu_key(corridor_id, "rsu1", "objects"), object_list(3, now))
@@ -39,6 +44,10 @@ def test_gateway_and_dump_over_zenoh(tmp_path, spawn, corridor_id):
             k = v2x_obu_cam_key(corridor_id, "ev1")
             zt.publish_bytes(k, seal(ev, k, cam, now))
             time.sleep(0.25)
+            if done_at is None and {"cpm", "rx"} <= heard:
+                done_at = time.monotonic() + 1.5  # the dump, started at the same time, has had them too
+            if done_at is not None and time.monotonic() > done_at:
+                break
     dump.terminate()
     out, err = dump.communicate(timeout=20)
     for line in out.splitlines():
