@@ -115,10 +115,14 @@ def one_run(scenario: str, seed: int, duration_s: float | None = None, **setup: 
             "commands": len(m.get("commands") or []), "v2x": m.get("v2x"), "wall_s": m.get("wall_s")}
 
 
-def run_figures(seeds: list[int], attack_seeds: list[int], say) -> dict[str, Any]:
+GROUPS = ("equipped", "unequipped", "equipped_loss30", "attacks")
+
+
+def run_figures(seeds: list[int], attack_seeds: list[int], say, only: tuple[str, ...] = GROUPS) -> dict[str, Any]:
     out: dict[str, Any] = {"runs_mode": "lockstep (one process, simulated clock)"}
     groups = {"equipped": dict(equipped=True), "unequipped": dict(equipped=False),
               "equipped_loss30": dict(equipped=True, radio_loss=0.3)}
+    groups = {k: v for k, v in groups.items() if k in only}
     runs: dict[str, list[dict[str, Any]]] = {}
     for name, setup in groups.items():
         runs[name] = []
@@ -134,7 +138,7 @@ def run_figures(seeds: list[int], attack_seeds: list[int], say) -> dict[str, Any
         out[f"{name}_ev_delay_median_s"] = None if not delays else round(statistics.median(delays), 3)
         out[f"{name}_runs"] = len(runs[name])
         out[f"{name}_runs_yielded"] = sum(r["passed"] for r in runs[name])
-    for attack in ("forged", "replayed", "contradicted"):
+    for attack in ("forged", "replayed", "contradicted") if "attacks" in only else ():
         total = 0
         for s in attack_seeds:
             r = one_run("ev_lights_never_on", s, duration_s=ATTACK_RUN_S, attack=attack)
@@ -194,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--attack-seeds", type=int, default=3, help="seeds per attack (default 3)")
     ap.add_argument("--codec-n", type=int, default=500)
     ap.add_argument("--skip-runs", action="store_true", help="codec and captures only")
+    ap.add_argument("--groups", default=",".join(GROUPS), help=f"lockstep groups to run (default {','.join(GROUPS)})")
     ap.add_argument("--zenoh-seeds", type=int, default=0,
                     help="also run ev_equipped_unseen as processes over Zenoh (iea up), equipped and not, N seeds each")
     ap.add_argument("--runs-dir", default=str(ROOT / "runs"), help="where the Zenoh runs' folders go")
@@ -209,7 +214,11 @@ def main(argv: list[str] | None = None) -> int:
     figures.update(capture_figures())
     say(f"captures: {figures['captures_as_expected']} of {figures['captures_total']} as their table says")
     if not args.skip_runs:
-        figures.update(run_figures(list(range(1, args.seeds + 1)), list(range(1, args.attack_seeds + 1)), say))
+        only = tuple(g for g in args.groups.split(",") if g)
+        bad = sorted(set(only) - set(GROUPS))
+        if bad:
+            ap.error(f"unknown group(s) {bad}; expected some of {list(GROUPS)}")
+        figures.update(run_figures(list(range(1, args.seeds + 1)), list(range(1, args.attack_seeds + 1)), say, only))
     if args.zenoh_seeds:
         figures.update(zenoh_figures(list(range(1, args.zenoh_seeds + 1)), say, Path(args.runs_dir)))
     if args.json:

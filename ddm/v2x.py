@@ -34,7 +34,8 @@ log = logging.getLogger(__name__)
 DEFAULT_VIEW_RANGE_M = 120.0
 """Ground range of a camera's view when the corridor gives its RSU no ``max_range_m``."""
 CAM_ONLY_CONFIDENCE = 0.9
-COUNTER_OF_EVIDENCE = {"vision+v2x": "v2x_with_vision", "v2x": "v2x_alone", "contradicted": "v2x_contradicted"}
+COUNTER_OF_EVIDENCE = {"vision+v2x": "v2x_with_vision", "v2x": "v2x_alone", "contradicted": "v2x_contradicted",
+                       "unconfirmed": "v2x_unconfirmed"}
 """The service's counter of each evidence (names that are key chunks, as Health's)."""
 NO_OBJECT_ID = 2**31 - 1
 """The object id of a V2X alert: no RSU object (the DDM's track is found by position)."""

@@ -10,6 +10,9 @@
   density of a position where the cameras have no track of the station (not yet detected, or out of view). With
   the gates' tails left out this is the exact posterior under those densities (``tests`` check its calibration on
   random scenes).
+- Consistency: a station's CAMs must agree with each other kinematically (``V2xFusion._streak``) for
+  ``min_consistent_cams`` in a row before it is believed (``unconfirmed`` until then; a jump starts the count
+  again and ends any grace): positions that hop about, or stand still while the CAM says it drives, move nothing.
 - Evidence: ``vision+v2x`` when the best association has at least ``p_min`` (the CAM names a car the cameras see),
   ``v2x`` when no camera track matches and no camera has a clear view of the CAM's position (beyond the last
   camera, behind a curve, a camera down), ``contradicted`` when a camera that reported within ``fresh_s`` looks
@@ -27,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 BELIEVED = ("vision+v2x", "v2x")
+EVIDENCE = ("vision+v2x", "v2x", "contradicted", "unconfirmed")
 
 
 @dataclass(frozen=True)
@@ -44,6 +48,11 @@ class V2xFusionConfig:
     grace_s: float = 1.0
     view_margin_m: float = 5.0
     """A position this close to the edge of a camera's view counts as out of it (a car half in view)."""
+    min_consistent_cams: int = 5
+    """A station is believed once this many consecutive CAMs agree kinematically (0.4 s at 10 Hz)."""
+    max_cam_gap_s: float = 1.0
+    window_s: float = 1.0
+    max_accel_mps2: float = 4.0
 
     @property
     def gate_d2(self) -> float:
@@ -117,7 +126,7 @@ class Association:
 @dataclass(frozen=True)
 class Assessment:
     evidence: str
-    """``vision+v2x``, ``v2x`` or ``contradicted`` (see the module docstring)."""
+    """``vision+v2x``, ``v2x``, ``contradicted`` or ``unconfirmed`` (see the module docstring)."""
     association: Association
     seen_by: str | None
     """The camera (RSU id) that contradicts, for ``contradicted``."""
@@ -159,15 +168,66 @@ def associate(cam: CamObservation, tracks: CameraTracks, cfg: V2xFusionConfig) -
 
 
 @dataclass
+class _StationTrack:
+    t_s: float
+    x_m: float
+    y_m: float
+    vx_mps: float
+    vy_mps: float
+    streak: int
+    anchor: tuple[float, float, float]
+    """(t, x, y) of the CAM the current check window started at."""
+
+
+def _velocity(cam: CamObservation) -> tuple[float, float]:
+    if cam.heading_rad is None or cam.speed_mps is None:
+        return 0.0, 0.0
+    return cam.speed_mps * math.cos(cam.heading_rad), cam.speed_mps * math.sin(cam.heading_rad)
+
+
+@dataclass
 class V2xFusion:
-    """Per-station state over time: when each station was last believed (for ``grace_s``)."""
+    """Per-station state over time: its CAMs' kinematic consistency and when it was last believed (``grace_s``)."""
 
     config: V2xFusionConfig = field(default_factory=V2xFusionConfig)
     believed_until_s: dict[int, float] = field(default_factory=dict)
+    stations: dict[int, _StationTrack] = field(default_factory=dict)
+
+    def _streak(self, cam: CamObservation) -> int:
+        """How many consecutive CAMs of the station agree kinematically: each within the step gate of the previous
+        one moved on with its velocity, and within the window gate of the window's first CAM moved on with the
+        current velocity (a claim that stands still while saying it drives fails this one within 0.4 s). Gates:
+        ``3 sqrt(2) sigma`` (two GNSS fixes) + 1 m, the window's + ``a_max dt^2 / 2``; windows of ``window_s``."""
+        cfg = self.config
+        vx, vy = _velocity(cam)
+        noise_m = 3.0 * math.sqrt(2.0) * max(cam.sigma_m, cfg.min_cam_sigma_m)
+        prev = self.stations.get(cam.station_id)
+        streak, anchor = 1, (cam.t_s, cam.x_m, cam.y_m)
+        if prev is not None:
+            dt = cam.t_s - prev.t_s
+            if dt <= 0.0:
+                return prev.streak  # an older or repeated CAM: no new evidence
+            if dt <= cfg.max_cam_gap_s:
+                step = math.hypot(cam.x_m - (prev.x_m + prev.vx_mps * dt), cam.y_m - (prev.y_m + prev.vy_mps * dt))
+                ta, xa, ya = prev.anchor
+                da = cam.t_s - ta
+                drift = math.hypot(cam.x_m - (xa + vx * da), cam.y_m - (ya + vy * da))
+                if step <= noise_m + 1.0 and drift <= noise_m + 1.0 + 0.5 * cfg.max_accel_mps2 * da * da:
+                    streak = prev.streak + 1
+                    anchor = prev.anchor if da < cfg.window_s else (cam.t_s, cam.x_m, cam.y_m)
+        self.stations[cam.station_id] = _StationTrack(cam.t_s, cam.x_m, cam.y_m, vx, vy, streak, anchor)
+        if len(self.stations) > 1024:
+            del self.stations[min(self.stations, key=lambda k: self.stations[k].t_s)]
+        return streak
 
     def assess(self, cam: CamObservation, tracks: CameraTracks, views: list[CameraView], now_s: float) -> Assessment:
         cfg = self.config
+        consistent = self._streak(cam) >= cfg.min_consistent_cams
         assoc = associate(cam, tracks, cfg)
+        if not consistent:
+            out = Assessment("unconfirmed", assoc, None)
+            self.believed_until_s.pop(cam.station_id, None)  # a jump ends any grace
+            return out
         if assoc.track_id is not None and assoc.probability >= cfg.p_min:
             out = Assessment("vision+v2x", assoc, None)
         else:
@@ -175,8 +235,7 @@ class V2xFusion:
             if seer is None or assoc.track_id is not None:
                 out = Assessment("v2x", assoc, None)
             elif now_s <= self.believed_until_s.get(cam.station_id, float("-inf")):
-                out = Assessment("v2x", assoc, None)  # a car entering the view: the camera's track is coming
-                return out
+                return Assessment("v2x", assoc, None)  # a car entering the view: the camera's track is coming
             else:
                 out = Assessment("contradicted", assoc, seer)
         if out.believed:

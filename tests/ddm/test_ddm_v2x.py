@@ -47,13 +47,14 @@ class V2xRig:
         self.ev.visible = ev_visible
         self.lights = True
         self.signer = self.ev_signer
-        self.cam_pos: tuple[float, float] | None = None
+        self.cam_pos = None
+        """A claimed position ``f(t) -> (x, y)`` instead of the EV's own."""
         self.captured: list[bytes] = []
         self.send = True
         rig.hooks.append(self.broadcast)
 
     def cam_payload(self, t: float) -> bytes:
-        x, y = self.cam_pos or (self.ev.x, self.ev.y)
+        x, y = (self.ev.x, self.ev.y) if self.cam_pos is None else self.cam_pos(t)
         lat, lon = self.corridor.to_latlon(x, y)
         key = v2x_obu_cam_key(self.rig.c, EV_ID)
         cam = encode("CAM", ev_cam(station_id(EV_ID), t, lat, lon, 0.0, 25.0, self.lights, self.lights))
@@ -122,7 +123,8 @@ def test_replays_within_the_window_are_refused_as_replayed(tmp_path):
 
 def test_a_cam_the_cameras_contradict_is_not_believed_alone(tmp_path):
     s = V2xRig(tmp_path, ev_x=-130.0, ev_visible=False)
-    s.cam_pos = (30.0, lane_y(1))  # claims an EV 30 m into rsu1's view, where the cameras see no car
+    t0 = s.rig.clock.now()
+    s.cam_pos = lambda t: (20.0 + 25.0 * (t - t0), lane_y(1))  # an EV driving through rsu1's and rsu2's empty view
     s.rig.run(2.0)
     assert s.commands == 0
     assert s.rig.svc.v2x.counts["contradicted"] >= 15 and s.rig.svc.v2x.counts["v2x"] == 0

@@ -78,27 +78,71 @@ def test_probability_is_calibrated_on_random_scenes():
         assert abs(mean_p - freq) < 0.08, (k, mean_p, freq, len(pts))
 
 
+def settled(f: V2xFusion, x: float, y: float, tracks_at, views_at, t_end: float, *, station: int = 7,
+            speed: float = 20.0, n: int = 6):
+    """``n`` CAMs of one station at 10 Hz driving along x, ending at (x, y) at ``t_end``; the last assessment."""
+    out = None
+    for k in range(n):
+        t = t_end - 0.1 * (n - 1 - k)
+        xk = x - speed * (t_end - t)
+        out = f.assess(cam(xk, y, t=t, speed=speed, station=station), tracks_at(t, xk), views_at(t), t)
+    return out
+
+
+def fresh_view(t: float) -> list[CameraView]:
+    return [CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, t - 0.05)]  # reporting all along
+
+
+def no_tracks(_t: float, _x: float) -> CameraTracks:
+    return CameraTracks.empty()
+
+
 def test_evidence_vision_v2x_cam_alone_and_contradicted():
     f = V2xFusion()
-    seen = f.assess(cam(40.0, 5.5), tracks((40.3, 5.5, 20.0, 0.0)), [VIEW], 10.0)
+
+    def car_under_cam(t: float, x: float) -> CameraTracks:
+        return CameraTracks(np.array([1]), np.array([x + 0.3]), np.array([5.5]), np.array([20.0]), np.array([0.0]),
+                            np.array([0.25]), np.array([t]))
+
+    seen = settled(f, 40.0, 5.5, car_under_cam, fresh_view, 10.0)
     assert seen.evidence == "vision+v2x" and seen.believed
-    behind = f.assess(cam(-150.0, 5.5, station=8), CameraTracks.empty(), [VIEW], 10.0)  # beyond the last camera
+    behind = settled(f, -150.0, 5.5, no_tracks, fresh_view, 10.0, station=8)  # beyond the last camera
     assert behind.evidence == "v2x" and behind.believed
-    empty_view = f.assess(cam(40.0, 5.5, station=9), CameraTracks.empty(), [VIEW], 10.0)
+    empty_view = settled(f, 40.0, 5.5, no_tracks, fresh_view, 10.0, station=9)
     assert empty_view.evidence == "contradicted" and not empty_view.believed and empty_view.seen_by == "rsu1"
-    stale = CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, 8.0)  # a camera that stopped reporting sees nothing
-    assert f.assess(cam(40.0, 5.5, station=10), CameraTracks.empty(), [stale], 10.0).evidence == "v2x"
+    stale = settled(f, 40.0, 5.5, no_tracks, lambda t: [CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, t - 2.0)],
+                    10.0, station=10)  # a camera that stopped reporting sees nothing
+    assert stale.evidence == "v2x"
+
+
+def test_a_station_is_believed_only_once_its_cams_agree():
+    f = V2xFusion()
+    first = [f.assess(cam(-150.0 + 2.0 * k, 5.5, t=10.0 + 0.1 * k), CameraTracks.empty(), [], 10.0 + 0.1 * k)
+             for k in range(6)]
+    assert [a.evidence for a in first] == ["unconfirmed"] * 4 + ["v2x"] * 2
+
+
+def test_claims_that_hop_about_or_stand_still_while_driving_are_never_believed():
+    f = V2xFusion()
+    hops = [(60.0, 1.85), (80.0, 5.55), (60.0, 5.55), (110.0, 1.85)]
+    out = [f.assess(cam(*hops[k % 4], t=10.0 + 0.1 * k, station=3), CameraTracks.empty(), [], 10.0 + 0.1 * k).evidence
+           for k in range(30)]
+    assert set(out) == {"unconfirmed"}
+    still = [f.assess(cam(60.0, 1.85, t=10.0 + 0.1 * k, speed=18.0, station=4), CameraTracks.empty(), [],
+                      10.0 + 0.1 * k).evidence for k in range(30)]
+    assert "v2x" not in still
 
 
 def test_a_believed_ev_entering_a_view_keeps_its_belief_while_the_camera_starts_its_track():
     f = V2xFusion()
-
-    def view(t: float) -> list[CameraView]:
-        return [CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, t - 0.05)]  # reporting all along
-
-    assert f.assess(cam(-20.0, 5.5), CameraTracks.empty(), view(10.0), 10.0).believed
-    assert f.assess(cam(12.0, 5.5), CameraTracks.empty(), view(10.5), 10.5).believed  # in view, no track yet
-    assert not f.assess(cam(40.0, 5.5), CameraTracks.empty(), view(12.0), 12.0).believed  # still none
+    assert settled(f, -20.0, 5.5, no_tracks, fresh_view, 10.0, n=6).believed
+    for k in range(1, 6):  # 0.5 s more: into the view, no camera track yet
+        t = 10.0 + 0.1 * k
+        assert f.assess(cam(-20.0 + 20.0 * 0.1 * k, 5.5, t=t), CameraTracks.empty(), fresh_view(t), t).believed
+    later = [f.assess(cam(-20.0 + 2.0 * k, 5.5, t=10.0 + 0.1 * k), CameraTracks.empty(),
+                      fresh_view(10.0 + 0.1 * k), 10.0 + 0.1 * k) for k in range(6, 40)]
+    assert later[13].believed  # x = 18 m: the view starts at about 20 m
+    assert later[-1].evidence == "contradicted"  # in view since x = 20 m, still no track 1 s on: not believed
 
 
 def test_view_geometry():
