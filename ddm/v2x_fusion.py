@@ -20,6 +20,8 @@
   an EV into a camera's empty view). A station already believed keeps being believed for ``grace_s`` of
   contradiction, the time a camera takes to start a track on a car entering its view.
 - Authenticity is checked before (``protocol.v2x.secure``): this module sees only verified, fresh CAMs.
+- Limit: a valid EV key (stolen) whose CAMs ride on a car the cameras see is believed (``vision+v2x``): the
+  cameras' own view of that car's lights is not weighed against the CAM.
 """
 
 from __future__ import annotations
