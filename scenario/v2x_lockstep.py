@@ -12,7 +12,7 @@
 - an attacker (``attack``), for the security figures: ``forged`` (lights-on CAMs for the EV's StationId signed
   with a key of the EV's key id that is not the trusted one), ``replayed`` (the EV's own genuinely signed
   lights-on CAMs played back ``replay_delay_s`` late) or ``contradicted`` (validly signed lights-on CAMs, as from
-  a stolen key, placing an EV in a camera's clear view where no car is).
+  a stolen key, of an EV driving at 18 m/s through the cameras' clear views where no car is).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from sim.scenario import load_scenario
 EV_ACTOR_ID = "ev1"
 ATTACKS = ("forged", "replayed", "contradicted")
 RADIO_STEP_S = 0.005
+CLAIMED_SPEED_MPS = 18.0
 
 
 @dataclass(frozen=True)
@@ -137,28 +138,37 @@ class _Attacker:
         self.next_s = 0.5
         self.sent = 0
         self.key = v2x_obu_cam_key(run.corridor_id, EV_ACTOR_ID)
+        self.start: tuple[float, float, float] | None = None
 
-    def _claim(self, snap: WorldSnapshot) -> tuple[float, float]:
-        """Where the CAM puts the EV: its true place (forged, replayed) or, contradicted, a lane point in a
-        camera's clear view 15 m or more from any actor (the attacker sees the road)."""
+    def _claim(self, snap: WorldSnapshot, now: float) -> tuple[float, float]:
+        """Where the CAM puts the EV: its true place (forged, replayed) or, contradicted, an EV driving at the
+        claimed 18 m/s along a lane through the cameras' views from a point 15 m or more from any actor when the
+        attack starts (the attacker sees the road), so that its CAMs agree with each other."""
         ev = next((a for a in snap.actors if a.actor_id == EV_ACTOR_ID), None)
         if self.kind != "contradicted" and ev is not None:
             return ev.pos_x_m, ev.pos_y_m
-        road = self.run.corridor.road
-        for x in (60.0, 80.0, 110.0, 130.0, 160.0, 180.0, 40.0):
-            for lane in range(road.lanes):
-                y = road.lane_centre_offset_m(lane)
-                if all((a.pos_x_m - x) ** 2 + (a.pos_y_m - y) ** 2 > 15.0 ** 2 for a in snap.actors):
-                    return x, y
-        return 60.0, road.lane_centre_offset_m(0)
+        if self.start is None:
+            road = self.run.corridor.road
+            self.start = (now, 40.0, road.lane_centre_offset_m(0))
+            for x in (40.0, 50.0, 30.0, 60.0):
+                for lane in range(road.lanes):
+                    y = road.lane_centre_offset_m(lane)
+                    if all((a.pos_x_m - x) ** 2 + (a.pos_y_m - y) ** 2 > 15.0 ** 2 for a in snap.actors):
+                        self.start = (now, x, y)
+                        break
+                else:
+                    continue
+                break
+        t0, x0, y0 = self.start
+        return x0 + CLAIMED_SPEED_MPS * (now - t0), y0
 
     def step(self, now: float, snap: WorldSnapshot) -> None:
         if now < self.next_s:
             return
         self.next_s = now + 0.1
-        x, y = self._claim(snap)
+        x, y = self._claim(snap, now)
         lat, lon = self.run.corridor.to_latlon(x, y)
         t_signed = now - self.setup.replay_delay_s if self.kind == "replayed" else now
-        cam = encode("CAM", ev_cam(self.run.ev_station, t_signed, lat, lon, 0.0, 18.0, True, True))
+        cam = encode("CAM", ev_cam(self.run.ev_station, t_signed, lat, lon, 0.0, CLAIMED_SPEED_MPS, True, True))
         self.run.bus.publish_bytes(self.key, seal(self.signer, self.key, cam, t_signed))
         self.sent += 1
