@@ -10,7 +10,9 @@
   vision path); the response is the time from the light bar switching on to the DDM's first command; a run
   yields when the strict judge (``scenario.outcome.judge_run``) passes it. Then ``ev_lights_never_on`` with an
   attacker sending lights-on CAMs: forged (untrusted key), replayed (the EV's own CAMs 2 s late), contradicted
-  (a valid key placing an EV in a camera's clear, empty view): the commands issued in 12 s of attack.
+  (a valid key driving an EV through the cameras' clear, empty views): the commands issued in 12 s of attack beyond
+  those of the same run without the attacker (``*_commands_raw``: all of them; ``baseline_commands``: the vision
+  path's own, e.g. a false alarm).
 
     python bench/v2x_bench.py --json                       # everything, 10 seeds (long: 40 corridor runs)
     python bench/v2x_bench.py --json --seeds 2 --skip-runs  # codec and captures only
@@ -138,14 +140,23 @@ def run_figures(seeds: list[int], attack_seeds: list[int], say, only: tuple[str,
         out[f"{name}_ev_delay_median_s"] = None if not delays else round(statistics.median(delays), 3)
         out[f"{name}_runs"] = len(runs[name])
         out[f"{name}_runs_yielded"] = sum(r["passed"] for r in runs[name])
+    if "attacks" in only:  # the same run without the attacker: what the cameras alone make the DDM do
+        baseline = {}
+        for s in attack_seeds:
+            r = one_run("ev_lights_never_on", s, duration_s=ATTACK_RUN_S)
+            baseline[s] = r["commands"]
+            say(f"no attack seed {s}: {r['commands']} commands (the vision path's own)")
+        out["baseline_commands"] = sum(baseline.values())
     for attack in ("forged", "replayed", "contradicted") if "attacks" in only else ():
-        total = 0
+        total = raw = 0
         for s in attack_seeds:
             r = one_run("ev_lights_never_on", s, duration_s=ATTACK_RUN_S, attack=attack)
-            total += r["commands"]
-            say(f"{attack} seed {s}: {r['commands']} commands; DDM V2X {r['v2x']['ddm']} refused "
-                f"{r['v2x']['ddm_rejected']}")
+            raw += r["commands"]
+            total += max(0, r["commands"] - baseline[s])
+            say(f"{attack} seed {s}: {r['commands']} commands ({baseline[s]} without the attack); DDM V2X "
+                f"{r['v2x']['ddm']} refused {r['v2x']['ddm_rejected']}")
         out[f"{attack}_commands"] = total
+        out[f"{attack}_commands_raw"] = raw
     out["runs"] = {k: [{kk: r[kk] for kk in ("seed", "response_s", "first_camera_alert_s", "ev_delay_s", "passed", "why")}
                        for r in v] for k, v in runs.items()}
     return out
