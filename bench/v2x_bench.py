@@ -212,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--groups", default=",".join(GROUPS), help=f"lockstep groups to run (default {','.join(GROUPS)})")
     ap.add_argument("--zenoh-seeds", type=int, default=0,
                     help="also run ev_equipped_unseen as processes over Zenoh (iea up), equipped and not, N seeds each")
+    ap.add_argument("--zenoh-first-seed", type=int, default=1, help="the Zenoh runs' first seed (default 1)")
     ap.add_argument("--runs-dir", default=str(ROOT / "runs"), help="where the Zenoh runs' folders go")
     args = ap.parse_args(argv)
 
@@ -231,7 +232,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown group(s) {bad}; expected some of {list(GROUPS)}")
         figures.update(run_figures(list(range(1, args.seeds + 1)), list(range(1, args.attack_seeds + 1)), say, only))
     if args.zenoh_seeds:
-        figures.update(zenoh_figures(list(range(1, args.zenoh_seeds + 1)), say, Path(args.runs_dir)))
+        first = args.zenoh_first_seed
+        figures.update(zenoh_figures(list(range(first, first + args.zenoh_seeds)), say, Path(args.runs_dir)))
     if args.json:
         print(json.dumps(figures))
     return 0
