@@ -15,7 +15,7 @@
   path's own, e.g. a false alarm).
 
     python bench/v2x_bench.py --json                       # everything, 10 seeds (long: 40 corridor runs)
-    python bench/v2x_bench.py --json --seeds 2 --skip-runs  # codec and captures only
+    python bench/v2x_bench.py --quick --json                # codec and captures only
     python bench/v2x_bench.py --json --skip-runs --zenoh-seeds 10  # the equipped / unequipped runs as processes
 
 The last line with ``--json``: one JSON object with cam_codec_us, denm_codec_us, cpm30_codec_us, captures_total,
@@ -205,6 +205,7 @@ def zenoh_figures(seeds: list[int], say, run_root: Path) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="end with one JSON line of figures")
+    ap.add_argument("--quick", action="store_true", help="the codec (50 messages each) and the captures, no corridor runs")
     ap.add_argument("--seeds", type=int, default=10, help="seeds per configuration (default 10)")
     ap.add_argument("--attack-seeds", type=int, default=3, help="seeds per attack (default 3)")
     ap.add_argument("--codec-n", type=int, default=500)
@@ -219,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
     def say(s: str) -> None:
         print(s, flush=True)
 
+    if args.quick:
+        args.codec_n, args.skip_runs, args.zenoh_seeds = 50, True, 0
     figures: dict[str, Any] = {}
     figures.update(codec_figures(args.codec_n))
     say(f"codec: CAM {figures['cam_codec_us']} us ({figures['cam_bytes']} B), DENM {figures['denm_codec_us']} us "
