@@ -1,8 +1,9 @@
 """Fuzz every decoder and every service message handler with several seeds.
 
 Inputs (``bench/fuzz_mutator.py``) are valid encodings of each message kind mutated at the msgpack
-tree and byte level, on right and wrong keys; 17 targets (``bench/fuzz_targets.py``,
-``bench/fuzz_targets_field.py``): ``protocol.codec.decode`` for each of the 8 kinds, the LocalBus
+tree and byte level, on right and wrong keys; 20 targets (``bench/fuzz_targets.py``,
+``bench/fuzz_targets_field.py``, ``bench/fuzz_targets_v2x.py``): ``protocol.codec.decode`` for each of the 8 kinds,
+the V2X UPER decoder for CAM, DENM and CPM, the LocalBus
 rejection path, the DDM's, the vehicle's, the simulator's and the RSU camera's handlers, each fed
 through a real ``LocalBus``. Every (target, seed) pair gets its own input stream
 (``random.Random(f"{seed}-{target}")``) and a fresh target.
@@ -71,6 +72,7 @@ from bench.fuzz_targets_field import (  # noqa: E402
     VehicleDdmHealthTarget,
     VehicleRsuTarget,
 )
+from bench.fuzz_targets_v2x import v2x_targets  # noqa: E402
 from protocol.messages import MESSAGE_TYPES  # noqa: E402
 from protocol.runtime import freeze_startup_heap  # noqa: E402
 
@@ -88,6 +90,7 @@ def all_targets() -> dict[str, Callable[[random.Random], Target]]:
         "vehicle_on_ddm_health": VehicleDdmHealthTarget, "sim_on_state": SimStateTarget,
         "rsu_sim_camera": RsuSnapshotTarget,
     })
+    out.update(v2x_targets())
     return out
 
 

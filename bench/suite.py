@@ -94,6 +94,8 @@ BENCHES: tuple[Bench, ...] = (
     Bench("sim_bench", "Simulator cost: render fps per lighting, world steps, snapshots",
           ("render_ms", "render_ms_dusk", "render_ms_night", "render_ms_max", "world_steps_per_s"),
           tested_by="tests/sim/test_sim_bench.py"),
+    Bench("v2x_bench", "Standard V2X: ETSI CAM/DENM/CPM codec, captured messages, the EV's radio in the decisions",
+          ("cam_codec_us", "denm_codec_us", "cpm30_codec_us", "captures_total", "captures_as_expected")),
     Bench("view_bench", "The cost of `iea view` during the demo and the page's update rate in a browser",
           ("view_cpu_percent", "page_update_hz", "page_saw_alert"), processes=True, needs_tool="chromium"),
     Bench("wire_conformance_bench", "An outside client validates every wire message of an `iea demo` run",

@@ -48,6 +48,7 @@ from ddm.commands import CommandState
 from ddm.config import DdmConfig, HazardConfig
 from ddm.decider import Decider
 from ddm.geometry import RoadFrame
+from ddm.v2x import V2xInput
 from ddm.world import CorridorWorld
 from protocol import metrics, presence
 from protocol.clock import Clock, RateTimer
@@ -182,6 +183,8 @@ class DdmService(CorridorPresence):
             transport.subscribe(all_vehicles_expr(c, "state"), self._on_vehicle_state),
             transport.subscribe(all_vehicles_expr(c, "ack"), self._on_ack),
         ]
+        self.v2x = V2xInput(self).start()  # EV CAMs passed on by the RSU radios (ddm/v2x.py)
+        self._subs.append(self.v2x)
         self._handles = [
             presence.watch(transport, c, self._on_presence),
             presence.serve(transport, ddm_state_key(c), self._answer_state),

@@ -291,6 +291,7 @@ def main(argv: list[str] | None = None) -> int:
                  _delegate("deploy.view")),
         "foxglove": ("the corridor live in Foxglove / Lichtblick (iea foxglove --port 8765 --corridor-id ID)",
                      _delegate("deploy.foxglove_bridge")),
+        "v2x": ("standard V2X (ETSI CAM / DENM / CPM): iea v2x dump [--hex FILE]", _delegate("deploy.v2x_dump")),
     }
     if not argv or argv[0] in ("-h", "--help"):
         lines = [__doc__.strip(), "", "commands:"]

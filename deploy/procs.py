@@ -254,7 +254,8 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
                       detector: str = "project", zenoh_args: list[str] | None = None,
                       rsu_ids: list[str] | None = None, annotate: bool = True,
                       vehicle_extra: list[str] | None = None, seed: int | None = None,
-                      keys: dict[str, list[str]] | None = None, lighting: str | None = None) -> list[ServiceSpec]:
+                      keys: dict[str, list[str]] | None = None, lighting: str | None = None,
+                      v2x: bool = False) -> list[ServiceSpec]:
     """The corridor topology in start order: DDM, RSUs, then the vehicle and the simulator (start these two
     together, last: the AV is where the scenario puts it when the world starts).
 
@@ -262,7 +263,8 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     ``seed`` overrides the scenario's seed and seeds the vehicle's sensors and the cameras' noise.
     ``lighting`` (day, dusk, night) overrides the scenario's: the simulator's world snapshots carry it, so every RSU
     renders its camera in it.
-    ``keys``: per service extra arguments (signing keys: ``--key PATH``).
+    ``keys``: per service extra arguments (signing keys: ``--key PATH``; ``ev``: the simulator's ``--ev-key``).
+    ``v2x``: a V2X gateway per RSU (``rsu.v2x_gateway``, service ``<rsu>-v2x``, signing with the RSU's key).
     """
     from sim.scenario import LIGHTINGS, load_scenario
 
@@ -292,8 +294,11 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         if seed is not None:
             args += ["--sim-seed", str(seed)]
         out.append(ServiceSpec(rsu, [*args, *z]))
+        if v2x:
+            out.append(ServiceSpec(f"{rsu}-v2x", ["-m", "rsu.v2x_gateway", "--rsu-id", rsu, *common,
+                                                  *keys.get(rsu, []), *z]))
     out.append(ServiceSpec("vehicle", [*vehicle, *(vehicle_extra or []), *z]))
-    sim = ["-m", "sim", "run", scenario, *common]
+    sim = ["-m", "sim", "run", scenario, *common, *keys.get("ev", [])]
     if av is not None:  # the world starts when the vehicle process is up and driving, not before
         sim += ["--wait-for-av", str(SIM_WAIT_FOR_AV_S)]
     elif rsus:  # no vehicle process: the world waits for the RSUs itself (with one, the vehicle and the world

@@ -67,9 +67,10 @@ class Up:
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
                  signed: bool = True, keys_dir: str | None = None, record: bool = False,
-                 lighting: str | None = None, foxglove_port: int | None = None) -> None:
+                 lighting: str | None = None, foxglove_port: int | None = None, v2x: bool = False) -> None:
         """``lighting``: day, dusk or night instead of the scenario's (the simulator's override).
         ``foxglove_port``: also run ``iea foxglove`` on that port (Foxglove / Lichtblick watch the corridor).
+        ``v2x``: a V2X gateway per RSU, and (signed) a key for the scenario's EV radio in the trust list.
         ``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
         of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
         from deploy.signing import key_args, load_key_bundle, write_key_bundle
@@ -86,9 +87,15 @@ class Up:
                 corridor_path, paths = write_key_bundle(corridor_file or DEFAULT_CORRIDOR, self.run_dir / "keys",
                                                         key_id_suffix="up", overwrite=True,
                                                         note="throwaway keys of this run")
+            keys = key_args(paths)
+            if v2x:  # a copy of the corridor file in the run folder trusts the EV's key too (a bundle is not edited)
+                copy = self.run_dir / "keys" / "corridor-v2x.toml"
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                copy.write_text(Path(corridor_path).read_text())
+                corridor_path = copy
+                keys["ev"] = ["--ev-key", str(add_ev_key(copy, self.run_dir / "keys"))]
             corridor_file = str(corridor_path)
             self.corridor = load_corridor(corridor_file)
-            keys = key_args(paths)
         self.corridor_file = corridor_file
         self.corridor_id = corridor_id or f"{self.corridor.corridor_id}-{uuid.uuid4().hex[:6]}"
         self.port = port or free_port()
@@ -102,7 +109,7 @@ class Up:
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
                                        annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys,
-                                       lighting=lighting)
+                                       lighting=lighting, v2x=v2x)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         if foxglove_port is not None:  # publishes nothing: a Health-less watcher of the corridor
@@ -217,6 +224,27 @@ class Up:
         return m
 
 
+def add_ev_key(corridor_path: Path, key_dir: Path, ev_id: str = "ev1") -> Path:
+    """A key for the EV's radio (``KEY_DIR/<ev>.pem``) and its ``[[trust]]`` entry (role ``ev``, the StationId of
+    ``ev_id``) appended to the corridor file; returns the key's path."""
+    from deploy.signing import write_new_key
+    from protocol.security import TrustList, load_private_key
+    from protocol.v2x.build import station_id
+
+    path = Path(key_dir) / f"{ev_id}.pem"
+    text = Path(corridor_path).read_text()
+    if path.exists():
+        path.unlink()
+    path, entry = write_new_key(key_dir, f"{ev_id}-up", "ev")
+    path = path.rename(Path(key_dir) / f"{ev_id}.pem")
+    entry = entry.rsplit("\n", 1)[0] + f"\nstation_id = {station_id(ev_id)}"  # the scope: its StationId
+    Path(corridor_path).write_text(text + "\n" + entry + "\n")
+    from protocol.corridor import load_corridor
+
+    assert TrustList.from_corridor(load_corridor(corridor_path)).key_id_of(load_private_key(path)) == f"{ev_id}-up"
+    return path
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="iea up", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -246,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                     help="also serve the corridor to Foxglove / Lichtblick (iea foxglove) on ws://127.0.0.1:PORT "
                          "(default port 8765); needs the foxglove extra")
+    ap.add_argument("--v2x", action="store_true",
+                    help="standard V2X: a gateway per RSU (CPM, DENM, the radio's CAMs to the DDM) and a key for an "
+                         "equipped EV's radio")
     ap.add_argument("--no-record", action="store_true",
                     help="do not record (default: every key to <run folder>/run.mcap; `iea replay` it)")
     return ap
@@ -273,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
                 signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting,
-                foxglove_port=args.foxglove)
+                foxglove_port=args.foxglove, v2x=args.v2x)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2

@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from protocol.geodesy import corridor_frame
 from protocol.road import Road, Segment
 from protocol.tomlfields import FieldReader
 
-EARTH_RADIUS_M = 6_378_137.0
 DEFAULT_CORRIDOR = Path(__file__).resolve().parent.parent / "deploy" / "corridors" / "rellis.toml"
 
 
@@ -126,7 +126,7 @@ class Corridor:
     vehicles: tuple[VehicleConfig, ...] = ()
     transport: TransportConfig = field(default_factory=TransportConfig)
     trust: tuple[dict[str, Any], ...] = ()
-    """``[[trust]]`` entries (key_id, role, public_key, vehicles / rsu_id): see protocol/security.py."""
+    """``[[trust]]`` entries (key_id, role, public_key, vehicles / rsu_id / station_id): see protocol/security.py."""
     source: str = ""
 
     def rsu(self, rsu_id: str) -> RsuConfig:
@@ -159,15 +159,12 @@ class Corridor:
         return replace(self, vehicles=tuple(new if v is old else v for v in self.vehicles))
 
     def to_latlon(self, x_m: float, y_m: float) -> tuple[float, float]:
-        """Local east/north metres -> WGS-84 degrees (local tangent plane; < 1 cm error over km)."""
-        lat = self.origin_lat_deg + math.degrees(y_m / EARTH_RADIUS_M)
-        lon = self.origin_lon_deg + math.degrees(x_m / (EARTH_RADIUS_M * math.cos(math.radians(self.origin_lat_deg))))
-        return lat, lon
+        """Corridor frame (east/north metres) -> WGS84 degrees, on the ellipsoid (``protocol.geodesy``)."""
+        return corridor_frame(self.origin_lat_deg, self.origin_lon_deg).to_latlon(x_m, y_m)
 
     def from_latlon(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
-        y = math.radians(lat_deg - self.origin_lat_deg) * EARTH_RADIUS_M
-        x = math.radians(lon_deg - self.origin_lon_deg) * EARTH_RADIUS_M * math.cos(math.radians(self.origin_lat_deg))
-        return x, y
+        """WGS84 degrees -> corridor frame (east/north metres), on the ellipsoid (``protocol.geodesy``)."""
+        return corridor_frame(self.origin_lat_deg, self.origin_lon_deg).from_latlon(lat_deg, lon_deg)
 
 
 # ----------------------------------------------------------------------------- loading
@@ -266,7 +263,7 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
     )
     trust = []
     for tr in top.tables("trust", required=False):
-        entry = {"key_id": tr.text("key_id", ident=True), "role": tr.text("role", choices=("ddm", "rsu")),
+        entry = {"key_id": tr.text("key_id", ident=True), "role": tr.text("role", choices=("ddm", "rsu", "ev")),
                  "public_key": tr.text("public_key")}
         if tr.has("vehicles"):
             entry["vehicles"] = tr.str_list("vehicles")
@@ -274,6 +271,8 @@ def parse_corridor(data: dict[str, Any], source: str = "<corridor>") -> Corridor
             entry["rsu_id"] = tr.text("rsu_id", ident=True)
         elif entry["role"] == "rsu":
             raise tr.fail("rsu_id", "the RSU id this key speaks for (role = 'rsu')")
+        if entry["role"] == "ev":  # an EV's V2X key signs the CAMs of one StationId (protocol/v2x/secure.py)
+            entry["station_id"] = tr.integer("station_id", lo=0, hi=2**32 - 1)
         trust.append(entry)
     return Corridor(
         corridor_id=corridor_id,

@@ -151,6 +151,8 @@ class TrustedKey:
     """For a DDM key: the vehicles it may command ("*": all)."""
     rsu_id: str | None = None
     """For an RSU key: the RSU it speaks for."""
+    station_id: int | None = None
+    """For an EV key (role ``ev``): the V2X StationId whose CAMs it signs (protocol/v2x/secure.py)."""
 
     def may_sign(self, key: str, message: Any) -> bool:
         parsed = parse_key(key)
@@ -180,14 +182,18 @@ class TrustList:
             if not isinstance(kid, str) or not kid:
                 raise ValueError(f"{where}.key_id: expected a non-empty string")
             role = e.get("role")
-            if role not in ("ddm", "rsu"):
-                raise ValueError(f"{where}.role: expected 'ddm' or 'rsu', got {role!r}")
+            if role not in ("ddm", "rsu", "ev"):
+                raise ValueError(f"{where}.role: expected 'ddm', 'rsu' or 'ev', got {role!r}")
             vehicles = tuple(e.get("vehicles", ["*"]))
             rsu_id = e.get("rsu_id")
             if role == "rsu" and not isinstance(rsu_id, str):
                 raise ValueError(f"{where}.rsu_id: an RSU key must name the RSU it speaks for")
+            station = e.get("station_id")
+            if role == "ev" and (not isinstance(station, int) or isinstance(station, bool)
+                                 or not 0 <= station < 2**32):
+                raise ValueError(f"{where}.station_id: an EV key must name the V2X station id (0..2^32-1) it signs for")
             out[kid] = TrustedKey(kid, parse_public_key(e.get("public_key", ""), f"{where}.public_key"), role,
-                                  vehicles, rsu_id)
+                                  vehicles, rsu_id, station if role == "ev" else None)
         return cls(out)
 
     @classmethod

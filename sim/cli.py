@@ -40,6 +40,8 @@ def _add_run(sub) -> None:
     p.add_argument("--wait-timeout", type=float, default=60.0, metavar="S",
                    help="with --wait-for-rsus: start anyway after S seconds, naming who is missing (default 60)")
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
+    p.add_argument("--ev-key", default=None, metavar="PEM",
+                   help="an equipped EV signs its CAMs with this key (the corridor trusts it with role ev)")
     ZenohSettings.add_arguments(p)
     metrics.add_arguments(p)
 
@@ -88,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
                                 corridor_id=args.corridor_id, record=args.record, speed=args.speed,
                                 duration_s=args.duration, seed=args.seed, lighting=args.lighting,
                                 wait_for_av_s=args.wait_for_av, wait_for_rsus=args.wait_for_rsus,
-                                wait_timeout_s=args.wait_timeout)
+                                wait_timeout_s=args.wait_timeout, ev_key=args.ev_key)
         if args.cmd == "render":
             for path in render_views(args.scenario, args.t, args.out, rsus=args.rsu, seed=args.seed,
                                      lighting=args.lighting, boxes=args.boxes):

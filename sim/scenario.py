@@ -72,6 +72,8 @@ class EvSpec:
     pattern: str = "alternating"
     frequency_hz: float = 2.0
     body: str = "ambulance"
+    equipped: bool = False
+    """The EV carries a V2X unit: it broadcasts CAMs with its light bar and siren state (sim/ev_radio.py)."""
 
 
 @dataclass(frozen=True)
@@ -218,7 +220,10 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
     evr = top.optional_table("ev")
     if evr is not None:
         evr.check_keys({"start_offset_m", "start_s_m", "lane", "speed_mps", "lights_on_at_s", "pattern",
-                        "frequency_hz", "body"})
+                        "frequency_hz", "body", "equipped"})
+        equipped = evr.data.get("equipped", False)
+        if not isinstance(equipped, bool):
+            raise evr.fail("equipped", "true or false", equipped)
         if "start_s_m" in evr.data:
             offset = evr.num("start_s_m", 0.0, 0.0, road.length_m) - (av.start_s_m if av else 0.0)
         else:
@@ -229,7 +234,7 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
                     lights_on_at_s=None if lights < 0 else lights,
                     pattern=evr.text("pattern", "alternating", PATTERNS),
                     frequency_hz=evr.num("frequency_hz", 2.0, 1.0, 4.0),
-                    body=evr.text("body", "ambulance", EV_BODIES))
+                    body=evr.text("body", "ambulance", EV_BODIES), equipped=equipped)
 
     hazards = []
     for hr in top.tables("hazard", required=False):

@@ -226,9 +226,10 @@ class SimService:
 def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corridor_id: str | None = None,
                  record: list[str] = (), speed: float = 1.0, duration_s: float | None = None, seed: int | None = None,
                  lighting: str | None = None, wait_for_av_s: float | None = None, wait_for_rsus: str | None = None,
-                 wait_timeout_s: float = 60.0) -> int:
+                 wait_timeout_s: float = 60.0, ev_key: str | None = None) -> int:
     """``iea-sim run``: scenario ``scenario`` (a name or a .toml path) in real time over Zenoh (``zenoh``:
-    ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. Raises ValueError
+    ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. An equipped EV
+    broadcasts its CAMs (``sim.ev_radio``), signed with ``ev_key`` (PEM) when given. Raises ValueError
     (ScenarioError, CorridorError) and KeyError (an unknown RSU) before anything is published."""
     import signal
 
@@ -253,10 +254,18 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
     transport = ZenohTransport(zenoh)
     try:
         svc = SimService(sc, transport, corridor_id=corridor_id, speed=speed, duration_s=duration_s, recordings=recs)
+        radio = None
+        if sc.ev is not None and sc.ev.equipped:
+            from sim.ev_radio import start_radio
+
+            radio = start_radio(transport, sc.corridor, corridor_id or sc.corridor.corridor_id, ev_key, seed=sc.seed)
         signal.signal(signal.SIGTERM, lambda *_: svc.stop())
         signal.signal(signal.SIGINT, lambda *_: svc.stop())
         n = svc.run(wait_for_av_s=wait_for_av_s, wait_for_rsus=rsu_ids, wait_timeout_s=wait_timeout_s)
         log.info("published %d snapshots", n)
+        if radio is not None:
+            log.info("the EV's radio sent %d CAMs", radio.sent)
+            radio.close()
     finally:
         transport.close()
     return 0

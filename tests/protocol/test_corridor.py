@@ -25,7 +25,7 @@ def test_default_corridor_is_the_rellis_test():
     assert all(len(r.calibration) > 50 for r in c.rsus)
     assert c.vehicle("av1").cruise_speed_mps == pytest.approx(13.4)
     lat, lon = c.to_latlon(0.0, 0.0)
-    assert (lat, lon) == (c.origin_lat_deg, c.origin_lon_deg)
+    assert (lat, lon) == pytest.approx((c.origin_lat_deg, c.origin_lon_deg), abs=1e-12)
     assert 30.5 < lat < 30.8 and -96.6 < lon < -96.3  # near the RELLIS campus
     x, y = c.from_latlon(*c.to_latlon(123.4, -56.7))
     assert (x, y) == pytest.approx((123.4, -56.7), abs=1e-6)

@@ -1,4 +1,4 @@
-"""A quick fuzz of all 17 targets in every test run, with a seed that changes with the date
+"""A quick fuzz of all 20 targets in every test run, with a seed that changes with the date
 and the commit (so each day and each commit explores new inputs), printed; a crash fails the test with
 the payload in hex and the command that regenerates it. ``IEA_FUZZ_SEED=S`` replays a seed;
 ``IEA_FUZZ_QUICK_N`` sets the inputs per target (default 3,000; ``bench/fuzz_bench.py`` runs 100,000
@@ -48,7 +48,7 @@ def test_quick_fuzz_every_target_finds_no_crash():
         f"seed {seed} ({why}): {out['fuzz_crashes']} crashes; each sample holds the payload in hex and "
         f"`python bench/fuzz_bench.py --seeds {seed} --targets NAME --n INDEX+1` regenerates it:\n"
         + "\n".join(f"{name}: {s}" for name, samples in crashes.items() for s in samples))
-    assert out["fuzz_targets"] == 17 and out["fuzz_inputs"] == 17 * N
+    assert out["fuzz_targets"] == 20 and out["fuzz_inputs"] == 20 * N
     assert all(t["accepted"] > 0 for t in out["targets"].values())  # every handler saw decodable input
     print(f"quick fuzz: {out['fuzz_inputs']} inputs in {seconds:.1f} s, slowest input "
           f"{out['fuzz_max_input_ms']:.2f} ms CPU, max RSS growth {out['fuzz_max_rss_growth_kb']:.0f} kB")
