@@ -107,10 +107,7 @@ def one_run(seed: int, run_root: Path, duration_s: float, peer: bool, lighting: 
             lighting=lighting)
     try:
         up.start()
-        deadline = time.monotonic() + duration_s + 25
-        while up.group.running("sim") and time.monotonic() < deadline:
-            time.sleep(0.2)
-        time.sleep(0.5)
+        up.wait_for_scenario(duration_s + 25)
     finally:
         up.stop()
     m = up.metrics()

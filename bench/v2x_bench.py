@@ -172,10 +172,7 @@ def zenoh_run(seed: int, equipped: bool, run_root: Path, duration_s: float) -> d
             duration_s=duration_s, seed=seed, restart="no", v2x=equipped)
     try:
         up.start()
-        deadline = time.monotonic() + duration_s + 40
-        while up.group.running("sim") and time.monotonic() < deadline:
-            time.sleep(0.2)
-        time.sleep(0.5)
+        up.wait_for_scenario(duration_s + 40)
     finally:
         up.stop()
     m = up.metrics()

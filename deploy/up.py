@@ -164,6 +164,16 @@ class Up:
         start_when_rsus_up(self.group, self.specs, self.transport, self.corridor_id, settle_s=settle_s,
                            say=lambda line: print(f"[up] {line}", flush=True))
 
+    def wait_for_scenario(self, timeout_s: float, settle_s: float = 0.5) -> bool:
+        """Block until the simulator has played its scenario (its process ended) or ``timeout_s`` has passed, then
+        ``settle_s`` for the last messages; whether the scenario ended in time."""
+        deadline = time.monotonic() + timeout_s
+        while self.group.running("sim") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        ended = not self.group.running("sim")
+        time.sleep(settle_s)
+        return ended
+
     def restart_router(self, down_s: float = 0.5) -> None:
         """Stop the router, wait ``down_s``, start it again on the same endpoint."""
         self.group.stop(ROUTER)
