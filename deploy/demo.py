@@ -43,7 +43,8 @@ def make_demo_keys(run_dir: Path, corridor: Any) -> tuple[Path, dict[str, Path]]
 
 def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_root: Path | None = None,
              corridor_id: str | None = None, quiet: bool = False, detector: str = "project",
-             seed: int | None = None, signed: bool = True, record: bool = True) -> dict[str, Any]:
+             seed: int | None = None, signed: bool = True, record: bool = True,
+             traffic: str | None = None) -> dict[str, Any]:
     from protocol import keys
     from protocol.zenoh_transport import ZenohTransport
     from sim.scenario import load_scenario
@@ -85,7 +86,7 @@ def run_demo(scenario: str = "rellis_ev_yield", duration_s: float = 30.0, run_ro
     # DDM, RSUs, then (after discovery) the vehicle and the simulator together: the AV starts where the
     # scenario puts it when the world starts
     specs = corridor_services(corridor, cid, scenario=scenario, duration_s=duration_s, run_dir=run_dir,
-                              detector=detector, seed=seed, zenoh_args=common, keys=key_args)
+                              detector=detector, seed=seed, zenoh_args=common, keys=key_args, traffic=traffic)
     try:
         # DDM and RSUs; once every RSU is up (its token) and discovery settled, the vehicle and the world
         start_when_rsus_up(group, specs, transport, cid, say=lambda line: say(f"[demo] {line}"))

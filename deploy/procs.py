@@ -255,7 +255,7 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
                       rsu_ids: list[str] | None = None, annotate: bool = True,
                       vehicle_extra: list[str] | None = None, seed: int | None = None,
                       keys: dict[str, list[str]] | None = None, lighting: str | None = None,
-                      v2x: bool = False) -> list[ServiceSpec]:
+                      v2x: bool = False, traffic: str | None = None) -> list[ServiceSpec]:
     """The corridor topology in start order: DDM, RSUs, then the vehicle and the simulator (start these two
     together, last: the AV is where the scenario puts it when the world starts).
 
@@ -265,6 +265,7 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     renders its camera in it.
     ``keys``: per service extra arguments (signing keys: ``--key PATH``; ``ev``: the simulator's ``--ev-key``).
     ``v2x``: a V2X gateway per RSU (``rsu.v2x_gateway``, service ``<rsu>-v2x``, signing with the RSU's key).
+    ``traffic``: ``project`` or ``sumo`` instead of the scenario's (who drives the simulator's traffic).
     """
     from sim.scenario import LIGHTINGS, load_scenario
 
@@ -310,5 +311,7 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         sim += ["--seed", str(seed)]
     if lighting is not None:
         sim += ["--lighting", lighting]
+    if traffic is not None:
+        sim += ["--traffic", traffic]
     out.append(ServiceSpec("sim", [*sim, *z]))
     return out

@@ -39,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
                      help="RSU detector: 'project' (models/iea_det_tiny.onnx), 'motion' (MOG2) or an ONNX model path")
     run.add_argument("--runs", default=None, help="where the run folder goes (default ./runs)")
     run.add_argument("--json", action="store_true", help="print the metrics as one JSON line at the end")
+    run.add_argument("--traffic", choices=("project", "sumo"), default=None,
+                     help="who drives the traffic: the simulator's own model or Eclipse SUMO (default: the scenario's)")
     args = ap.parse_args(argv)
     if args.action == "list":
         for name in list_scenarios():
@@ -49,8 +51,15 @@ def main(argv: list[str] | None = None) -> int:
     except ScenarioError as exc:
         print(f"iea scenario: {exc}", file=sys.stderr)
         return 2
-    if args.seed is not None:
-        sc = sc.with_overrides(seed=args.seed)
+    if args.seed is not None or args.traffic is not None:
+        sc = sc.with_overrides(seed=args.seed, traffic=args.traffic)
+    if sc.traffic_model == "sumo":
+        from sim.sumo import sumo_missing
+
+        why = sumo_missing()
+        if why is not None:
+            print(f"iea scenario: --traffic sumo: {why}", file=sys.stderr)
+            return 2
     from deploy.demo import ROOT, run_demo
     from scenario.monitor import print_summary
 
@@ -58,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.inprocess:
         run_dir = runs / f"scenario-{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
         cfg = LockstepConfig(scenario=sc.name, seed=args.seed, duration_s=args.duration_s, detector=args.detector,
-                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast)
+                             record_vehicle=True, annotate_dir=run_dir, realtime=not args.fast,
+                             traffic=sc.traffic_model)
         print(f"[scenario] {sc.name} seed {sc.seed} in lockstep ({'fast' if args.fast else 'real time'}); "
               f"run folder {run_dir}", flush=True)
         mcap_path = run_dir / "run.mcap"
@@ -69,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         write_run_folder(runner, m, run_dir)
         m["run_dir"] = str(run_dir)
     else:
-        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed, detector=args.detector)
+        m = run_demo(sc.name, args.duration_s or sc.duration_s, runs, seed=args.seed, detector=args.detector,
+                     traffic=sc.traffic_model)
     print_summary(m)
     ok, why = judge_run(m, ev_lights_on=ev_lights_on(sc, args.duration_s))
     print(f"\n[scenario] {sc.name}: {'PASS' if ok else 'FAIL'}: {why}")

@@ -67,7 +67,8 @@ class Up:
                  restart: str = "on-failure", annotate: bool = False, with_sim: bool = True,
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
                  signed: bool = True, keys_dir: str | None = None, record: bool = False,
-                 lighting: str | None = None, foxglove_port: int | None = None, v2x: bool = False) -> None:
+                 lighting: str | None = None, foxglove_port: int | None = None, v2x: bool = False,
+                 traffic: str | None = None) -> None:
         """``lighting``: day, dusk or night instead of the scenario's (the simulator's override).
         ``foxglove_port``: also run ``iea foxglove`` on that port (Foxglove / Lichtblick watch the corridor).
         ``v2x``: a V2X gateway per RSU, and (signed) a key for the scenario's EV radio in the trust list.
@@ -109,7 +110,7 @@ class Up:
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
                                        annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys,
-                                       lighting=lighting, v2x=v2x)
+                                       lighting=lighting, v2x=v2x, traffic=traffic)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         if foxglove_port is not None:  # publishes nothing: a Health-less watcher of the corridor
@@ -263,6 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--scenario", default="rellis_ev_yield", help="scenario the simulator runs (iea-sim list)")
     ap.add_argument("--lighting", choices=["day", "dusk", "night"], default=None,
                     help="the simulator's lighting instead of the scenario's (every camera renders in it)")
+    ap.add_argument("--traffic", choices=["project", "sumo"], default=None,
+                    help="who drives the simulator's traffic: its own model or Eclipse SUMO (default: the scenario's)")
     ap.add_argument("--no-sim", action="store_true", help="do not start the simulator (RSUs then wait for frames)")
     ap.add_argument("--rsus", type=int, default=None, metavar="N", help="start only the first N RSUs of the corridor")
     ap.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1 (0: any free port; default 7447)")
@@ -308,13 +311,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"iea up: --rsus must be in 1..{len(corridor.rsus)}", file=sys.stderr)
             return 2
         rsu_ids = [r.rsu_id for r in corridor.rsus[:args.rsus]]
+    if args.traffic == "sumo":
+        from sim.sumo import sumo_missing
+
+        if (why := sumo_missing()) is not None:
+            print(f"iea up: --traffic sumo: {why}", file=sys.stderr)
+            return 2
     run_dir = Path(args.runs) / f"up-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         up = Up(corridor_file=args.corridor, corridor_id=args.corridor_id, scenario=args.scenario,
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
                 signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting,
-                foxglove_port=args.foxglove, v2x=args.v2x)
+                foxglove_port=args.foxglove, v2x=args.v2x, traffic=args.traffic)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2

@@ -84,6 +84,8 @@ class LockstepConfig:
     camera_hz: float | None = None
     """Each RSU's annotated frames a second on the bus (``rsu.camera_feed``); None: 2 when the run is recorded,
     else 0."""
+    traffic: str | None = None
+    """Who drives the traffic: ``project`` or ``sumo`` (``sim.sumo``); None: the scenario's choice."""
 
 
 class _Task:
@@ -114,8 +116,8 @@ class CorridorLockstep:
                  recorder: RecorderFactory | None = None) -> None:
         self.config = cfg = config or LockstepConfig()
         sc = scenario or load_scenario(cfg.scenario)
-        if cfg.seed is not None:
-            sc = sc.with_overrides(seed=cfg.seed)
+        if cfg.seed is not None or cfg.traffic is not None:
+            sc = sc.with_overrides(seed=cfg.seed, traffic=cfg.traffic)
         self.scenario = sc
         corridor: Corridor = sc.corridor
         self.vehicle_id = sc.av.vehicle_id if sc.av is not None else None
@@ -290,6 +292,7 @@ class CorridorLockstep:
         return self.finish()
 
     def finish(self) -> dict[str, Any]:
+        self.sim.world.close()
         for svc in self.rsus.values():
             svc.close_outputs()
         if self.recorder is not None:
@@ -298,6 +301,7 @@ class CorridorLockstep:
         m["scenario"] = self.scenario.name
         m["seed"] = self.scenario.seed
         m["mode"] = "lockstep"
+        m["traffic"] = self.scenario.traffic_model
         m["sim_time_s"] = round(self.clock.now(), 3)
         m["wall_s"] = round(self.stats["wall_s"], 2)
         m["frames"] = self.stats["frames"]

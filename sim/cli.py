@@ -42,6 +42,8 @@ def _add_run(sub) -> None:
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
     p.add_argument("--ev-key", default=None, metavar="PEM",
                    help="an equipped EV signs its CAMs with this key (the corridor trusts it with role ev)")
+    p.add_argument("--traffic", choices=["project", "sumo"], default=None,
+                   help="who drives the traffic: the simulator's own model or Eclipse SUMO (default: the scenario's)")
     ZenohSettings.add_arguments(p)
     metrics.add_arguments(p)
 
@@ -85,12 +87,18 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.cmd == "run":
+            if args.traffic == "sumo":
+                from sim.sumo import sumo_missing
+
+                if (why := sumo_missing()) is not None:
+                    print(f"iea-sim: error: --traffic sumo: {why}", file=sys.stderr)
+                    return 2
             metrics.serve_from_args(args, "sim", "sim")
             return run_scenario(args.scenario, ZenohSettings.from_args(args), corridor_file=args.corridor,
                                 corridor_id=args.corridor_id, record=args.record, speed=args.speed,
                                 duration_s=args.duration, seed=args.seed, lighting=args.lighting,
                                 wait_for_av_s=args.wait_for_av, wait_for_rsus=args.wait_for_rsus,
-                                wait_timeout_s=args.wait_timeout, ev_key=args.ev_key)
+                                wait_timeout_s=args.wait_timeout, ev_key=args.ev_key, traffic=args.traffic)
         if args.cmd == "render":
             for path in render_views(args.scenario, args.t, args.out, rsus=args.rsu, seed=args.seed,
                                      lighting=args.lighting, boxes=args.boxes):

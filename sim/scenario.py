@@ -25,6 +25,8 @@ LIGHTINGS = ("day", "dusk", "night")
 PATTERNS = ("alternating", "strobe")
 DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_van", "red_truck")
 EV_BODIES = ("ambulance", "police")
+TRAFFIC_MODELS = ("project", "sumo")
+"""Who drives the traffic (``[scenario] traffic``, ``--traffic``): the simulator's own model or Eclipse SUMO."""
 DEBRIS_KINDS = ("box", "rock", "barrel", "pallet", "pipe", "tyre")
 """Debris of the hazard report's simulation (rocks, wooden boxes, oil barrels, wooden pallets, sections of
 pipe) and a lost tyre; the index is the debris' livery (``sim.render.renderer`` draws each kind)."""
@@ -51,6 +53,14 @@ class TrafficSpec:
     """Background vehicles with amber hazard flashers blinking at their four corners (sim.lamps)."""
     turn_signal_fraction: float = 0.08
     """Background vehicles with one red rear turn signal blinking (US style)."""
+    flow_veh_per_h: float = 0.0
+    """SUMO traffic: vehicles per hour entering at the corridor's start (0: density x speed, per lane)."""
+    side_flow_route: tuple[str, ...] = ()
+    """SUMO traffic: edges of a second flow (e.g. an on-ramp onto the corridor) ..."""
+    side_flow_veh_per_h: float = 0.0
+    """... and its vehicles per hour."""
+    sumo_sublane: bool = False
+    """SUMO traffic: the sublane model (drivers open a rescue lane between lanes for an EV; costs CPU)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +84,11 @@ class EvSpec:
     body: str = "ambulance"
     equipped: bool = False
     """The EV carries a V2X unit: it broadcasts CAMs with its light bar and siren state (sim/ev_radio.py)."""
+    sumo_route: tuple[str, ...] = ()
+    """SUMO traffic: the EV drives these edges of the network (e.g. from a side road onto the corridor),
+    from ``sumo_depart_pos_m`` along the first, entering at ``depart_s``; empty: it starts on the corridor."""
+    sumo_depart_pos_m: float = 0.0
+    depart_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -116,14 +131,20 @@ class Scenario:
     description: str = ""
     source: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    traffic_model: str = "project"
+    """Who drives the traffic: ``project`` (``sim.traffic``) or ``sumo`` (``sim.sumo``)."""
 
-    def with_overrides(self, *, seed: int | None = None, lighting: str | None = None) -> Scenario:
+    def with_overrides(self, *, seed: int | None = None, lighting: str | None = None,
+                       traffic: str | None = None) -> Scenario:
         from dataclasses import replace
 
         if lighting is not None and lighting not in LIGHTINGS:
             raise ScenarioError(f"lighting must be one of {LIGHTINGS}, got {lighting!r}")
+        if traffic is not None and traffic not in TRAFFIC_MODELS:
+            raise ScenarioError(f"traffic must be one of {TRAFFIC_MODELS}, got {traffic!r}")
         return replace(self, seed=self.seed if seed is None else seed,
-                       lighting=self.lighting if lighting is None else lighting)
+                       lighting=self.lighting if lighting is None else lighting,
+                       traffic_model=self.traffic_model if traffic is None else traffic)
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
@@ -160,13 +181,20 @@ def load_scenario(name_or_path: str | Path, corridor: Corridor | None = None) ->
     return parse_scenario(data, str(path), corridor)
 
 
+def _flag(r: FieldReader, key: str) -> bool:
+    v = r.data.get(key, False)
+    if not isinstance(v, bool):
+        raise r.fail(key, "true or false", v)
+    return v
+
+
 def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: Corridor | None = None) -> Scenario:
     top = FieldReader(source, data, error=ScenarioError)
     top.check_keys({"scenario", "traffic", "av", "ev", "hazard", "distractor"})
     sc = top.optional_table("scenario")
     if sc is None:
         raise top.fail("scenario", "a [scenario] table (missing)")
-    sc.check_keys({"name", "description", "corridor", "duration_s", "seed", "lighting"})
+    sc.check_keys({"name", "description", "corridor", "duration_s", "seed", "lighting", "traffic"})
     name = sc.text("name")
     if not all(c.isalnum() or c in "_-." for c in name):
         raise sc.fail("name", "an id of letters, digits, '_', '-', '.'", name)
@@ -200,6 +228,10 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
             blue_fraction=tr.num("blue_fraction", d.blue_fraction, 0.0, 1.0),
             hazard_flasher_fraction=tr.num("hazard_flasher_fraction", d.hazard_flasher_fraction, 0.0, 1.0),
             turn_signal_fraction=tr.num("turn_signal_fraction", d.turn_signal_fraction, 0.0, 1.0),
+            flow_veh_per_h=tr.num("flow_veh_per_h", 0.0, 0.0, 20000.0),
+            side_flow_route=tuple(tr.str_list("side_flow_route")) if tr.has("side_flow_route") else (),
+            side_flow_veh_per_h=tr.num("side_flow_veh_per_h", 0.0, 0.0, 20000.0),
+            sumo_sublane=_flag(tr, "sumo_sublane"),
         )
         if traffic.spawn_s_max_m < traffic.spawn_s_min_m:
             raise tr.fail("spawn_s_max_m", f"a value >= spawn_s_min_m ({traffic.spawn_s_min_m})",
@@ -220,7 +252,8 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
     evr = top.optional_table("ev")
     if evr is not None:
         evr.check_keys({"start_offset_m", "start_s_m", "lane", "speed_mps", "lights_on_at_s", "pattern",
-                        "frequency_hz", "body", "equipped"})
+                        "frequency_hz", "body", "equipped", "sumo_route", "sumo_depart_pos_m",
+                        "depart_s"})
         equipped = evr.data.get("equipped", False)
         if not isinstance(equipped, bool):
             raise evr.fail("equipped", "true or false", equipped)
@@ -234,7 +267,10 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
                     lights_on_at_s=None if lights < 0 else lights,
                     pattern=evr.text("pattern", "alternating", PATTERNS),
                     frequency_hz=evr.num("frequency_hz", 2.0, 1.0, 4.0),
-                    body=evr.text("body", "ambulance", EV_BODIES), equipped=equipped)
+                    body=evr.text("body", "ambulance", EV_BODIES), equipped=equipped,
+                    sumo_route=tuple(evr.str_list("sumo_route")) if evr.has("sumo_route") else (),
+                    sumo_depart_pos_m=evr.num("sumo_depart_pos_m", 0.0, 0.0, 1e5),
+                    depart_s=evr.num("depart_s", 0.0, 0.0, 3600.0))
 
     hazards = []
     for hr in top.tables("hazard", required=False):
@@ -259,5 +295,5 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
         name=name, corridor=corridor, duration_s=sc.num("duration_s", 30.0, 0.1, 3600.0),
         seed=sc.integer("seed", 0), lighting=sc.text("lighting", "day", LIGHTINGS), traffic=traffic, av=av, ev=ev,
         hazards=tuple(hazards), distractors=tuple(distractors), description=sc.data.get("description", ""),
-        source=source,
+        source=source, traffic_model=sc.text("traffic", "project", TRAFFIC_MODELS),
     )

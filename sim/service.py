@@ -216,6 +216,7 @@ class SimService:
         return self.published
 
     def close(self) -> None:
+        self.world.close()
         presence.close_all(self._handles)
         self._sub.close()
         for _rsu, _r, writer, _last in self._recorders:
@@ -226,7 +227,7 @@ class SimService:
 def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corridor_id: str | None = None,
                  record: list[str] = (), speed: float = 1.0, duration_s: float | None = None, seed: int | None = None,
                  lighting: str | None = None, wait_for_av_s: float | None = None, wait_for_rsus: str | None = None,
-                 wait_timeout_s: float = 60.0, ev_key: str | None = None) -> int:
+                 wait_timeout_s: float = 60.0, ev_key: str | None = None, traffic: str | None = None) -> int:
     """``iea-sim run``: scenario ``scenario`` (a name or a .toml path) in real time over Zenoh (``zenoh``:
     ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. An equipped EV
     broadcasts its CAMs (``sim.ev_radio``), signed with ``ev_key`` (PEM) when given. Raises ValueError
@@ -242,7 +243,7 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
     if not wait_timeout_s >= 0:
         raise ValueError(f"--wait-timeout wants seconds >= 0, got {wait_timeout_s}")
     corridor = load_corridor(corridor_file) if corridor_file else None
-    sc = load_scenario(scenario, corridor).with_overrides(seed=seed, lighting=lighting)
+    sc = load_scenario(scenario, corridor).with_overrides(seed=seed, lighting=lighting, traffic=traffic)
     recs = []
     for item in record:
         rsu, sep, path = item.partition(":")

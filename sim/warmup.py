@@ -30,9 +30,10 @@ PREROLL_SEED_OFFSET = 7919
 
 
 def preroll_scenario(scenario: Scenario) -> Scenario:
-    """The scenario's road and traffic without its scripted actors (AV, EV, debris, distractors)."""
+    """The scenario's road and traffic without its scripted actors (AV, EV, debris, distractors), driven by the
+    simulator's own traffic model (the scenario's SUMO simulation is already running: libsumo runs one a process)."""
     return replace(scenario, av=None, ev=None, hazards=(), distractors=(),
-                   seed=scenario.seed + PREROLL_SEED_OFFSET)
+                   seed=scenario.seed + PREROLL_SEED_OFFSET, traffic_model="project")
 
 
 def warmup_frames(scenario: Scenario, cameras: dict[str, SimCamera], warmup_s: float = WARMUP_S

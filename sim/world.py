@@ -31,6 +31,10 @@ class World:
         self.road = scenario.corridor.road
         self._appear: list[SimVehicle] = []  # static objects that land on the road later, by time
         self._remove: list[tuple[float, str]] = []
+        if traffic is None and scenario.traffic_model == "sumo":  # SUMO places, drives and clears everything
+            from sim.sumo.traffic import SumoTraffic
+
+            traffic = SumoTraffic(scenario, self.seed)
         if traffic is None:
             population = build_population(scenario, self.rng)
             self._appear = sorted((v for v in population if v.extra.get("appear_s", 0.0) > 0.0),
@@ -68,6 +72,12 @@ class World:
     def run_until(self, t_s: float, dt_s: float = 0.05) -> None:
         while self.t_s < t_s - 1e-9:
             self.step(dt_s)
+
+    def close(self) -> None:
+        """End the traffic model's outside resources (a SUMO simulation); the world steps no more."""
+        close = getattr(self.traffic, "close", None)
+        if close is not None:
+            close()
 
     def set_av_pose(self, state: VehicleState) -> None:
         """Take the AV's pose from the vehicle process (``iea/{c}/vehicle/{veh}/state``)."""
