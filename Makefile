@@ -20,7 +20,7 @@ $(PY):
 	$(PY) -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install --quiet -e '.[dev]' --config-settings editable_mode=compat
+	$(PY) -m pip install --quiet -e '.[dev,sumo]' --config-settings editable_mode=compat
 	@touch $(STAMP)
 
 demo: $(STAMP)
@@ -55,7 +55,7 @@ schema: $(STAMP)
 	$(VENV)/bin/iea schema
 
 models: $(STAMP)
-	$(PY) -m pip install --quiet -e '.[dev,train]' --config-settings editable_mode=compat
+	$(PY) -m pip install --quiet -e '.[dev,sumo,train]' --config-settings editable_mode=compat
 	$(PY) -m models.train_all
 
 clean:
