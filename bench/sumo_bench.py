@@ -5,7 +5,7 @@
 
 - **step** (``sumo_step_ms_N`` / ``own_step_ms_N``, ``world_snapshot_ms_N`` / ``own_snapshot_ms_N``): one world
   step (SUMO through libsumo, reading every vehicle back: ``sim.sumo.traffic.SumoTraffic``; the project's IDM/MOBIL:
-  ``sim.traffic.IdmTraffic``) and the ``WorldSnapshot`` built from it, mean ms over 100 steps of 0.05 s after 20
+  ``sim.traffic.IdmTraffic``) and the ``WorldSnapshot`` built from it, mean CPU ms over 100 steps of 0.05 s after 20
   of warm-up, with N = 50, 200 and 1,000 vehicles on a straight 4-lane road of 8 km (the same seeded population for
   both; SUMO's flows off, so the counts match), in one run (``sumo_over_own_step_N``: the ratio);
 - **lockstep** (``lockstep_runs`` / ``lockstep_runs_yielded``): ``rellis_ev_yield`` with ``--traffic sumo`` on the
@@ -14,6 +14,8 @@
 - **process** (``process_runs`` / ``process_runs_yielded``, ``rsu_fps_min``): the same as real processes over Zenoh
   (``iea up --traffic sumo``), seeds 1..N; ``rsu_fps_min``: of each camera's 15 fps, the fewest processed in any
   1 s Health period of any RSU of any run (``bench/e2e_rsu_load.py``);
+- **faults** (not in the default parts; ``fault_rows`` / ``fault_rows_passed``): the corridor fault table
+  (``scenario/corridor_faults.py``: latency, loss, outages, an RSU killed, the DDM restarted) on SUMO traffic;
 - **large** (``large_runs`` / ``large_runs_yielded``, ``large_ev_delay_s``): ``motorway_ev_ramp`` (3.4 km, three
   lanes, on-ramp, 8 RSUs, 1,500 veh/h, the EV from the ramp) in lockstep, seeds 1..N, with the EV's delay.
 
@@ -60,16 +62,17 @@ def step_scenario(n: int):
 
 
 def time_world(world, steps: int = STEPS) -> tuple[float, float, int]:
-    """(mean step ms, mean snapshot ms, vehicles) over ``steps`` after the warm-up."""
+    """(mean step ms, mean snapshot ms, vehicles) over ``steps`` after the warm-up: CPU time of this process
+    (libsumo runs SUMO in it), so other processes on a shared machine do not count."""
     for _ in range(WARMUP_STEPS):
         world.step(DT_S)
     step_s = snap_s = 0.0
     for _ in range(steps):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         world.step(DT_S)
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         snap = world.snapshot()
-        snap_s += time.perf_counter() - t1
+        snap_s += time.process_time() - t1
         step_s += t1 - t0
     return step_s / steps * 1e3, snap_s / steps * 1e3, len(snap.actors)
 
@@ -207,6 +210,14 @@ def main(argv: list[str] | None = None) -> int:
         fig.update(large_runs=len(runs), large_runs_yielded=sum(r["passed"] for r in runs),
                    large_ev_delay_s=[round(d, 3) for d in delays],
                    large_ev_delay_s_median=round(statistics.median(delays), 3) if delays else None)
+    if "faults" in parts:
+        from scenario.corridor_faults import corridor_faults
+
+        print("== the corridor fault table (scenario/corridor_faults.py) on SUMO traffic, lockstep", flush=True)
+        rows = corridor_faults(quick=args.quick, traffic="sumo")
+        for r in rows:
+            print(f" {r.name:<40} {'PASS' if r.passed else 'FAIL'} {r.outcome[:100]}", flush=True)
+        fig.update(fault_rows=len(rows), fault_rows_passed=sum(r.passed for r in rows))
     if args.json:
         print(json.dumps(fig))
     return 0

@@ -13,6 +13,7 @@ fails itself gives no bound: its rows fail.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 from protocol.radio import ChannelModel
@@ -36,15 +37,15 @@ CORRIDOR_KINDS = ("latency", "dropout", "rsu_kill", "ddm_restart")
 
 def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = None, seed: int | None = None,
                        duration_s: float = 14.0, outage_s: tuple[float, float] | None = None,
-                       kill_first_alerting_rsu: bool = False, restart_ddm_after_s: float | None = None
-                       ) -> tuple[FaultOutcome, dict[str, Any]]:
+                       kill_first_alerting_rsu: bool = False, restart_ddm_after_s: float | None = None,
+                       traffic: str | None = None) -> tuple[FaultOutcome, dict[str, Any]]:
     """One lockstep run of a scenario with one fault; the outcome is judged on the simulator's ground truth.
 
     ``outage_s`` = (start, length): total loss on the vehicle link in that window of scenario time (the
     run is deterministic: ``corridor_faults`` starts it when the same run without it sent its first command);
     ``kill_first_alerting_rsu``: the RSU that raised the first EvAlert stops at once;
     ``restart_ddm_after_s``: the DDM dies when the AV starts its first manoeuvre and a fresh one starts
-    this long after.
+    this long after. ``traffic``: ``project`` or ``sumo`` (who drives the traffic; None: the scenario's).
     """
     if kind not in CORRIDOR_KINDS or (kind == "rsu_kill") != kill_first_alerting_rsu \
             or (kind == "ddm_restart") != (restart_ddm_after_s is not None):
@@ -57,7 +58,7 @@ def run_corridor_fault(name: str, kind: str, *, channel: ChannelModel | None = N
     base = channel or ChannelModel()
     if outage_s is not None:
         base = dataclasses.replace(base, outages=((outage_s[0], outage_s[0] + outage_s[1]),))
-    runner = CorridorLockstep(LockstepConfig(duration_s=duration_s, seed=seed, vehicle_channel=base))
+    runner = CorridorLockstep(LockstepConfig(duration_s=duration_s, seed=seed, vehicle_channel=base, traffic=traffic))
     sent: dict[str, tuple[float, str]] = {}
     acks: list[tuple[float, str, str]] = []
     facts: dict[str, Any] = {}
@@ -136,7 +137,7 @@ def _judge(kind: str, facts: dict[str, Any], sent: dict[str, tuple[float, str]],
         tuple(facts.get("modes_after_kill", ())), back, passed_at, end_s), verdict)
 
 
-def _reseeded(name: str, kind: str, *, seed: int | None, tries: int = 3, **kw: Any) -> FaultOutcome:
+def _reseeded_row(name: str, kind: str, *, seed: int | None, tries: int = 3, **kw: Any) -> FaultOutcome:
     """One row; a run where the EV never reached the AV tested nothing: run it again on another seed."""
     row = run_corridor_fault(name, kind, seed=seed, **kw)[0]
     k = 0
@@ -160,9 +161,11 @@ def beyond_corridor_bound(row: FaultOutcome, fault_delay_s: float | None, baseli
                                                                  "fault_delay_s": round(fault_delay_s, 3)})
 
 
-def corridor_faults(seed: int | None = None, quick: bool = False) -> list[FaultOutcome]:
-    """The fault table on the whole corridor in lockstep (``quick``: the extreme cases only)."""
+def corridor_faults(seed: int | None = None, quick: bool = False, traffic: str | None = None) -> list[FaultOutcome]:
+    """The fault table on the whole corridor in lockstep (``quick``: the extreme cases only; ``traffic``: who
+    drives the traffic, ``sumo`` for Eclipse SUMO)."""
     lat = (0.0, 0.3) if quick else LATENCIES_S
+    _reseeded = functools.partial(_reseeded_row, traffic=traffic)
     base = _reseeded("latency 0 ms +jitter", "latency", channel=latency_channel(0.0), seed=seed)
     out = [base] + [beyond_corridor_bound(_reseeded(f"latency {x * 1000:.0f} ms +jitter", "latency",
                                                     channel=latency_channel(x), seed=seed),
