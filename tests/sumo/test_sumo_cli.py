@@ -22,7 +22,7 @@ def test_iea_sim_run_without_sumo_exits_2_with_the_install_command(no_sumo, caps
 
 
 def test_iea_scenario_run_without_sumo_exits_2(no_sumo, capsys):
-    from scenario.lockstep import scenario_main
+    from deploy.scenario_cli import main as scenario_main
 
     assert scenario_main(["run", "rellis_ev_yield", "--inprocess", "--fast", "--traffic", "sumo"]) == 2
     assert "pip install '.[sumo]'" in capsys.readouterr().err
