@@ -8,6 +8,11 @@ the externally driven AV into SUMO (``vehicle.moveToXY`` with ``keepRoute=2``, i
 position, angle, speed and signals (one subscription per vehicle) and turns them into the project's
 ``SimVehicle`` (``sim.sumo.convert``), which the world turns into the ``WorldSnapshot`` the cameras render.
 
+The scenario's yielding drivers (``[traffic] yield_fraction``, the same drivers as on the project's traffic; a
+seeded draw for those SUMO's flows bring) do what they do there: while an EV with its lights on is close behind
+(``sim.traffic.EV_REACT_BEHIND_M``) they move to lane 0 and slow down (``vehicle.changeLane``, ``vehicle.setSpeed``);
+SUMO drives them there. Its bluelight device alone only stops drivers changing lanes near the EV.
+
 libsumo runs one simulation per process: a new ``SumoTraffic`` closes the one before it (which then refuses
 to step); ``close()`` ends it.
 """
@@ -26,7 +31,7 @@ from sim.scenario import Scenario
 from sim.sumo import convert, demand, require_sumo
 from sim.sumo.corridor import SumoSection, sumo_section
 from sim.sumo.network import CORRIDOR_EDGE, corridor_net
-from sim.traffic import build_population
+from sim.traffic import EV_PASSED_AHEAD_M, EV_REACT_BEHIND_M, YIELD_SPEED_FACTOR, build_population
 from sim.vehicles import LIVERY_PLAIN, LIVERY_TWO_TONE, SimVehicle, make_style, random_colour
 
 log = logging.getLogger("iea.sim.sumo")
@@ -157,6 +162,8 @@ class SumoTraffic:
         self._remove_at = sorted((v.extra["remove_s"], v.vehicle_id) for v in population
                                  if v.is_static and v.extra.get("remove_s") is not None)
         self._brakers = [v for v in population if v.brake_period_s > 0]
+        self._yield_rng = np.random.default_rng(seed + 11)
+        self._yielding: set[str] = set()
         self._vars = (libsumo.constants.VAR_POSITION, libsumo.constants.VAR_ANGLE, libsumo.constants.VAR_SPEED,
                       libsumo.constants.VAR_SIGNALS, libsumo.constants.VAR_ACCELERATION)
         self._admit(libsumo.vehicle.getIDList())
@@ -217,6 +224,7 @@ class SumoTraffic:
             fx, fy = convert.front_of_centre(x, y, h, self._live[vid].length_m)
             ls.vehicle.moveToXY(vid, "", -1, fx, fy, convert.angle_deg_of_heading(h), 2, 100.0)
             ls.vehicle.setSpeed(vid, max(0.0, spd))
+        self._yield_to_ev()
         ls.simulationStep()
         self.t_s = round(t_s + dt_s, 9)
         now = ls.simulation.getTime()
@@ -226,6 +234,24 @@ class SumoTraffic:
         for vid in ls.simulation.getArrivedIDList():
             self._live.pop(vid, None)
         self._read()
+
+    def _yield_to_ev(self) -> None:
+        """The scenario's yielding drivers with an EV with lights on close behind: to lane 0, slower there."""
+        ev = self._live.get(demand.EV_ID)
+        lit = ev is not None and self._ev_lit
+        ls = self._ls
+        for vid, v in self._live.items():
+            if not v.yields_to_ev or v.external or v.is_static or v.kind in ("ev", "av"):
+                continue
+            threat = lit and v.s_m - EV_REACT_BEHIND_M < ev.s_m < v.s_m + EV_PASSED_AHEAD_M
+            if threat:
+                ls.vehicle.changeLane(vid, 0, 1.0)
+                factor = YIELD_SPEED_FACTOR if v.lane == 0 else 0.8
+                ls.vehicle.setSpeed(vid, factor * v.desired_speed_mps)
+                self._yielding.add(vid)
+            elif vid in self._yielding:
+                ls.vehicle.setSpeed(vid, -1)
+                self._yielding.discard(vid)
 
     def _switch_ev(self, t_s: float) -> None:
         ev = self.scenario.ev
@@ -261,7 +287,8 @@ class SumoTraffic:
         livery = LIVERY_TWO_TONE if kind in ("van", "truck") and rng.random() < 0.3 else LIVERY_PLAIN
         return SimVehicle(vid, kind, 0.0, 0.0, 0.0, 0, ls.vehicle.getLength(vid), ls.vehicle.getWidth(vid),
                           ls.vehicle.getHeight(vid), random_colour(rng), make_style(livery, int(rng.integers(256))),
-                          desired_speed_mps=ls.vehicle.getMaxSpeed(vid))
+                          desired_speed_mps=ls.vehicle.getMaxSpeed(vid),
+                          yields_to_ev=bool(self._yield_rng.random() < self.scenario.traffic.yield_fraction))
 
     def _read(self) -> None:
         ls = self._ls
