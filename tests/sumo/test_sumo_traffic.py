@@ -107,3 +107,23 @@ def test_debris_stops_in_its_lane_and_sumo_drivers_go_round_it():
                 assert (v.x_m, v.y_m) == pytest.approx(want[v.vehicle_id][:2], abs=1e-6)
     finally:
         world.close()
+
+
+def test_the_scenarios_yielding_drivers_move_right_and_slow_for_the_ev_on_sumo():
+    sc = load_scenario("rellis_ev_yield").with_overrides(traffic="sumo")
+    world = World(sc)
+    try:
+        road = sc.corridor.road
+        s = sc.av.start_s_m
+        while world.t_s < 9.0 - 1e-9:  # the AV keeps lane 1 at 13.4 m/s; the EV's lights come on at 4 s
+            x, y, h = road.pose_at(s, road.lane_centre_offset_m(1))
+            world.traffic.set_external_pose("av1", x, y, h, 13.4)
+            world.step(0.05)
+            s += 13.4 * 0.05
+        ev = next(v for v in world.vehicles() if v.kind == "ev")
+        near = [v for v in world.vehicles() if v.yields_to_ev and ev.s_m < v.s_m < ev.s_m + 60.0]
+        assert near, "no yielding driver ahead of the EV to look at"
+        for v in near:  # in lane 0, well below their own speed
+            assert v.lane == 0 and v.speed_mps < 0.8 * v.desired_speed_mps, (v.vehicle_id, v.lane, v.speed_mps)
+    finally:
+        world.close()
