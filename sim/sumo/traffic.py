@@ -147,12 +147,18 @@ class SumoTraffic:
         routes = {f"r_from_{e}": section.route[k:] for k, e in enumerate(section.route)}
         if scenario.ev is not None and scenario.ev.sumo_route:
             routes["r_ev"] = scenario.ev.sumo_route
+        placed = placements(scenario, population, section)
         (self._dir / "demand.rou.xml").write_text(demand.routes_xml(
-            placements(scenario, population, section), routes, flows_of(scenario, section) if flows else ()))
+            placed, routes, flows_of(scenario, section) if flows else ()))
         libsumo.start(sumo_options(section.net, self._dir / "demand.rou.xml", seed, self.step_s,
                                    self._dir / "sumo.log", scenario.traffic.sumo_sublane))
         _ACTIVE = self
         self._live: dict[str, SimVehicle] = {}
+        self._in_sumo: set[str] = set()
+        for v, place in placed:  # on the road from t = 0 (SUMO inserts them in its first step): the world sees
+            if place.get("depart_s", 0.0) == 0.0 and place["route"] != "r_ev":  # them, its AV among them, now
+                v.x_m, v.y_m, v.heading_rad = self.road.pose_at(v.s_m, v.d_m)
+                self._live[v.vehicle_id] = v
         self._removed: set[str] = set()
         self._external: dict[str, tuple[float, float, float, float]] = {}
         self._externally_driven: set[str] = set()
@@ -185,7 +191,7 @@ class SumoTraffic:
 
     def release_external(self, vehicle_id: str) -> None:
         self._external.pop(vehicle_id, None)
-        if vehicle_id in self._externally_driven and vehicle_id in self._live:
+        if vehicle_id in self._externally_driven and vehicle_id in self._in_sumo:
             self._ls.vehicle.setSpeedMode(vehicle_id, 31)
             self._ls.vehicle.setSpeed(vehicle_id, -1)
             self._live[vehicle_id].external = False
@@ -195,9 +201,10 @@ class SumoTraffic:
         raise NotImplementedError("SUMO traffic takes its vehicles from the route file (debris: appear_s)")
 
     def remove(self, vehicle_id: str) -> None:
-        if vehicle_id in self._live:
+        if vehicle_id in self._in_sumo:
             self._ls.vehicle.remove(vehicle_id)
-            del self._live[vehicle_id]
+            self._in_sumo.discard(vehicle_id)
+        self._live.pop(vehicle_id, None)
         self._removed.add(vehicle_id)
 
     # ---------------------------------------------------------------- step
@@ -211,11 +218,11 @@ class SumoTraffic:
         while self._remove_at and self._remove_at[0][0] <= t_s + 1e-9:
             self.remove(self._remove_at.pop(0)[1])
         for v in self._brakers:
-            if v.vehicle_id in self._live:
+            if v.vehicle_id in self._in_sumo:
                 braking = (t_s % v.brake_period_s) >= v.brake_period_s / 2
                 ls.vehicle.setSpeed(v.vehicle_id, 0.4 * v.desired_speed_mps if braking else -1)
         for vid, (x, y, h, spd) in self._external.items():
-            if vid not in self._live:
+            if vid not in self._in_sumo:  # SUMO inserts it in this step; it is moved from the next one
                 continue
             if vid not in self._externally_driven:
                 ls.vehicle.setSpeedMode(vid, 0)
@@ -233,6 +240,7 @@ class SumoTraffic:
         self._admit(ls.simulation.getDepartedIDList())
         for vid in ls.simulation.getArrivedIDList():
             self._live.pop(vid, None)
+            self._in_sumo.discard(vid)
         self._read()
 
     def _yield_to_ev(self) -> None:
@@ -241,7 +249,7 @@ class SumoTraffic:
         lit = ev is not None and self._ev_lit
         ls = self._ls
         for vid, v in self._live.items():
-            if not v.yields_to_ev or v.external or v.is_static or v.kind in ("ev", "av"):
+            if not v.yields_to_ev or v.external or v.is_static or v.kind in ("ev", "av") or vid not in self._in_sumo:
                 continue
             threat = lit and v.s_m - EV_REACT_BEHIND_M < ev.s_m < v.s_m + EV_PASSED_AHEAD_M
             if threat:
@@ -256,7 +264,7 @@ class SumoTraffic:
     def _switch_ev(self, t_s: float) -> None:
         ev = self.scenario.ev
         vid = demand.EV_ID
-        if ev is None or vid not in self._live:
+        if ev is None or vid not in self._in_sumo:
             return
         on = self._ev_on_at is not None and t_s >= self._ev_on_at - 1e-9
         if on != self._ev_lit:
@@ -272,6 +280,7 @@ class SumoTraffic:
             if vid in self._removed:
                 continue
             ls.vehicle.subscribe(vid, self._vars)
+            self._in_sumo.add(vid)
             v = self._known.get(vid)
             if v is None:
                 v = self._new_vehicle(vid)
@@ -314,7 +323,7 @@ class SumoTraffic:
                                                 convert.lamp_phase_frac(vid)) if mode else v.style & 0xFFF
             moved.append(v)
         ev = self._live.get(demand.EV_ID)
-        if ev is not None and ev.light_bar is not None:
+        if ev is not None and ev.light_bar is not None and ev.vehicle_id in self._in_sumo:
             lit = float(ls.vehicle.getParameter(ev.vehicle_id, "device.bluelight.reactiondist") or 0.0) > 0.0
             if lit and ev.light_bar.get("on_at_s") is None:
                 ev.light_bar["on_at_s"] = self.t_s

@@ -127,3 +127,33 @@ def test_the_scenarios_yielding_drivers_move_right_and_slow_for_the_ev_on_sumo()
             assert v.lane == 0 and v.speed_mps < 0.8 * v.desired_speed_mps, (v.vehicle_id, v.lane, v.speed_mps)
     finally:
         world.close()
+
+
+def test_the_simulator_takes_the_vehicle_process_av_on_sumo_from_the_first_step():
+    """The simulator service knows the AV at t = 0 (it accepts its state) and the snapshots carry the AV where the
+    vehicle process says it is, not where SUMO would have driven it."""
+    from protocol.clock import SimClock
+    from protocol.enums import VehicleMode
+    from protocol.local_bus import LocalBus
+    from protocol.messages import VehicleState
+    from sim.service import SimService
+
+    sc = load_scenario("rellis_ev_yield").with_overrides(traffic="sumo")
+    clock = SimClock(0.0)
+    svc = SimService(sc, LocalBus(), clock)
+    try:
+        road = sc.corridor.road
+        for k in range(40):  # the AV drifts into lane 0 and slows: what a pull-over looks like
+            d = road.lane_centre_offset_m(1) - 0.09 * k
+            x, y, h = road.pose_at(sc.av.start_s_m + 0.5 * k, d)
+            svc.set_av_state(VehicleState(src="veh", stamp=clock.now(), vehicle_id="av1", pos_x_m=x, pos_y_m=y,
+                                          lat_deg=0.0, lon_deg=0.0, heading_rad=h, speed_mps=10.0 - 0.2 * k,
+                                          mode=VehicleMode.MANOEUVRE))
+            svc.step_once()
+            clock.advance(0.05)
+            av = next(a for a in svc.last_snapshot.actors if a.kind.value == "av")
+            assert (av.pos_x_m, av.pos_y_m) == pytest.approx((x, y), abs=1e-6)
+        assert not svc.rejected and svc.av_updates == 40
+        assert av.lane == 0 and av.speed_mps == pytest.approx(10.0 - 0.2 * 39)
+    finally:
+        svc.close()
