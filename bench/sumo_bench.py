@@ -119,7 +119,7 @@ def lockstep_run(scenario: str, seed: int, duration_s: float | None = None) -> d
     runner = CorridorLockstep(LockstepConfig(scenario=scenario, seed=seed, traffic="sumo", duration_s=duration_s))
     m = runner.run()
     ok, why = judge_run(m, ev_lights_on=ev_lights_on(runner.scenario, duration_s))
-    keep = ("yield", "collision", "min_gap_to_any_vehicle_m", "ev_delay_s", "wall_s", "frames", "first_alert_rsu",
+    keep = ("yield", "collision", "min_gap_to_any_vehicle_m", "min_gap_with", "ev_delay_s", "wall_s", "frames", "first_alert_rsu",
             "commands", "traffic", "seed")
     return {**{k: m.get(k) for k in keep}, "passed": ok, "verdict": why}
 
@@ -143,6 +143,7 @@ def process_run(seed: int, run_root: Path, duration_s: float) -> dict[str, Any]:
     ok, why = judge_run(m, ev_lights_on=True)
     load = rsu_load(up.run_dir / "run.mcap")
     return {"seed": seed, "yield": m.get("yield"), "passed": ok, "verdict": why, "collision": m.get("collision"),
+            "min_gap_to_any_vehicle_m": m.get("min_gap_to_any_vehicle_m"), "min_gap_with": m.get("min_gap_with"),
             "rsu_fps_min": min((ld["fps_min"] for ld in load.values()), default=None), "exit_codes": m.get("exit_codes")}
 
 
