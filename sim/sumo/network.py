@@ -73,15 +73,20 @@ def tool(name: str) -> str:
 NETCONVERT_OPTIONS = ("--offset.disable-normalization", "true", "--no-turnarounds", "true", "--no-warnings", "true")
 
 
-def build_net(nodes_xml: str, edges_xml: str, out: Path) -> Path:
-    """Run netconvert on plain node/edge XML; the network keeps the corridor's coordinates."""
+def build_net(nodes_xml: str, edges_xml: str, out: Path, connections_xml: str | None = None) -> Path:
+    """Run netconvert on plain node/edge (and connection) XML; the network keeps the corridor's coordinates."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="iea-net-") as tmp:
         nod, edg = Path(tmp) / "n.nod.xml", Path(tmp) / "e.edg.xml"
         nod.write_text(nodes_xml)
         edg.write_text(edges_xml)
-        res = subprocess.run([tool("netconvert"), "--node-files", str(nod), "--edge-files", str(edg),
+        extra = []
+        if connections_xml is not None:
+            con = Path(tmp) / "c.con.xml"
+            con.write_text(connections_xml)
+            extra = ["--connection-files", str(con)]
+        res = subprocess.run([tool("netconvert"), "--node-files", str(nod), "--edge-files", str(edg), *extra,
                               "--output-file", str(out), *NETCONVERT_OPTIONS],
                              capture_output=True, text=True, timeout=120, env={**os.environ})
     if res.returncode != 0 or not out.exists():

@@ -50,21 +50,9 @@ def motorway_ramp_plain() -> tuple[str, str, str]:
 
 def write_sample(out_dir: str | Path) -> tuple[Path, Path]:
     """Build the sample network and its corridor file in ``out_dir``; returns (network, corridor file)."""
-    import tempfile
-
-    from sim.sumo import network
-
     out_dir = Path(out_dir)
     nodes, edges, cons = motorway_ramp_plain()
-    with tempfile.TemporaryDirectory() as tmp:
-        con = Path(tmp) / "c.con.xml"
-        con.write_text(cons)
-        saved = network.NETCONVERT_OPTIONS
-        network.NETCONVERT_OPTIONS = (*saved, "--connection-files", str(con))
-        try:
-            net = build_net(nodes, edges, out_dir / f"{SAMPLE}.net.xml")
-        finally:
-            network.NETCONVERT_OPTIONS = saved
+    net = build_net(nodes, edges, out_dir / f"{SAMPLE}.net.xml", cons)
     toml = write_corridor(net, list(MAIN_ROUTE), [(r, e, p, 4.5) for r, e, p in SAMPLE_RSUS],
                           out_dir / f"{SAMPLE}.toml", corridor_id=SAMPLE,
                           name="3.4 km three-lane motorway with an on-ramp (SUMO network)",
