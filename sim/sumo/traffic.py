@@ -237,10 +237,10 @@ class SumoTraffic:
         now = ls.simulation.getTime()
         if abs(now - self.t_s) > 1e-6:
             raise RuntimeError(f"SUMO's clock ({now} s) left the world's ({self.t_s} s)")
-        self._admit(ls.simulation.getDepartedIDList())
-        for vid in ls.simulation.getArrivedIDList():
+        for vid in ls.simulation.getArrivedIDList():  # gone first: an EV that left the road is read no more
             self._live.pop(vid, None)
             self._in_sumo.discard(vid)
+        self._admit(ls.simulation.getDepartedIDList())
         self._read()
 
     def _yield_to_ev(self) -> None:
@@ -285,8 +285,6 @@ class SumoTraffic:
             if v is None:
                 v = self._new_vehicle(vid)
             self._live[vid] = v
-        if ids:
-            self._read()
 
     def _new_vehicle(self, vid: str) -> SimVehicle:
         """A vehicle of a flow: its size and kind from SUMO, a seeded colour and style of the project's."""

@@ -157,3 +157,16 @@ def test_the_simulator_takes_the_vehicle_process_av_on_sumo_from_the_first_step(
         assert av.lane == 0 and av.speed_mps == pytest.approx(10.0 - 0.2 * 39)
     finally:
         svc.close()
+
+
+def test_an_ev_that_leaves_the_road_is_gone_from_the_world():
+    sc = _empty_road(load_scenario("rellis_ev_yield"))
+    sc = replace(sc, av=None, traffic=replace(sc.traffic, flow_veh_per_h=1800.0, speed_mps=12.0))
+    world = World(sc)
+    try:
+        while world.t_s < 40.0 - 1e-9:  # the EV (19 m/s from s = 0) leaves the 500 m road while the flow comes in
+            world.step(0.05)
+        kinds = {v.kind for v in world.vehicles()}
+        assert "ev" not in kinds and "car" in kinds
+    finally:
+        world.close()
