@@ -176,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     fig: dict[str, Any] = {}
     if "step" in parts:
         print(f"== world step, SUMO vs the project's traffic ({STEPS} steps of {DT_S} s, {LANES}-lane {ROAD_M / 1000:.0f} km road)")
-        fig.update(step_figures(COUNTS[:2] if args.quick else COUNTS))
+        counts = COUNTS[:2] if args.quick else COUNTS
+        fig.update(cached(cache, f"step-{'-'.join(map(str, counts))}", lambda: step_figures(counts)))
     if "lockstep" in parts:
         print(f"== rellis_ev_yield on SUMO traffic, lockstep, seeds 1..{seeds}", flush=True)
         runs = []
