@@ -15,7 +15,7 @@ corridor whose road has drifted from its network by more than ``MAX_DRIFT_M``.
         --id mycorridor --out deploy/corridors/mycorridor.toml
 
 writes a corridor file (road from the network, RSU masts at the given edge positions with the RELLIS camera,
-calibration pairs from a simulated survey, ``deploy.survey``) that every service of the project reads.
+calibration pairs from a simulated survey, ``sim.survey``) that every service of the project reads.
 """
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def write_corridor(net_path: str | Path, route: list[str], rsus: list[tuple[str,
                    *, corridor_id: str, name: str = "", origin_lat_deg: float = 30.633, origin_lon_deg: float = -96.479,
                    av_start_s_m: float | None = None, av_lane: int | None = None, av_speed_mps: float = 13.4) -> Path:
     """Write a corridor file for the network at ``net_path`` (module docstring); returns its path."""
-    from deploy.survey import survey
+    from sim.survey import survey
 
     net_path, out = Path(net_path).resolve(), Path(out)
     road = road_of_net(net_path, route)

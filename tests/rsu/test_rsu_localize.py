@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from deploy.survey import project_points, survey
 from protocol.corridor import load_corridor
 from rsu.localize import INTERPOLATIONS, GroundProjector, Localizer, ReferenceInterpolator, bottom_centres
 from rsu.perception import Detections
+from sim.survey import project_points, survey
 
 CORRIDOR = load_corridor()
 RSU = CORRIDOR.rsus[0]

@@ -5,7 +5,7 @@ road these come from an RTK rover placed at marked points; for a simulated corri
 the surveyor: it places markers on a grid over the lanes and shoulder, projects them through each
 camera and adds the RTK error (default sigma 2 cm). Output: TOML ``calibration = [...]`` lines.
 
-    python -m deploy.survey deploy/corridors/rellis.toml
+    python -m sim.survey deploy/corridors/rellis.toml
 """
 
 from __future__ import annotations
