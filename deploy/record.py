@@ -357,6 +357,8 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
         say(f"[record] {expr} -> {out} (Ctrl-C to stop)")
         t0 = time.monotonic()
         while not stop.wait(1.0):
+            if scene is not None:  # the scene stays current while the corridor is quiet
+                rec.write_derived(scene.tick(time.time()))
             if duration_s is not None and time.monotonic() - t0 >= duration_s:
                 break
             say(f"[record] {time.monotonic() - t0:5.0f} s  {rec.messages} messages  "
@@ -367,6 +369,8 @@ def record(out: Path, corridor_id: str, settings: Any, duration_s: float | None 
         if poll is not None:
             poll.close()
         transport.close()
+        if scene is not None:  # the last picture of what was heard, whatever the scene period
+            rec.write_derived(scene.tick(time.time(), force=True))
         rec.close()
     info = check_recording(out)
     say(f"[record] wrote {out}: {info['messages']} messages on {info['channels']} keys over {info['duration_s']} s")
