@@ -46,11 +46,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--detector", default="project", help="RSU detector (project, motion or an ONNX path)")
     ap.add_argument("--runs", default=str(ROOT / "runs"), help="where the run folders go")
     ap.add_argument("--sysctl", action="append", default=[], metavar="KEY=VALUE",
-                    help="a kernel setting of every host of the rows' labs (repeat), e.g. "
-                         "net.ipv4.tcp_thin_linear_timeouts=1")
+                    help="a kernel setting of every host of the rows' labs (repeat), on top of a corridor host's "
+                         "(deploy/host_tuning.py: net.ipv4.tcp_thin_linear_timeouts=1)")
+    ap.add_argument("--kernel-defaults", action="store_true",
+                    help="hosts with the kernel's default settings instead of a corridor host's")
     ap.add_argument("--json", action="store_true", help="end with one JSON line of figures")
     args = ap.parse_args(argv)
-    sysctls = {}
+    from deploy.host_tuning import HOST_SYSCTLS
+
+    sysctls = {} if args.kernel_defaults else dict(HOST_SYSCTLS)
     for item in args.sysctl:
         key, eq, value = item.partition("=")
         if not eq or not key.startswith("net."):

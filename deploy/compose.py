@@ -47,6 +47,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from deploy.host_tuning import HOST_SYSCTLS
 from protocol.corridor import Corridor
 
 ZENOH_IMAGE = "eclipse/zenoh:1.10.2"
@@ -111,6 +112,7 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
             "depends_on": {"router": {"condition": "service_started"}},
             "restart": "unless-stopped",
             "healthcheck": _healthcheck(role, node, user, acl),
+            "sysctls": dict(HOST_SYSCTLS),  # thin-stream retransmissions (deploy/host_tuning.py)
         }
         if volumes:
             svc["volumes"] = volumes
@@ -125,6 +127,7 @@ def compose_services(corridor: Corridor, *, rsus: int | None = None, scenario: s
                         else ["./deploy/zenoh/router.json5:/etc/zenoh/router.json5:ro"]),
             "ports": ["7447:7447"],
             "restart": "unless-stopped",
+            "sysctls": dict(HOST_SYSCTLS),
         },
     }
     # With a vehicle service the world waits for its first state: the two containers start in any order.

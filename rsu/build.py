@@ -203,6 +203,8 @@ class ServiceOptions:
     annotate: str | None = None
     camera_hz: float | None = None
     """Annotated frames a second on the corridor (rsu.camera_feed; None: by source kind)."""
+    uplink_bit_s: float | None = None
+    """The uplink's rate: bulk is thinned to fit it (``rsu.uplink``); None: no budget."""
     key: str | None = None
     key_id: str | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
@@ -233,7 +235,8 @@ def run_rsu(options: ServiceOptions, config: PipelineConfig) -> int:
         service = RsuService(corridor, options.rsu_id, source, pipeline, open_transport(),
                              corridor_id=options.corridor_id, annotate_path=options.annotate,
                              max_frames=options.max_frames, read_timeout_s=options.read_timeout_s,
-                             max_stall_s=options.max_stall_s, signer=signer, camera_rate_hz=options.camera_hz)
+                             max_stall_s=options.max_stall_s, signer=signer, camera_rate_hz=options.camera_hz,
+                             uplink_bit_s=options.uplink_bit_s)
         signal.signal(signal.SIGTERM, lambda *_: service.stop())
         signal.signal(signal.SIGINT, lambda *_: service.stop())
         log.info("RSU %s: %s -> %s on %s", options.rsu_id, source.source_id,

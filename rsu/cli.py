@@ -15,6 +15,7 @@ from rsu.build import PipelineConfig, ServiceOptions, run_rsu
 from rsu.classify.evaluation import CLASSIFIERS
 from rsu.frames import SourceError, SourceStalled
 from rsu.localize import INTERPOLATIONS
+from rsu.uplink import validate_uplink_bit_s
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -88,6 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--camera-hz", type=float, default=None, metavar="HZ",
                     help="publish the annotated frame HZ times a second as JPEG on iea/<c>/rsu/<rsu>/camera/jpeg "
                          "for Foxglove and recordings (default: 2 from a simulated camera, 0 = off from a real one)")
+    ap.add_argument("--uplink-kbit-s", type=float, default=None, metavar="KBIT_S",
+                    help="the RSU's uplink (backhaul) rate: object lists and camera frames are thinned to half of it "
+                         "so that EV and hazard alerts always find the link free (default: no budget; set it on "
+                         "a cellular or radio backhaul of under 1 Mbit/s)")
     ap.add_argument("--key", metavar="PEM", default=None,
                     help="Ed25519 private key (from `iea keys new --role rsu`) that signs this RSU's EV and hazard alerts")
     ap.add_argument("--key-id", metavar="ID", default=None,
@@ -278,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
             sim_seed=args.sim_seed, fps=args.fps, realtime=args.realtime, read_timeout_s=args.read_timeout_s,
             max_stall_s=args.max_stall_s, queue_size=args.queue_size, max_frames=args.max_frames,
             annotate=args.annotate, key=args.key, key_id=args.key_id, zenoh=ZenohSettings.from_args(args),
-            camera_hz=args.camera_hz)
+            camera_hz=args.camera_hz,
+            uplink_bit_s=None if args.uplink_kbit_s is None else validate_uplink_bit_s(1000.0 * args.uplink_kbit_s))
         metrics.serve_from_args(args, "rsu", args.rsu)
         return run_rsu(options, pipeline_config(args))
     except (CorridorError, KeyError, ValueError, FileNotFoundError, SourceError, SourceStalled) as exc:

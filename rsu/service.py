@@ -56,6 +56,7 @@ from rsu.classify.alerts import AlertEvent
 from rsu.frames import Frame, FrameSource, SourceError, SourceStalled
 from rsu.hazard import HazardEvent
 from rsu.pipeline import STAGES, FrameResult, RsuPipeline, annotate
+from rsu.uplink import ShapedTransport, UplinkBudget
 
 log = logging.getLogger(__name__)
 
@@ -67,11 +68,15 @@ class RsuService:
                  annotate_path: str | None = None, max_frames: int | None = None,
                  read_timeout_s: float = 5.0, max_stall_s: float | None = None,
                  health_period_s: float = 1.0, signer: Signer | None = None,
-                 camera_rate_hz: float | None = None) -> None:
+                 camera_rate_hz: float | None = None, uplink_bit_s: float | None = None) -> None:
         self.corridor = corridor
         corridor.road.prepare()  # its first road query would cost 0.4 s at the scenario's start
         self.rsu_id = rsu_id
         self.clock = clock or WallClock()
+        self.uplink: UplinkBudget | None = None
+        if uplink_bit_s is not None:  # bulk thinned to fit the uplink, alerts never (rsu.uplink)
+            self.uplink = UplinkBudget(uplink_bit_s)
+            transport = ShapedTransport(transport, self.uplink, self.clock)
         if signer is not None:  # alerts are signed on publication
             transport = SecureTransport(transport, self.clock, signer=signer)
         self.source, self.pipeline, self.transport = source, pipeline, transport
@@ -299,6 +304,8 @@ class RsuService:
         elif self._stalled or self.errors:
             status = HealthStatus.DEGRADED
         drops = {"source": int(self.source.drops)}
+        if self.uplink is not None:
+            drops["uplink_budget"] = self.uplink.skipped
         rates_hz = {"frames": n / period if n else 0.0}
         if self.source.fps:
             rates_hz["camera"] = float(self.source.fps)

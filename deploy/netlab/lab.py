@@ -21,6 +21,7 @@ import signal
 import threading
 from pathlib import Path
 
+from deploy.host_tuning import HOST_SYSCTLS
 from deploy.netlab.net import Net, cleanup_stale, require_lab, used_networks
 from deploy.netlab.plan import (
     ZENOH_PORT,
@@ -77,7 +78,8 @@ class Lab(Up):
     def __init__(self, *, segments: int = 0, prefix: str | None = None, sysctls: dict[str, str] | None = None,
                  **kw) -> None:
         """``segments``: segment routers (0: one router); ``sysctls``: kernel settings of every host
-        (``deploy.netlab.net.Net``); the rest as ``Up``."""
+        (``deploy.netlab.net.Net``; None: a corridor host's, ``deploy.host_tuning.HOST_SYSCTLS``); the rest as
+        ``Up``."""
         require_lab()
         cleanup_stale()  # what a crashed run left (labs of running processes are left alone)
         kw.setdefault("port", ZENOH_PORT)
@@ -91,7 +93,7 @@ class Lab(Up):
             hosts, hubs = corridor_hosts(services), ["router"]
         self.plan = new_plan(hosts, hubs, prefix)
         self.segments = list(hubs[1:])
-        self.net = Net(self.plan, dict(sysctls or {}))
+        self.net = Net(self.plan, dict(HOST_SYSCTLS if sysctls is None else sysctls))
         self.endpoint = self.plan.endpoint("monitor")  # the lab's own session (Up.start's monitor) joins here
         for spec in self.specs:
             i = spec.args.index("--connect")

@@ -119,8 +119,13 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
     lab = Lab(segments=fault.segments, run_dir=run_dir_for(run_root, fault.action),
               corridor_id=f"n{uuid.uuid4().hex[:8]}", duration_s=max(duration_s, fault.min_duration_s), restart="no",
               detector=detector, rsu_ids=rsu_ids, sysctls=sysctls)
+    if fault.action == "cap":  # the RSUs are deployed knowing their backhaul's rate (rsu.uplink)
+        for spec in lab.specs:
+            if "--rsu" in spec.args:
+                spec.args += ["--uplink-kbit-s", f"{fault.value / 1000.0:g}"]
     rec = NetRecorder()
-    details: dict[str, Any] = {"run_dir": str(lab.run_dir), "prefix": lab.plan.prefix, "sysctls": dict(sysctls or {}),
+    details: dict[str, Any] = {"run_dir": str(lab.run_dir), "prefix": lab.plan.prefix,
+                               "sysctls": dict(lab.net.sysctls),
                                "action": fault.action,
                                "target": fault.target, "value": fault.value, "length_s": fault.length_s}
     t_fault = t_restore = None

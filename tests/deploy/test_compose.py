@@ -205,3 +205,15 @@ def test_docker_compose_config_accepts_the_file(tmp_path):
     assert theirs["rsu1"]["command"][4] == "sim"  # ${RSU1_SOURCE:-sim} with RSU1_SOURCE unset
     r = _docker_compose_config(tool, "name: iea-rellis\n" + text, tmp_path)
     assert r.returncode != 0 and "'name' does not match any of the regexes" in r.stderr
+
+
+def test_every_corridor_host_gets_the_thin_stream_kernel_setting():
+    import yaml
+
+    from deploy.host_tuning import HOST_SYSCTLS
+
+    services = yaml.safe_load(COMPOSE.read_text(encoding="utf-8"))["services"]
+    hosts = [name for name in services if name not in ("prometheus", "foxglove")]
+    assert "router" in hosts and "ddm" in hosts and "av1" in hosts
+    for name in hosts:
+        assert services[name]["sysctls"] == HOST_SYSCTLS, name
