@@ -27,6 +27,7 @@ downstream writes back into the world).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,6 +83,21 @@ class IngestStats:
     new_tracks: int = 0
     merged: int = 0
     deleted: int = 0
+
+
+EGO_PREDICTION_MAX_S = 3.0
+"""A vehicle's last state is carried forward at most this long (beyond, the decider no longer plans for it)."""
+
+
+def ego_position_now(state: VehicleState, now: float) -> tuple[float, float]:
+    """Where an AV is at ``now`` by its last state, measured at ``state.stamp``: carried forward at its speed
+    along its heading (constant velocity) for the state's age, clamped to [0, ``EGO_PREDICTION_MAX_S``]. On a
+    clean link the age is a control period and this moves the car by a metre; on a lossy TCP link states arrive
+    in bursts seconds late, and a path planned from where the car was would start behind it (the car rejects a
+    path that starts more than ``vehicle.commands.CommandLimits.max_start_behind_m`` behind it)."""
+    age = min(max(now - state.stamp, 0.0), EGO_PREDICTION_MAX_S)
+    step = state.speed_mps * age
+    return (state.pos_x_m + step * math.cos(state.heading_rad), state.pos_y_m + step * math.sin(state.heading_rad))
 
 
 class CorridorWorld:
@@ -338,10 +354,11 @@ class CorridorWorld:
 
     def snapshot(self, now: float) -> Picture:
         """The immutable picture at ``now``: every live track predicted to it (store order), the hazards, and
-        the vehicles (in the order first heard) with the track bound to each."""
+        the vehicles (in the order first heard, each where its last state puts it at ``now``:
+        ``ego_position_now``) with the track bound to each."""
         live = self.store.live_slots()
         table = self.store.table(live, now, self.is_ev_mask(live, now))
-        vehicles = tuple(Ego(vid, s.pos_x_m, s.pos_y_m, s.heading_rad, s.speed_mps, s.length_m, s.width_m, s.mode,
-                             s.active_command_id, rec.track_id, rec.received_s)
+        vehicles = tuple(Ego(vid, *ego_position_now(s, now), s.heading_rad, s.speed_mps, s.length_m, s.width_m,
+                             s.mode, s.active_command_id, rec.track_id, rec.received_s)
                          for vid, rec in self.vehicles.items() for s in (rec.state,))
         return Picture(now, table, self.hazards.records(), vehicles)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from ddm_rig import det, lane_y, object_list
 
 from ddm.config import DdmConfig
@@ -167,6 +168,23 @@ def test_vehicle_state_is_bound_to_its_track():
     tid = w.ingest_vehicle_state(vs, 1.0)
     assert w.snapshot(1.0).track(tid).vehicle_id == "av1" and abs(w.snapshot(1.0).track(tid).x_m - 30.0) < 0.1
 
+
+
+def test_an_av_state_that_arrives_late_is_carried_forward_to_now():
+    """On a lossy link a state arrives seconds after it was measured: the picture puts the car where it is now
+    (a path planned from where it was would start behind it), at most EGO_PREDICTION_MAX_S ahead."""
+    from ddm.world import EGO_PREDICTION_MAX_S
+
+    w = CorridorWorld(DdmConfig())
+    lat, lon = COR.to_latlon(30.0, lane_y(1))
+    vs = VehicleState(src="av1", stamp=10.0, vehicle_id="av1", pos_x_m=30.0, pos_y_m=lane_y(1), lat_deg=lat,
+                      lon_deg=lon, heading_rad=0.0, speed_mps=15.0, mode=VehicleMode.DRIVING)
+    w.ingest_vehicle_state(vs, 11.5)  # measured at 10.0, heard at 11.5
+    ego = w.snapshot(12.0).vehicles[0]
+    assert ego.x_m == pytest.approx(30.0 + 15.0 * 2.0) and ego.y_m == pytest.approx(lane_y(1))
+    assert ego.received_s == 11.5
+    assert w.snapshot(20.0).vehicles[0].x_m == pytest.approx(30.0 + 15.0 * EGO_PREDICTION_MAX_S)
+    assert w.snapshot(9.0).vehicles[0].x_m == pytest.approx(30.0)  # a clock behind the car's: not moved back
 
 def test_stale_rsu_detection():
     w = CorridorWorld(DdmConfig(), rsu_ids=("rsu1", "rsu2"))
