@@ -255,7 +255,8 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
                       rsu_ids: list[str] | None = None, annotate: bool = True,
                       vehicle_extra: list[str] | None = None, seed: int | None = None,
                       keys: dict[str, list[str]] | None = None, lighting: str | None = None,
-                      v2x: bool = False, traffic: str | None = None) -> list[ServiceSpec]:
+                      v2x: bool = False, traffic: str | None = None,
+                      ev_radio_loss: float | None = None) -> list[ServiceSpec]:
     """The corridor topology in start order: DDM, RSUs, then the vehicle and the simulator (start these two
     together, last: the AV is where the scenario puts it when the world starts).
 
@@ -266,11 +267,14 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
     ``keys``: per service extra arguments (signing keys: ``--key PATH``; ``ev``: the simulator's ``--ev-key``).
     ``v2x``: a V2X gateway per RSU (``rsu.v2x_gateway``, service ``<rsu>-v2x``, signing with the RSU's key).
     ``traffic``: ``project`` or ``sumo`` instead of the scenario's (who drives the simulator's traffic).
+    ``ev_radio_loss``: an equipped EV's radio loss instead of the corridor's ``dsrc_loss`` (the simulator's).
     """
     from sim.scenario import LIGHTINGS, load_scenario
 
     if lighting is not None and lighting not in LIGHTINGS:
         raise ValueError(f"lighting must be one of {', '.join(LIGHTINGS)}, got {lighting!r}")
+    if ev_radio_loss is not None and not 0.0 <= ev_radio_loss <= 1.0:
+        raise ValueError(f"ev_radio_loss must be a probability in [0, 1], got {ev_radio_loss}")
     keys = keys or {}
     z = list(zenoh_args or [])
     common = ["--corridor-id", corridor_id]
@@ -313,5 +317,7 @@ def corridor_services(corridor, corridor_id: str, *, scenario: str, duration_s: 
         sim += ["--lighting", lighting]
     if traffic is not None:
         sim += ["--traffic", traffic]
+    if ev_radio_loss is not None:
+        sim += ["--ev-radio-loss", repr(float(ev_radio_loss))]
     out.append(ServiceSpec("sim", [*sim, *z]))
     return out

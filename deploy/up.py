@@ -68,10 +68,11 @@ class Up:
                  vehicle_extra: list[str] | None = None, seed: int | None = None, peer: bool = False,
                  signed: bool = True, keys_dir: str | None = None, record: bool = False,
                  lighting: str | None = None, foxglove_port: int | None = None, v2x: bool = False,
-                 traffic: str | None = None) -> None:
+                 traffic: str | None = None, ev_radio_loss: float | None = None) -> None:
         """``lighting``: day, dusk or night instead of the scenario's (the simulator's override).
         ``foxglove_port``: also run ``iea foxglove`` on that port (Foxglove / Lichtblick watch the corridor).
         ``v2x``: a V2X gateway per RSU, and (signed) a key for the scenario's EV radio in the trust list.
+        ``ev_radio_loss``: the loss of an equipped EV's radio instead of the corridor's ``dsrc_loss``.
         ``signed`` (default): every service signs with its own key and trusts only the corridor's keys: those
         of ``keys_dir`` (an ``iea deploy keys`` bundle), else throwaway keys made in the run folder."""
         from deploy.signing import key_args, load_key_bundle, write_key_bundle
@@ -81,6 +82,8 @@ class Up:
         self.run_dir = Path(run_dir or ROOT / "runs" / f"up-{time.strftime('%Y%m%d-%H%M%S')}")
         self.signed = signed
         keys: dict[str, list[str]] = {}
+        self.ev_key: Path | None = None
+        """The EV radio's key (signed ``v2x`` runs; trusted by the run's corridor file), else None."""
         if signed:
             if keys_dir is not None:
                 corridor_path, paths = load_key_bundle(keys_dir, self.corridor)
@@ -94,7 +97,8 @@ class Up:
                 copy.parent.mkdir(parents=True, exist_ok=True)
                 copy.write_text(Path(corridor_path).read_text())
                 corridor_path = copy
-                keys["ev"] = ["--ev-key", str(add_ev_key(copy, self.run_dir / "keys"))]
+                self.ev_key = add_ev_key(copy, self.run_dir / "keys")
+                keys["ev"] = ["--ev-key", str(self.ev_key)]
             corridor_file = str(corridor_path)
             self.corridor = load_corridor(corridor_file)
         self.corridor_file = corridor_file
@@ -107,10 +111,12 @@ class Up:
         zenoh = [] if peer else ["--connect", self.endpoint, "--zenoh-config", str(self.run_dir / CLIENT_CONFIG)]
         if corridor_file:
             zenoh = ["--corridor", corridor_file, *zenoh]
+        self.service_args = zenoh
+        """What every service of the run is given: the corridor file and the way to the router."""
         self.specs = corridor_services(self.corridor, self.corridor_id, scenario=scenario, duration_s=duration_s,
                                        run_dir=self.run_dir, detector=detector, zenoh_args=zenoh, rsu_ids=rsu_ids,
                                        annotate=annotate, vehicle_extra=vehicle_extra, seed=seed, keys=keys,
-                                       lighting=lighting, v2x=v2x, traffic=traffic)
+                                       lighting=lighting, v2x=v2x, traffic=traffic, ev_radio_loss=ev_radio_loss)
         if not with_sim:
             self.specs = [s for s in self.specs if s.name != "sim"]
         if foxglove_port is not None:  # publishes nothing: a Health-less watcher of the corridor
@@ -128,6 +134,13 @@ class Up:
         """Record every key to ``<run folder>/run.mcap`` from the monitor's Zenoh session."""
         self.recorder = None
         self._ddm_poll = None
+
+    def add_service(self, name: str, args: list[str], restart: str = "no") -> ServiceSpec:
+        """One more process of the run (``args`` after the interpreter), given the run's corridor id, corridor file
+        and router; started with the corridor's services, before the vehicle and the world. Call before ``start``."""
+        spec = ServiceSpec(name, [*args, "--corridor-id", self.corridor_id, *self.service_args], restart)
+        self.specs.append(spec)
+        return spec
 
     # ------------------------------------------------------------------ lifecycle
     def _start_router(self, timeout_s: float = 20.0) -> None:
@@ -257,6 +270,8 @@ def add_ev_key(corridor_path: Path, key_dir: Path, ev_id: str = "ev1") -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sim.cli import probability
+
     ap = argparse.ArgumentParser(prog="iea up", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--corridor", default=None, help="corridor TOML file (default deploy/corridors/rellis.toml)")
@@ -290,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--v2x", action="store_true",
                     help="standard V2X: a gateway per RSU (CPM, DENM, the radio's CAMs to the DDM) and a key for an "
                          "equipped EV's radio")
+    ap.add_argument("--ev-radio-loss", type=probability, default=None, metavar="P",
+                    help="an equipped EV's radio loses each CAM with probability P in [0, 1] (default: the corridor's "
+                         "dsrc_loss)")
     ap.add_argument("--no-record", action="store_true",
                     help="do not record (default: every key to <run folder>/run.mcap; `iea replay` it)")
     return ap
@@ -323,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
                 duration_s=args.sim_duration_s, port=args.port, run_dir=run_dir, detector=args.detector,
                 rsu_ids=rsu_ids, restart=args.restart, annotate=args.annotate, with_sim=not args.no_sim,
                 signed=not args.unsigned, keys_dir=args.keys, record=not args.no_record, lighting=args.lighting,
-                foxglove_port=args.foxglove, v2x=args.v2x, traffic=args.traffic)
+                foxglove_port=args.foxglove, v2x=args.v2x, traffic=args.traffic, ev_radio_loss=args.ev_radio_loss)
     except (FileNotFoundError, ValueError) as exc:
         print(f"iea up: {exc}", file=sys.stderr)
         return 2

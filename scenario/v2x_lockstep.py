@@ -9,10 +9,11 @@
   ``DsrcLink`` from the EV's true position to the RSU masts (the corridor's DSRC latency, jitter and range; loss
   ``radio_loss``);
 - a gateway per RSU (``rsu.v2x_gateway``): CPMs, DENMs, and what its radio hears passed on signed;
-- an attacker (``attack``), for the security figures: ``forged`` (lights-on CAMs for the EV's StationId signed
-  with a key of the EV's key id that is not the trusted one), ``replayed`` (the EV's own genuinely signed
-  lights-on CAMs played back ``replay_delay_s`` late) or ``contradicted`` (validly signed lights-on CAMs, as from
-  a stolen key, of an EV driving at 18 m/s through the cameras' clear views where no car is).
+- an attacker (``attack``: ``scenario.v2x_attack.Attacker``), for the security figures: ``forged`` (lights-on
+  CAMs for the EV's StationId signed with a key of the EV's key id that is not the trusted one), ``replayed``
+  (the EV's own genuinely signed lights-on CAMs played back ``replay_delay_s`` late) or ``contradicted``
+  (validly signed lights-on CAMs, as from a stolen key, of an EV driving at 18 m/s through the cameras' clear
+  views where no car is), published straight on the bus (no radio model: every CAM reaches every gateway).
 """
 
 from __future__ import annotations
@@ -22,22 +23,17 @@ from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from protocol.messages import WorldSnapshot
 from protocol.radio import ChannelModel, DsrcLink
 from protocol.security import Signer, public_key_b64
-from protocol.v2x.build import ev_cam, station_id
-from protocol.v2x.codec import encode
-from protocol.v2x.keys import v2x_obu_cam_key
-from protocol.v2x.secure import seal
+from protocol.v2x.build import station_id
 from rsu.v2x_gateway import V2xGateway
 from scenario.lockstep import CorridorLockstep, LockstepConfig, _Task
+from scenario.v2x_attack import ATTACKS, REPLAY_DELAY_S, Attacker
 from sim.ev_radio import EvRadio
 from sim.scenario import load_scenario
 
 EV_ACTOR_ID = "ev1"
-ATTACKS = ("forged", "replayed", "contradicted")
 RADIO_STEP_S = 0.005
-CLAIMED_SPEED_MPS = 18.0
 
 
 @dataclass(frozen=True)
@@ -47,7 +43,7 @@ class V2xSetup:
     equipped: bool | None = None
     """Override the scenario's ``[ev] equipped`` (None: as the scenario says)."""
     attack: str | None = None
-    replay_delay_s: float = 2.0
+    replay_delay_s: float = REPLAY_DELAY_S
     radio_seed: int = 0
 
 
@@ -91,7 +87,9 @@ class V2xLockstep(CorridorLockstep):
                                  clock=self.clock.now, seed=setup.radio_seed, ev_ids=(EV_ACTOR_ID,)).start()
         self.gateways = [V2xGateway(self.bus, self.corridor, self.corridor_id, r.rsu_id, clock=self.clock.now,
                                     signer=self.rsu_signers[r.rsu_id]).start() for r in self.corridor.rsus]
-        self.attacker = _Attacker(self, setup) if setup.attack else None
+        self.attacker = None if not setup.attack else Attacker(
+            setup.attack, self.corridor, self.corridor_id, self.ev_signer, ev_id=EV_ACTOR_ID,
+            replay_delay_s=setup.replay_delay_s)
         # the radio delivers (DSRC latency 3 +- 1 ms) every 5 ms of simulated time, not at every millisecond
         self._tasks.append(_Task("v2x-radio", RADIO_STEP_S, self._radio_step, start_s=RADIO_STEP_S))
 
@@ -108,7 +106,9 @@ class V2xLockstep(CorridorLockstep):
         if self.radio_link is not None:
             self.radio_link.deliver_due(now)
         if self.attacker is not None and self._snapshot is not None:
-            self.attacker.step(now, self._snapshot)
+            out = self.attacker.step(now, self._snapshot)
+            if out is not None:
+                self.bus.publish_bytes(*out)
 
     def finish(self) -> dict[str, Any]:
         m = super().finish()
@@ -126,49 +126,3 @@ class V2xLockstep(CorridorLockstep):
             "attack_sent": 0 if self.attacker is None else self.attacker.sent,
         }
         return m
-
-
-class _Attacker:
-    """Broadcasts lights-on CAMs for the EV's StationId at 10 Hz (see the module docstring for the three kinds)."""
-
-    def __init__(self, run: V2xLockstep, setup: V2xSetup) -> None:
-        self.run, self.setup = run, setup
-        self.kind = setup.attack
-        self.signer = run.ev_signer if self.kind != "forged" else _signer("ev-key")
-        self.next_s = 0.5
-        self.sent = 0
-        self.key = v2x_obu_cam_key(run.corridor_id, EV_ACTOR_ID)
-        self.start: tuple[float, float, float] | None = None
-
-    def _claim(self, snap: WorldSnapshot, now: float) -> tuple[float, float]:
-        """Where the CAM puts the EV: its true place (forged, replayed) or, contradicted, an EV driving at the
-        claimed 18 m/s along a lane through the cameras' views from a point 15 m or more from any actor when the
-        attack starts (the attacker sees the road), so that its CAMs agree with each other."""
-        ev = next((a for a in snap.actors if a.actor_id == EV_ACTOR_ID), None)
-        if self.kind != "contradicted" and ev is not None:
-            return ev.pos_x_m, ev.pos_y_m
-        if self.start is None:
-            road = self.run.corridor.road
-            self.start = (now, 40.0, road.lane_centre_offset_m(0))
-            for x in (40.0, 50.0, 30.0, 60.0):
-                for lane in range(road.lanes):
-                    y = road.lane_centre_offset_m(lane)
-                    if all((a.pos_x_m - x) ** 2 + (a.pos_y_m - y) ** 2 > 15.0 ** 2 for a in snap.actors):
-                        self.start = (now, x, y)
-                        break
-                else:
-                    continue
-                break
-        t0, x0, y0 = self.start
-        return x0 + CLAIMED_SPEED_MPS * (now - t0), y0
-
-    def step(self, now: float, snap: WorldSnapshot) -> None:
-        if now < self.next_s:
-            return
-        self.next_s = now + 0.1
-        x, y = self._claim(snap, now)
-        lat, lon = self.run.corridor.to_latlon(x, y)
-        t_signed = now - self.setup.replay_delay_s if self.kind == "replayed" else now
-        cam = encode("CAM", ev_cam(self.run.ev_station, t_signed, lat, lon, 0.0, CLAIMED_SPEED_MPS, True, True))
-        self.run.bus.publish_bytes(self.key, seal(self.signer, self.key, cam, t_signed))
-        self.sent += 1

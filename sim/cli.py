@@ -17,6 +17,17 @@ from protocol.logsetup import add_log_level_argument, configure_logging
 from protocol.zenoh_transport import ZenohSettings
 
 
+def probability(text: str) -> float:
+    """argparse type: a probability in [0, 1] (anything else: exit 2 naming the value)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a probability in [0, 1], got {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a probability in [0, 1], got {text}")
+    return v
+
+
 def _add_run(sub) -> None:
     p = sub.add_parser("run", help="run a scenario in real time, publishing WorldSnapshot at 20 Hz",
                        description="Run a scenario in real time: WorldSnapshot at 20 Hz on iea/{c}/sim/world, "
@@ -42,6 +53,9 @@ def _add_run(sub) -> None:
     p.add_argument("--lighting", choices=["day", "dusk", "night"], default=None, help="override the lighting")
     p.add_argument("--ev-key", default=None, metavar="PEM",
                    help="an equipped EV signs its CAMs with this key (the corridor trusts it with role ev)")
+    p.add_argument("--ev-radio-loss", type=probability, default=None, metavar="P",
+                   help="an equipped EV's radio loses each CAM with probability P in [0, 1] (default: the corridor's "
+                        "dsrc_loss)")
     p.add_argument("--traffic", choices=["project", "sumo"], default=None,
                    help="who drives the traffic: the simulator's own model or Eclipse SUMO (default: the scenario's)")
     ZenohSettings.add_arguments(p)
@@ -98,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
                                 corridor_id=args.corridor_id, record=args.record, speed=args.speed,
                                 duration_s=args.duration, seed=args.seed, lighting=args.lighting,
                                 wait_for_av_s=args.wait_for_av, wait_for_rsus=args.wait_for_rsus,
-                                wait_timeout_s=args.wait_timeout, ev_key=args.ev_key, traffic=args.traffic)
+                                wait_timeout_s=args.wait_timeout, ev_key=args.ev_key, traffic=args.traffic,
+                                ev_radio_loss=args.ev_radio_loss)
         if args.cmd == "render":
             for path in render_views(args.scenario, args.t, args.out, rsus=args.rsu, seed=args.seed,
                                      lighting=args.lighting, boxes=args.boxes):

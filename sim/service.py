@@ -227,10 +227,12 @@ class SimService:
 def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corridor_id: str | None = None,
                  record: list[str] = (), speed: float = 1.0, duration_s: float | None = None, seed: int | None = None,
                  lighting: str | None = None, wait_for_av_s: float | None = None, wait_for_rsus: str | None = None,
-                 wait_timeout_s: float = 60.0, ev_key: str | None = None, traffic: str | None = None) -> int:
+                 wait_timeout_s: float = 60.0, ev_key: str | None = None, traffic: str | None = None,
+                 ev_radio_loss: float | None = None) -> int:
     """``iea-sim run``: scenario ``scenario`` (a name or a .toml path) in real time over Zenoh (``zenoh``:
     ``ZenohSettings``) until its end or SIGTERM/SIGINT. ``record``: ``RSU:FILE.mp4`` items. An equipped EV
-    broadcasts its CAMs (``sim.ev_radio``), signed with ``ev_key`` (PEM) when given. Raises ValueError
+    broadcasts its CAMs (``sim.ev_radio``), signed with ``ev_key`` (PEM) when given, its radio losing each with
+    probability ``ev_radio_loss`` (None: the corridor's ``dsrc_loss``). Raises ValueError
     (ScenarioError, CorridorError) and KeyError (an unknown RSU) before anything is published."""
     import signal
 
@@ -242,6 +244,8 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
         raise ValueError(f"--wait-for-av wants seconds >= 0, got {wait_for_av_s}")
     if not wait_timeout_s >= 0:
         raise ValueError(f"--wait-timeout wants seconds >= 0, got {wait_timeout_s}")
+    if ev_radio_loss is not None and not 0.0 <= ev_radio_loss <= 1.0:
+        raise ValueError(f"--ev-radio-loss wants a probability in [0, 1], got {ev_radio_loss}")
     corridor = load_corridor(corridor_file) if corridor_file else None
     sc = load_scenario(scenario, corridor).with_overrides(seed=seed, lighting=lighting, traffic=traffic)
     recs = []
@@ -259,13 +263,14 @@ def run_scenario(scenario: str, zenoh, *, corridor_file: str | None = None, corr
         if sc.ev is not None and sc.ev.equipped:
             from sim.ev_radio import start_radio
 
-            radio = start_radio(transport, sc.corridor, corridor_id or sc.corridor.corridor_id, ev_key, seed=sc.seed)
+            radio = start_radio(transport, sc.corridor, corridor_id or sc.corridor.corridor_id, ev_key, seed=sc.seed,
+                                loss=ev_radio_loss)
         signal.signal(signal.SIGTERM, lambda *_: svc.stop())
         signal.signal(signal.SIGINT, lambda *_: svc.stop())
         n = svc.run(wait_for_av_s=wait_for_av_s, wait_for_rsus=rsu_ids, wait_timeout_s=wait_timeout_s)
         log.info("published %d snapshots", n)
         if radio is not None:
-            log.info("the EV's radio sent %d CAMs", radio.sent)
+            log.info("the EV's radio sent %d CAMs (radio %s)", radio.sent, dict(radio.transport.counts["tx"]))
             radio.close()
     finally:
         transport.close()
