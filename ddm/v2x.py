@@ -8,7 +8,7 @@ EV on duty (emergency role, light bar or siren on) becomes an ``EvAlert`` of the
 (``alert_id`` ``v2x-<station>``; confidence: the association's probability, or 0.9 from the CAM alone) handed to
 the service's EV-alert path, which decides at once as for a camera alert; when the station's lights go off, the
 alert is cleared (``lights_off``). ``evidence`` holds each station's latest ``vision+v2x`` / ``v2x`` /
-``contradicted``; camera alerts are ``vision``.
+``contradicted`` / ``ambiguous``; camera alerts are ``vision``.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ DEFAULT_VIEW_RANGE_M = 120.0
 """Ground range of a camera's view when the corridor gives its RSU no ``max_range_m``."""
 CAM_ONLY_CONFIDENCE = 0.9
 COUNTER_OF_EVIDENCE = {"vision+v2x": "v2x_with_vision", "v2x": "v2x_alone", "contradicted": "v2x_contradicted",
-                       "unconfirmed": "v2x_unconfirmed"}
+                       "ambiguous": "v2x_ambiguous", "unconfirmed": "v2x_unconfirmed"}
 """The service's counter of each evidence (names that are key chunks, as Health's)."""
 NO_OBJECT_ID = 2**31 - 1
 """The object id of a V2X alert: no RSU object (the DDM's track is found by position)."""

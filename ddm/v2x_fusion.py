@@ -13,12 +13,15 @@
 - Consistency: a station's CAMs must agree with each other kinematically (``V2xFusion._streak``) for
   ``min_consistent_cams`` in a row before it is believed (``unconfirmed`` until then; a jump starts the count
   again and ends any grace): positions that hop about, or stand still while the CAM says it drives, move nothing.
-- Evidence: ``vision+v2x`` when the best association has at least ``p_min`` (the CAM names a car the cameras see),
-  ``v2x`` when no camera track matches and no camera has a clear view of the CAM's position (beyond the last
-  camera, behind a curve, a camera down), ``contradicted`` when a camera that reported within ``fresh_s`` looks
-  at the position and sees no car there: such a CAM is not believed by itself (a compromised key cannot summon
-  an EV into a camera's empty view). A station already believed keeps being believed for ``grace_s`` of
-  contradiction, the time a camera takes to start a track on a car entering its view.
+- Evidence: ``vision+v2x`` when the best association has at least ``p_min`` and the station's last
+  ``min_consistent_cams`` CAMs were all associated with that same track (the CAM names a car the cameras follow),
+  ``v2x`` when no camera has a clear view of the CAM's position (beyond the last camera, behind a curve, a camera
+  down), ``contradicted`` when a camera that reported within ``fresh_s`` looks at the position and sees no car
+  there, ``ambiguous`` when it sees a car there but not one the CAMs name steadily (a claim passing through
+  traffic rides on one car after another): neither of the last two is believed by itself (a compromised key
+  cannot summon an EV into a camera's view by driving its claim through the cars there). A station already
+  believed keeps being believed for ``grace_s`` of either, the time a camera takes to start a track on a car
+  entering its view.
 - Authenticity is checked before (``protocol.v2x.secure``): this module sees only verified, fresh CAMs.
 - Limit: a valid EV key (stolen) whose CAMs ride on a car the cameras see is believed (``vision+v2x``): the
   cameras' own view of that car's lights is not weighed against the CAM.
@@ -32,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 BELIEVED = ("vision+v2x", "v2x")
-EVIDENCE = ("vision+v2x", "v2x", "contradicted", "unconfirmed")
+EVIDENCE = ("vision+v2x", "v2x", "contradicted", "ambiguous", "unconfirmed")
 
 
 @dataclass(frozen=True)
@@ -40,13 +43,17 @@ class V2xFusionConfig:
     gate_p: float = 0.999
     heading_gate_rad: float = math.radians(45.0)
     moving_mps: float = 2.0
-    speed_gate_mps: float = 4.0
-    speed_gate_frac: float = 0.3
+    speed_gate_mps: float = 2.0
+    speed_gate_frac: float = 0.1
+    """Speed gate ``max(speed_gate_mps, speed_gate_frac * v)``: a CAM's speed is the vehicle's own (CAN bus), a
+    camera track's is good to well under a metre per second on a car it follows; a claim 4 m/s faster than the
+    traffic matches none of it."""
     clutter_density_pm2: float = 1e-3
     p_detect: float = 0.9
     p_min: float = 0.5
     min_cam_sigma_m: float = 0.5
-    fresh_s: float = 0.6
+    fresh_s: float = 2.0
+    """A camera that reported within this long watches its view (one that stutters under load keeps its say)."""
     grace_s: float = 1.0
     view_margin_m: float = 5.0
     """A position this close to the edge of a camera's view counts as out of it (a car half in view)."""
@@ -128,10 +135,10 @@ class Association:
 @dataclass(frozen=True)
 class Assessment:
     evidence: str
-    """``vision+v2x``, ``v2x``, ``contradicted`` or ``unconfirmed`` (see the module docstring)."""
+    """``vision+v2x``, ``v2x``, ``contradicted``, ``ambiguous`` or ``unconfirmed`` (see the module docstring)."""
     association: Association
     seen_by: str | None
-    """The camera (RSU id) that contradicts, for ``contradicted``."""
+    """The camera (RSU id) whose view is against the CAM, for ``contradicted`` and ``ambiguous``."""
 
     @property
     def believed(self) -> bool:
@@ -179,6 +186,12 @@ class _StationTrack:
     streak: int
     anchor: tuple[float, float, float]
     """(t, x, y) of the CAM the current check window started at."""
+    track_id: int | None = None
+    """The camera track the station's CAMs were last associated with (``p_min`` or more)."""
+    track_streak: int = 0
+    """How many of its consecutive CAMs were associated with ``track_id``."""
+    track_t_s: float | None = None
+    """The time of the last CAM counted in ``track_streak`` (a repeated CAM is not counted again)."""
 
 
 def _velocity(cam: CamObservation) -> tuple[float, float]:
@@ -217,29 +230,48 @@ class V2xFusion:
                 if step <= noise_m + 1.0 and drift <= noise_m + 1.0 + 0.5 * cfg.max_accel_mps2 * da * da:
                     streak = prev.streak + 1
                     anchor = prev.anchor if da < cfg.window_s else (cam.t_s, cam.x_m, cam.y_m)
-        self.stations[cam.station_id] = _StationTrack(cam.t_s, cam.x_m, cam.y_m, vx, vy, streak, anchor)
+        self.stations[cam.station_id] = _StationTrack(cam.t_s, cam.x_m, cam.y_m, vx, vy, streak, anchor,
+                                                      *((prev.track_id, prev.track_streak, prev.track_t_s)
+                                                        if prev is not None else ()))
         if len(self.stations) > 1024:
             del self.stations[min(self.stations, key=lambda k: self.stations[k].t_s)]
         return streak
+
+    def _track_streak(self, cam: CamObservation, assoc: Association) -> int:
+        """How many consecutive CAMs of the station (this one included) were associated, with ``p_min`` or more,
+        with the track this one is (0 when this one is not)."""
+        st = self.stations.get(cam.station_id)
+        if st is None:
+            return 0
+        if st.track_t_s is not None and cam.t_s <= st.track_t_s:
+            return st.track_streak if assoc.track_id == st.track_id else 0
+        st.track_t_s = cam.t_s
+        if assoc.track_id is None or assoc.probability < self.config.p_min:
+            st.track_id, st.track_streak = None, 0
+        elif assoc.track_id == st.track_id:
+            st.track_streak += 1
+        else:
+            st.track_id, st.track_streak = assoc.track_id, 1
+        return st.track_streak
 
     def assess(self, cam: CamObservation, tracks: CameraTracks, views: list[CameraView], now_s: float) -> Assessment:
         cfg = self.config
         consistent = self._streak(cam) >= cfg.min_consistent_cams
         assoc = associate(cam, tracks, cfg)
+        steady = self._track_streak(cam, assoc) >= cfg.min_consistent_cams
         if not consistent:
             out = Assessment("unconfirmed", assoc, None)
             self.believed_until_s.pop(cam.station_id, None)  # a jump ends any grace
             return out
-        if assoc.track_id is not None and assoc.probability >= cfg.p_min:
+        seer = next((v.rsu_id for v in views if v.sees(cam.x_m, cam.y_m, now_s, cfg)), None)
+        if steady:
             out = Assessment("vision+v2x", assoc, None)
+        elif seer is None:
+            out = Assessment("v2x", assoc, None)
+        elif now_s <= self.believed_until_s.get(cam.station_id, float("-inf")):
+            return Assessment("v2x", assoc, None)  # a car entering the view: the camera's track is coming
         else:
-            seer = next((v.rsu_id for v in views if v.sees(cam.x_m, cam.y_m, now_s, cfg)), None)
-            if seer is None or assoc.track_id is not None:
-                out = Assessment("v2x", assoc, None)
-            elif now_s <= self.believed_until_s.get(cam.station_id, float("-inf")):
-                return Assessment("v2x", assoc, None)  # a car entering the view: the camera's track is coming
-            else:
-                out = Assessment("contradicted", assoc, seer)
+            out = Assessment("contradicted" if assoc.track_id is None else "ambiguous", assoc, seer)
         if out.believed:
             self.believed_until_s[cam.station_id] = now_s + cfg.grace_s
         if len(self.believed_until_s) > 1024:

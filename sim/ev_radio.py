@@ -26,6 +26,8 @@ from protocol.v2x.keys import v2x_obu_cam_key
 from protocol.v2x.secure import seal
 
 CAM_PERIOD_S = 0.1
+DUE_TOLERANCE_S = 1e-3
+"""A snapshot this close before a CAM's due time is on time (stamps are sums of float steps)."""
 
 
 class EvRadio:
@@ -69,9 +71,11 @@ class EvRadio:
         for actor in snap.actors:
             if actor.kind != ActorKind.EV or (self.ev_ids is not None and actor.actor_id not in self.ev_ids):
                 continue
-            if now < self._next_s.get(actor.actor_id, float("-inf")):
+            due = self._next_s.get(actor.actor_id)
+            if due is not None and now + DUE_TOLERANCE_S < due:
                 continue
-            self._next_s[actor.actor_id] = now + self.period_s
+            # on the period's grid (snapshots at 20 Hz meet a 10 Hz period exactly), restarted after a gap
+            self._next_s[actor.actor_id] = (now if due is None or now - due >= self.period_s else due) + self.period_s
             self.broadcast(actor, now)
             n += 1
         return n

@@ -110,7 +110,7 @@ def test_evidence_vision_v2x_cam_alone_and_contradicted():
     assert behind.evidence == "v2x" and behind.believed
     empty_view = settled(f, 40.0, 5.5, no_tracks, fresh_view, 10.0, station=9)
     assert empty_view.evidence == "contradicted" and not empty_view.believed and empty_view.seen_by == "rsu1"
-    stale = settled(f, 40.0, 5.5, no_tracks, lambda t: [CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, t - 2.0)],
+    stale = settled(f, 40.0, 5.5, no_tracks, lambda t: [CameraView("rsu1", 0.0, -4.5, 0.18, 0.52, 85.0, t - 3.0)],
                     10.0, station=10)  # a camera that stopped reporting sees nothing
     assert stale.evidence == "v2x"
 
@@ -149,5 +149,23 @@ def test_view_geometry():
     assert VIEW.sees(40.0, 5.5, 10.0, CFG)
     assert not VIEW.sees(-40.0, 5.5, 10.0, CFG)  # behind the camera
     assert not VIEW.sees(100.0, 5.5, 10.0, CFG)  # beyond its range
-    assert not VIEW.sees(40.0, 5.5, 11.0, CFG)  # its last report is too old
+    assert VIEW.sees(40.0, 5.5, 11.5, CFG)  # a camera that stutters keeps its say
+    assert not VIEW.sees(40.0, 5.5, 12.5, CFG)  # its last report is too old
     assert math.isclose(CFG.gate_d2, 13.8155, rel_tol=1e-4)
+
+
+def test_a_claim_driven_through_traffic_is_ambiguous_not_believed():
+    """A stolen key's claim that overtakes the cars in a camera's view rides on each for a few CAMs: never one
+    track steadily, so it is not believed by itself."""
+    f = V2xFusion()
+    out = []
+    for k in range(25):  # in the camera's view, at 18 m/s past cars at 14 m/s spaced 12 m apart
+        t = 10.0 + 0.1 * k
+        x = 30.0 + 18.0 * (t - 10.0)
+        cars = np.array([30.0 + 14.0 * (t - 10.0) + 12.0 * i for i in range(-2, 6)])
+        tracks = CameraTracks(np.arange(len(cars)) + 1, cars, np.full(len(cars), 5.5),
+                              np.full(len(cars), 14.0), np.zeros(len(cars)), np.full(len(cars), 0.25),
+                              np.full(len(cars), t))
+        out.append(f.assess(cam(x, 5.5, t=t, speed=18.0, station=5), tracks, fresh_view(t), t))
+    assert not any(a.believed for a in out), [a.evidence for a in out]
+    assert {"ambiguous", "contradicted"} & {a.evidence for a in out}

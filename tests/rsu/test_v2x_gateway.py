@@ -123,3 +123,16 @@ def test_scenarios_say_whether_the_ev_is_equipped():
     data["ev"]["equipped"] = "yes"
     with pytest.raises(ValueError, match="equipped"):
         parse_scenario(data)
+
+
+@pytest.mark.parametrize("snapshot_hz", [20.0, 30.0, 50.0])
+def test_the_ev_radio_keeps_10_hz_whatever_the_snapshot_rate(signer, snapshot_hz):
+    """CAMs on the 0.1 s grid (TS 103 900 6.1.3): 20 Hz snapshots meet it exactly, float stamps or not."""
+    bus, clock, corridor = LocalBus(), SimClock(0.0), load_corridor()
+    radio = EvRadio(bus, corridor, C, signer=signer, clock=clock.now).start()
+    steps = int(round(4.0 * snapshot_hz))
+    for _ in range(steps):  # 4 s of snapshots
+        bus.publish(sim_world_key(C), _snapshot(clock.now(), 100.0 + 20.0 * clock.now(), True))
+        clock.advance(1 / snapshot_hz)
+    assert 39 <= radio.sent <= 41
+    radio.close()
