@@ -2,15 +2,17 @@
 
     python -m bench.report --run [--quick] [--only NAME ...] [--outputs runs/bench] [--out docs/benchmarks.md]
     python -m bench.report [--outputs runs/bench] [--out docs/benchmarks.md]
+    python -m bench.report --add NAME LOG --command "python bench/NAME.py ... --json"
 
 With ``--run`` each bench of ``bench/suite.py`` (or those of ``--only``) runs as ``python bench/<name>.py --json``
 (``--quick``: with its quick run's arguments), one after the other, and its record is saved in ``--outputs`` as
 ``<name>.json``: the command, the mode (quick or full), the date (UTC), the commit, the machine (cores, CPU model), the wall
 and CPU time, the exit status and the figures (its last line of output; the whole output beside it in ``<name>.log``). A
 bench that needs ``../shared`` or a program the machine lacks is recorded as skipped, with the reason. Without
-``--run`` the records already in ``--outputs`` are used. Then the page is written: per bench its key figures, every
-other figure, the exact command that reproduces them, the mode, the machine and the date. Exit status 1 when a
-bench run failed.
+``--run`` the records already in ``--outputs`` are used; ``--add`` records the output of a run made by hand (a full
+run of hours, in the background). Then the page is written: per bench its key figures, every other figure, the
+exact command that reproduces them, the mode, the machine and the date; a bench without a record keeps its section
+of the page as it was (``--fresh``: the records alone). Exit status 1 when a bench run failed.
 """
 
 from __future__ import annotations
@@ -133,9 +135,39 @@ def _machine_line(m: dict) -> str:
     return f"{m.get('cores')} cores, {m.get('cpu')}; {m.get('os')}, Python {m.get('python')}{load}"
 
 
-def render_markdown(records: list[dict]) -> str:
-    """The page of ``records`` (what :func:`run_bench` saves)."""
+def record_from_log(bench: Bench, log: Path, command: str, mode: str) -> dict:
+    """The record of a run made outside the report (a long full run, started by hand): its figures are the
+    last line of ``log`` (its output), its date the log's time; the machine is this one."""
+    figures = last_json_object(log.read_text(errors="replace"))
+    if figures is None:
+        raise ValueError(f"{log}: its last line is not one JSON object of figures (run the bench with --json)")
+    when = datetime.fromtimestamp(log.stat().st_mtime, UTC).strftime("%Y-%m-%d %H:%M UTC")
+    here = {k: v for k, v in machine().items() if k != "load_1min"}  # the load now says nothing of the run's
+    return {"bench": bench.name, "mode": mode, "command": command, "date": when, "commit": commit(),
+            "machine": here, "exit": 0, "figures": figures}
+
+
+def kept_sections(page: str) -> dict[str, tuple[str, str]]:
+    """Per bench of an existing page: (its row of the summary table, its section), to keep a bench whose
+    record is not at hand when the page is written again."""
+    rows = {line.split("](#", 1)[0][3:]: line for line in page.splitlines() if line.startswith("| [")}
+    out = {}
+    for part in page.split("\n## ")[1:]:
+        name = part.split("\n", 1)[0].strip()
+        if name in rows:
+            out[name] = (rows[name], "## " + part.rstrip("\n"))
+    return out
+
+
+def render_markdown(records: list[dict], kept: dict[str, tuple[str, str]] | None = None) -> str:
+    """The page of ``records`` (what :func:`run_bench` saves); a bench of the suite without a record keeps its
+    row and section from ``kept`` (:func:`kept_sections` of the page as it was)."""
     suite = by_name()
+    have = {r["bench"] for r in records}
+    kept = {k: v for k, v in (kept or {}).items() if k not in have and k in suite}
+    order = [b.name for b in BENCHES]
+    entries = sorted([(order.index(r["bench"]), r) for r in records if r["bench"] in suite]
+                     + [(order.index(k), k) for k in kept], key=lambda e: e[0])
     lines = ["# Benchmarks", "",
              "Written by `python -m bench.report` from the benches' `--json` output; do not edit by hand. "
              "`make bench` runs every bench in full and writes this page again; "
@@ -144,12 +176,18 @@ def render_markdown(records: list[dict]) -> str:
              "", "Each figure's bench, mode, date and machine are given with it; the command reproduces it from the "
              "repository root.", "", "| bench | measures | mode | date | wall s | CPU s | status |",
              "|---|---|---|---|---|---|---|"]
-    for r in records:
+    for _, r in entries:
+        if isinstance(r, str):
+            lines.append(kept[r][0])
+            continue
         b = suite.get(r["bench"])
         status = ("skipped" if "skipped" in r else "failed" if failed(r) else "ok")
         lines.append(f"| [{r['bench']}](#{r['bench']}) | {b.title if b else ''} | {r['mode']} | "
                      f"{r['date']} | {r.get('wall_s', '')} | {r.get('cpu_s', '')} | {status} |")
-    for r in records:
+    for _, r in entries:
+        if isinstance(r, str):
+            lines += ["", kept[r][1]]
+            continue
         b = suite.get(r["bench"])
         lines += ["", f"## {r['bench']}", ""]
         if b is not None:
@@ -161,7 +199,10 @@ def render_markdown(records: list[dict]) -> str:
         if "skipped" in r:
             lines += [f"- skipped: {r['skipped']}"]
             continue
-        lines += [f"- wall time: {r.get('wall_s')} s (CPU {r.get('cpu_s')} s), exit status {r.get('exit')}"]
+        if r.get("wall_s") is not None:
+            lines += [f"- wall time: {r.get('wall_s')} s (CPU {r.get('cpu_s')} s), exit status {r.get('exit')}"]
+        else:
+            lines += ["- run by hand (the command above), its output recorded with `python -m bench.report --add`"]
         figures = r.get("figures")
         if figures is None:
             lines += ["", f"No figures: the run failed (its output: `{r['bench']}.log` in the outputs folder)."]
@@ -181,11 +222,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME", help="with --run: only these benches")
     ap.add_argument("--outputs", type=Path, default=ROOT / "runs" / "bench", help="the records' folder")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks.md", help="the page to write")
+    ap.add_argument("--add", nargs=2, metavar=("NAME", "LOG"), default=None,
+                    help="record the output LOG of a run of bench NAME made by hand (with --command), then write "
+                         "the page")
+    ap.add_argument("--command", default=None, help="with --add: the command that made LOG")
+    ap.add_argument("--mode", choices=["full", "quick"], default="full", help="with --add: the run's mode")
+    ap.add_argument("--fresh", action="store_true",
+                    help="a page of the records alone (else a bench without a record keeps its section)")
     args = ap.parse_args(argv)
     suite = by_name()
     unknown = sorted(set(args.only or ()) - set(suite))
     if unknown:
         ap.error(f"--only: no bench named {unknown}; the benches: {', '.join(suite)}")
+    if args.add:
+        name, log = args.add[0], Path(args.add[1])
+        if name not in suite:
+            ap.error(f"--add: no bench named {name!r}; the benches: {', '.join(suite)}")
+        if not args.command:
+            ap.error("--add needs --command: the command that made the log")
+        if not log.is_file():
+            ap.error(f"--add: {log} is not a file")
+        try:
+            rec = record_from_log(suite[name], log, args.command, args.mode)
+        except ValueError as exc:
+            ap.error(str(exc))
+        args.outputs.mkdir(parents=True, exist_ok=True)
+        (args.outputs / f"{name}.json").write_text(json.dumps(rec, indent=1) + "\n")
     if args.run:
         args.outputs.mkdir(parents=True, exist_ok=True)
         for name in args.only or suite:
@@ -196,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     if not records:
         print(f"bench.report: no records in {args.outputs}: run with --run first", file=sys.stderr)
         return 2
-    args.out.write_text(render_markdown(records))
+    kept = None if args.fresh or not args.out.is_file() else kept_sections(args.out.read_text())
+    args.out.write_text(render_markdown(records, kept))
     bad = [r["bench"] for r in records if failed(r)]
     print(f"wrote {args.out} ({len(records)} benches" + (f"; failed: {', '.join(bad)})" if bad else ")"))
     return 1 if bad else 0

@@ -75,3 +75,26 @@ def test_the_commit_is_this_checkouts():
         pytest.skip("not a git checkout: no commit to record")
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=report.ROOT, capture_output=True, text=True)
     assert report.commit().rstrip("+") == head.stdout.strip()
+
+
+def test_a_bench_without_a_record_keeps_its_section_and_a_run_by_hand_is_added(tmp_path):
+    outputs, out = tmp_path / "records", tmp_path / "benchmarks.md"
+    outputs.mkdir()
+    (outputs / "ddm_bench.json").write_text(json.dumps(record("ddm_bench", wall_s=1.0, exit=0,
+                                                              figures={"updates_per_s": 1.0})))
+    first = record("protocol_bench", wall_s=2.0, exit=0, figures={"cam_us": 3.0})
+    out.write_text(report.render_markdown([json.loads((outputs / "ddm_bench.json").read_text()), first]))
+    log = tmp_path / "v2x.log"
+    log.write_text("seed 1: ok\n" + json.dumps({"equipped_runs": 10, "forged_commands": 0}) + "\n")
+    assert report.main(["--outputs", str(outputs), "--out", str(out), "--add", "v2x_bench", str(log),
+                        "--command", "python bench/v2x_bench.py --json --zenoh-seeds 10"]) == 0
+    page = out.read_text()
+    assert "## protocol_bench" in page and "| cam_us | 3 |" in page  # kept from the page as it was
+    assert "`python bench/v2x_bench.py --json --zenoh-seeds 10`" in page and "| forged_commands | 0 |" in page
+    assert page.index("## ddm_bench") < page.index("## protocol_bench") < page.index("## v2x_bench")  # suite order
+    assert page.count("| [protocol_bench](#protocol_bench)") == 1
+    assert report.main(["--outputs", str(outputs), "--out", str(out), "--fresh"]) == 0
+    assert "## protocol_bench" not in out.read_text()
+    log.write_text("no figures\n")
+    with pytest.raises(SystemExit):
+        report.main(["--outputs", str(outputs), "--out", str(out), "--add", "v2x_bench", str(log), "--command", "x"])
