@@ -15,14 +15,16 @@ EV has passed), one named rule each:
 - AV in lane 0 (or on the shoulder): PULL_OVER, stop at the curb side of lane 0 (``stop_at_curb``).
 - AV in lane k > 0, ``ttp < too_late_s``: SLOW_IN_LANE (CARMA: stay in lane and slow to 4.47 m/s when
   too late; ``too_late``).
-- ... the EV itself drives in lane 0: pulling into its path is wrong: LANE_CHANGE one lane left when
-  there is one and a safe gap, else SLOW_IN_LANE (``ev_in_lane_0``).
+- ... the EV itself drives in lane 0, or right of it (the shoulder, or an on-ramp that joins lane 0): pulling
+  into its path is wrong: LANE_CHANGE one lane left when there is one and a safe gap, else SLOW_IN_LANE
+  (``ev_in_lane_0``).
 - ... a safe gap in lane 0: PULL_OVER (change to lane 0 and stop; ``pull_over``). No safe gap because of
   a slower car there: no command, the AV keeps its speed past it (slowing would keep it beside that car
   and in the EV's way); because of a faster car or a follower: keep speed and let it pass or drop back
   (``let_faster_pass``: slowing in the EV's lane brings the EV on sooner); otherwise SLOW_IN_LANE for
   the gap. Re-checked every cycle.
-- While yielding (``keep_yielding``): a slowed AV pulls over once lane 0 has a gap (``gap_opened``); a
+- While yielding (``keep_yielding``): a slowed AV pulls over once lane 0 has a gap and the EV is not right of
+  the AV's lane (``gap_opened``: never across the EV's path); a
   pull-over whose lane ahead filled up is planned anew with a shorter stop (``shorter_stop``).
 - RESUME once no EV is behind the AV or less than ``pass_margin_m`` ahead of it (whatever its track id:
   a track may switch ids while the EV passes), none has been for ``resume_hold_s`` (a track lost
@@ -86,6 +88,11 @@ class Threat:
     closing_mps: float
     time_to_pass_s: float
     triggered: bool
+
+    @property
+    def path_in_lane_0(self) -> bool:
+        """Its path is lane 0: it drives there, or right of it (on the shoulder, or on a ramp joining lane 0)."""
+        return self.lane == 0 or (self.lane is None and self.d_m < 0.0)
 
 
 def _fmt_t(t: float) -> str:
@@ -206,7 +213,7 @@ def respond(sit: Situation, t: Threat) -> Intent:
         return stop_at_curb(sit, t)
     if t.time_to_pass_s < sit.cfg.too_late_s:
         return too_late(sit, t)
-    if t.lane == 0:
+    if t.path_in_lane_0:
         return ev_in_lane_0(sit, t)
     return pull_over(sit, t)
 
@@ -226,7 +233,8 @@ def too_late(sit: Situation, t: Threat) -> Intent:
 
 
 def ev_in_lane_0(sit: Situation, t: Threat) -> Intent:
-    """The EV drives in lane 0: move one lane left when there is a safe gap, else slow in lane."""
+    """The EV's path is lane 0 (``Threat.path_in_lane_0``): move one lane left when there is a safe gap, else
+    slow in lane."""
     left = sit.lane + 1
     if left < sit.frame.lanes:
         t_change = lane_change_time_s(sit.frame.lane_width_m, sit.speed_along_mps, sit.cfg)
@@ -288,10 +296,11 @@ def keep_yielding(sit: Situation, t: Threat, response: Response) -> Intent:
 
 
 def gap_opened(sit: Situation, t: Threat, response: Response) -> Intent | None:
-    """Slowed in lane k > 0 (for a gap, too late, or for an EV in lane 0 that has left it) and there is
-    time again: pull over once lane 0 has a gap."""
+    """Slowed in lane k > 0 (for a gap, too late, or for an EV in lane 0 that has come into the AV's lane) and
+    there is time again: pull over once lane 0 has a gap. Never across the EV's path: an EV right of the AV's
+    lane (in a lane between it and lane 0, in lane 0, or joining it) stays where it is, and the AV in its lane."""
     if (response.manoeuvre == Manoeuvre.SLOW_IN_LANE and sit.lane > 0 and t.time_to_pass_s >= sit.cfg.too_late_s
-            and t.lane != 0):
+            and t.d_m >= sit.lane * sit.frame.lane_width_m):
         gap = pull_over_gap(sit)
         ok, why = gap
         if ok:

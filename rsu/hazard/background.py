@@ -144,6 +144,15 @@ class StaticForeground:
 
         return edge(self.long_bg) > self.cfg.ghost_edge_ratio * edge(self.last_frame)
 
+    def absorb_static(self) -> None:
+        """Take the last look's static foreground (it differs from the long-term background and matches the
+        short-term one) into the long-term background and forget its evidence."""
+        if self.last_static is None or self.long_bg is None:
+            return
+        sel = self.last_static
+        self.long_bg[sel] = self.last_frame[sel]
+        self.evidence[sel] = 0
+
     def absorb(self, x: int, y: int, sel: np.ndarray) -> None:
         """Take the frame's pixels of a component into the long-term background and forget their evidence."""
         h, w = sel.shape

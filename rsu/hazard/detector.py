@@ -162,7 +162,10 @@ class HazardDetector:
         """A frame from before the watch starts (full-size BGR, e.g. ``sim.warmup``) at ``t_s`` (None: one
         ``warmup_fps`` frame after the last): learnt into the backgrounds (initial median, then the running
         averages) at most ``rate_hz`` times a second, with no static evidence kept and no hazard raised, so traffic
-        that stood still during the warm-up is not a hazard later."""
+        that stood still during the warm-up is not a hazard later. After the initial median, what stands still in
+        a look (static foreground) is the road as it is and goes into the long-term background: a vehicle the
+        median kept (one that covered a pixel in most of its frames: light traffic in platoons, far from the
+        camera where a car hides a long stretch of road) leaves no ghost there for the watch to report."""
         if t_s is None:
             self._learn_frames += 1
             t_s = (self._learn_frames - 1) / self.cfg.warmup_fps
@@ -170,7 +173,8 @@ class HazardDetector:
         if dt is None:
             return
         self._learn_t_s = t_s
-        self.fg.update(self.fg.small(image), dt_s=dt)
+        if self.fg.update(self.fg.small(image), dt_s=dt):
+            self.fg.absorb_static()
         if self.fg.evidence is not None:
             self.fg.evidence[:] = 0
 

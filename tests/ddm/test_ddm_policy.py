@@ -73,6 +73,29 @@ def test_ev_driving_in_lane_0_makes_av_move_left_not_into_its_path():
     assert d2.action == Manoeuvre.SLOW_IN_LANE and "lane 0" in d2.reason
 
 
+def test_ev_joining_lane_0_from_the_right_is_not_pulled_in_front_of():
+    """An EV right of lane 0 (on the shoulder, or an on-ramp joining lane 0) has lane 0 for its path: the AV in
+    the leftmost lane does not cross into it (motorway_ev_ramp on SUMO: the pull-over into lane 0 blocked the EV
+    that merged behind it), and while slowed it does not pull over there across the EV's path."""
+    frame3 = RoadFrame(replace(load_corridor().road, lanes=3))
+    ev = trk(2, 40.0, 0, 28.0, ev=True, y=-1.5)  # 60 m behind, 1.5 m right of lane 0's edge
+    d = decide(ego(lane=2, v=18.0), [ev], [ev], frame3, CFG, Response())
+    assert d.action == Manoeuvre.SLOW_IN_LANE and d.target_lane == 2 and "lane ?" in d.reason
+    slowed = Response(phase="yielding", manoeuvre=Manoeuvre.SLOW_IN_LANE, target_lane=2)
+    assert decide(ego(lane=2, v=4.5), [ev], [ev], frame3, CFG, slowed).action == "hold"
+    # merged and moving left to pass, in the middle lane: the slowed AV does not cross its path to lane 0
+    ev1 = trk(2, -20.0, 1, 28.0, ev=True)  # 120 m behind: 5.1 s to pass
+    assert decide(ego(lane=2, v=4.5), [ev1], [ev1], frame3, CFG, slowed).action == "hold"
+    # in the AV's own lane: pull over once lane 0 has a gap
+    ev2 = trk(2, -20.0, 2, 28.0, ev=True)
+    assert decide(ego(lane=2, v=4.5), [ev2], [ev2], frame3, CFG, slowed).action == Manoeuvre.PULL_OVER
+    # from the middle lane: one lane left, away from it
+    assert decide(ego(lane=1, v=18.0), [ev], [ev], frame3, CFG, Response()).target_lane == 2
+    # an EV left of the last lane is not on lane 0's path: the usual pull-over
+    far_left = trk(3, 40.0, 2, 28.0, ev=True, y=3 * 3.7 + 0.8)
+    assert decide(ego(lane=1, v=18.0), [far_left], [far_left], frame3, CFG, Response()).target_lane == 0
+
+
 def test_gap_check_leader_and_follower():
     s_me = float(FRAME.to_frenet(100.0, lane_y(1))[0][0])  # the AV at x = 100 m
     ok, why = gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, 160.0, 0, 13.4)], FRAME, 4.0, CFG)
