@@ -98,6 +98,13 @@ class RsuService:
         self._overlay: CalibrationOverlay | None = None
         # annotated frames on the corridor for Foxglove (rsu.camera_feed): None picks by source kind
         self.camera_feed = CameraFeed(transport, cid, rsu_id, default_rate_hz(source, camera_rate_hz))
+        # first-use costs paid now, not in the first frames' time (a 15 fps camera's frames would be passed over):
+        # PROJ's transformer for the objects' WGS84 (~25 ms), the corridor overlay of annotated frames (~70 ms)
+        mast = corridor.rsu(rsu_id)
+        corridor.to_latlon(mast.camera.x_m, mast.camera.y_m)
+        if annotate_path or self.camera_feed.rate_hz > 0:
+            self._overlay = CalibrationOverlay(mast.camera, corridor.road, max_range_m=mast.max_range_m,
+                                               calibration=mast.calibration)
         self._stop = False
         self.frames = 0
         self.stalls = 0
