@@ -70,6 +70,8 @@ class CameraFeed:
         self._next_s: float | None = None
         self.published = 0
         self.bytes_published = 0
+        self.unwatched = 0
+        """Frames due while no subscriber matched the key (not encoded: Zenoh would send them nowhere)."""
 
     def due(self, now_s: float) -> bool:
         """True when a frame is due at ``now_s`` (then the next is due a period later, missed ones skipped)."""
@@ -85,8 +87,12 @@ class CameraFeed:
         return True
 
     def offer(self, now_s: float, make_image: Callable[[], Any]) -> bool:
-        """Publish ``make_image()`` (BGR) if a frame is due; the image is made only then."""
+        """Publish ``make_image()`` (BGR) if a frame is due and someone subscribes to the key; the image is made
+        only then."""
         if not self.due(now_s):
+            return False
+        if not self.transport.wait_for_subscribers(self.key, 0.0):  # nobody watches: no JPEG to encode
+            self.unwatched += 1
             return False
         payload = encode_frame(make_image(), now_s, self.rsu_id, self.quality, self.max_width_px)
         self.transport.publish_bytes(self.key, payload)

@@ -96,7 +96,8 @@ def is_bulk_key(key: str) -> bool:
 
 class ShapedTransport(Transport):
     """``inner`` with an ``UplinkBudget`` on what is published: bulk beyond the budget is left out (counted in
-    ``budget.skipped``), everything else goes out and is counted against it. Closing it closes ``inner``."""
+    ``budget.skipped``), everything else goes out and is counted against it. Bulk on a key nobody subscribes to
+    is not counted (Zenoh sends a publication only where a subscriber matches). Closing it closes ``inner``."""
 
     def __init__(self, inner: Transport, budget: UplinkBudget, clock: Clock) -> None:
         self.inner = inner
@@ -108,6 +109,9 @@ class ShapedTransport(Transport):
     def publish_bytes(self, key: str, payload: bytes) -> None:
         now = self.clock.now()
         if is_bulk_key(key):
+            if not self.inner.wait_for_subscribers(key, 0.0):  # nobody listens: nothing goes on the link
+                self.inner.publish_bytes(key, payload)
+                return
             if not self.budget.allow(len(payload), now):
                 return
         else:

@@ -158,11 +158,14 @@ def test_camera_feed_publishes_jpeg_at_its_rate_and_is_off_for_a_real_camera():
     from rsu.camera_feed import CameraFeed, default_rate_hz
 
     class Bus:
-        def __init__(self):
-            self.sent = []
+        def __init__(self, watched=True):
+            self.sent, self.watched = [], watched
 
         def publish_bytes(self, key, payload):
             self.sent.append((key, payload))
+
+        def wait_for_subscribers(self, key, timeout_s):
+            return self.watched
 
     class SimSource:
         last_render_times_s = (0.0, 0.0)
@@ -187,6 +190,10 @@ def test_camera_feed_publishes_jpeg_at_its_rate_and_is_off_for_a_real_camera():
     assert decoded.shape == (360, 640, 3) and decoded[75, 100, 2] > 200  # scaled, the red box still there
     off = CameraFeed(Bus(), "rellis", "rsu1", rate_hz=0.0)
     assert not any(off.offer(i / 15.0, lambda: image) for i in range(30))
+    nobody = Bus(watched=False)  # no subscriber: no frame made, encoded or sent
+    quiet = CameraFeed(nobody, "rellis", "rsu1", rate_hz=2.0)
+    assert not any(quiet.offer(i / 15.0, lambda: pytest.fail("made an unwatched frame")) for i in range(30))
+    assert nobody.sent == [] and quiet.unwatched == 4
 
 
 def test_log_and_location_builders_validate():

@@ -64,3 +64,17 @@ def test_a_rate_that_is_no_rate_is_refused(bad):
     with pytest.raises(ValueError, match="at least 1000 bit/s"):
         validate_uplink_bit_s(bad)
     assert validate_uplink_bit_s(None) is None
+
+
+def test_bulk_nobody_subscribes_to_is_not_counted_against_the_uplink():
+    class Unwatched(LocalBus):
+        def wait_for_subscribers(self, key, timeout_s):
+            return not key.endswith("/jpeg")  # nobody watches the camera
+
+    bus, clock = Unwatched(), SimClock(0.0)
+    shaped = ShapedTransport(bus, UplinkBudget(16_000), clock)  # 1,000 B/s, 2 s deep
+    for _ in range(10):
+        shaped.publish_bytes("iea/c/rsu/rsu1/camera/jpeg", b"j" * 1500)  # Zenoh sends these nowhere
+    assert shaped.budget.tokens_b == shaped.budget.depth_b and shaped.budget.skipped == 0
+    shaped.publish_bytes(rsu_key("c", "rsu1", "objects"), b"o" * 1500)
+    assert shaped.budget.tokens_b < shaped.budget.depth_b
