@@ -1,7 +1,7 @@
 """The product speaks of itself only: no build history in any tracked file.
 
 Code, docstrings, tests and documents say what the code does and why; how it came to be (issue numbers,
-work-session counts, dated diaries, what was tried and dropped, citations of design documents kept outside
+counts of working days, dated diaries, what was tried and dropped, citations of design documents kept outside
 the repository) belongs in the commit messages. This test greps every tracked text file (``git ls-files``)
 for such phrases and fails listing ``file:line: text`` for each.
 
