@@ -103,8 +103,7 @@ class RsuService:
         mast = corridor.rsu(rsu_id)
         corridor.to_latlon(mast.camera.x_m, mast.camera.y_m)
         if annotate_path or self.camera_feed.rate_hz > 0:
-            self._overlay = CalibrationOverlay(mast.camera, corridor.road, max_range_m=mast.max_range_m,
-                                               calibration=mast.calibration)
+            self._overlay = self._calibration_overlay()
         self._stop = False
         self.frames = 0
         self.stalls = 0
@@ -262,11 +261,15 @@ class RsuService:
             log.info("HazardAlert %s %s (lane %s, x %.1f y %.1f m, %.1f x %.1f m)", msg.hazard_id, h.state, h.lane,
                      h.x_m, h.y_m, h.length_m, h.width_m)
 
+    def _calibration_overlay(self) -> CalibrationOverlay:
+        """The corridor drawn through the camera: drift shows as misfit lines."""
+        rsu = self.corridor.rsu(self.rsu_id)
+        return CalibrationOverlay(rsu.camera, self.corridor.road, max_range_m=rsu.max_range_m,
+                                  calibration=rsu.calibration)
+
     def _annotated(self, frame: Frame, result: FrameResult) -> np.ndarray:
-        if self._overlay is None:  # the corridor drawn through the camera: drift shows as misfit lines
-            rsu = self.corridor.rsu(self.rsu_id)
-            self._overlay = CalibrationOverlay(rsu.camera, self.corridor.road, max_range_m=rsu.max_range_m,
-                                               calibration=rsu.calibration)
+        if self._overlay is None:
+            self._overlay = self._calibration_overlay()
         return annotate(self._overlay.apply(frame.image), result)
 
     def _write_annotated(self, frame: Frame, result: FrameResult) -> None:

@@ -22,6 +22,7 @@ import threading
 from typing import Any
 
 from protocol.clock import Clock
+from protocol.qos import BULK, OBJECTS, qos_for_key
 from protocol.transport import Subscription, Transport
 
 DEFAULT_SHARE = 0.5
@@ -89,8 +90,6 @@ class UplinkBudget:
 def is_bulk_key(key: str) -> bool:
     """Whether a message on ``key`` is bulk the RSU may leave out (object lists, camera frames, anything that
     Zenoh itself may drop under congestion: ``protocol.qos`` kinds ``OBJECTS`` and ``BULK``)."""
-    from protocol.qos import BULK, OBJECTS, qos_for_key
-
     return qos_for_key(key) in (OBJECTS, BULK)
 
 
