@@ -107,7 +107,8 @@ class ZenohTransport(Transport):
     (``protocol.qos``: priority, congestion control, express; ``qos`` overrides the table)."""
 
     def __init__(self, settings: ZenohSettings | None = None, *,
-                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16) -> None:
+                 qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16,
+                 bulk_connection: bool = False) -> None:
         super().__init__()
         import zenoh
 
@@ -116,7 +117,12 @@ class ZenohTransport(Transport):
         self.qos = qos
         self.bulk_queue = bulk_queue
         """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
+        self.bulk_connection = bulk_connection and bulk_queue > 0
+        """Bulk subscriptions on a second session, its own connection to the router: on a lossy link TCP
+        delivers a connection's bytes in order, so a command queued behind object lists in the same stream waits
+        for every retransmission of theirs; on its own connection it waits only for its own."""
         self.session = zenoh.open(self.settings.to_config())
+        self._bulk_session: Any = None
         self._publishers: dict[str, Any] = {}
         self._subs: list[Any] = []
         self._drains: list[threading.Thread] = []
@@ -167,7 +173,7 @@ class ZenohTransport(Transport):
 
     def _subscribe_bulk(self, key_expr: str, callback: BytesCallback) -> Subscription:
         """A ring channel (zenoh drops the oldest sample when full, without the GIL) drained by a worker."""
-        sub = self.session.declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
+        sub = self._bulk_session_or_main().declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
         # a decode in the worker holds the GIL; let the network thread's callbacks in every BULK_SWITCH_INTERVAL_S
         sys.setswitchinterval(min(sys.getswitchinterval(), BULK_SWITCH_INTERVAL_S))
 
@@ -191,6 +197,14 @@ class ZenohTransport(Transport):
         worker.start()
         self._drains = [t for t in self._drains if t.is_alive()] + [worker]  # those of closed subscriptions ended
         return self._declared(sub)
+
+    def _bulk_session_or_main(self) -> Any:
+        if not self.bulk_connection:
+            return self.session
+        with self._lock:
+            if self._bulk_session is None:
+                self._bulk_session = self._zenoh.open(self.settings.to_config())
+            return self._bulk_session
 
     def _declared(self, entity: Any) -> Subscription:
         """Keep ``entity`` (subscriber, token, queryable) until closed here or with the session."""
@@ -267,6 +281,8 @@ class ZenohTransport(Transport):
             except Exception:
                 pass
         self._publishers.clear()
+        if self._bulk_session is not None:
+            self._bulk_session.close()
         self.session.close()
         # a drain thread still waiting in recv() when the interpreter finalises would re-take the GIL there and
         # be ended by pthread_exit inside zenoh's Rust frames, which abort the process ("FATAL: exception not

@@ -109,7 +109,9 @@ def run_vehicle(options: VehicleOptions, duration_s: float | None = None, record
     in real time until SIGTERM / Ctrl-C or ``duration_s``, write the run to ``record_dir`` when given; 0."""
     corridor = vehicle_corridor(options)
     gate = command_gate(options, corridor)
-    transport = ZenohTransport(options.zenoh)
+    # the corridor's object lists on their own connection: a lossy radio's retransmissions of bulk never hold a
+    # command back (protocol.zenoh_transport)
+    transport = ZenohTransport(options.zenoh, bulk_connection=options.zenoh.mode == "client")
     try:
         service = _service(options, corridor, gate, transport, WallClock(), attach)
     except BaseException:

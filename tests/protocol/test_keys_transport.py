@@ -130,6 +130,29 @@ def test_zenoh_waits_for_a_subscriber_of_another_session_before_publishing(corri
     assert LocalBus().wait_for_subscribers(key, 0.0)  # in-process: nothing to wait for
 
 
+def test_zenoh_bulk_connection_carries_bulk_on_a_second_session(corridor_id):
+    """With ``bulk_connection`` the object lists arrive over a session of their own (its own connection to a
+    router); a command still arrives over the main one."""
+    objects_key = keys.rsu_key(corridor_id, "rsu1", "objects")
+    cmd_key = keys.vehicle_key(corridor_id, "av1", "cmd")
+    got: dict[str, list[bytes]] = {"objects": [], "cmd": []}
+    with ZenohTransport(bulk_connection=True) as car, ZenohTransport() as corridor:
+        car.subscribe_bytes(keys.rsu_topic_expr(corridor_id, "objects"), lambda k, p: got["objects"].append(p))
+        car.subscribe_bytes(cmd_key, lambda k, p: got["cmd"].append(p))
+        assert car._bulk_session is not None
+        assert str(car._bulk_session.info.zid()) != str(car.session.info.zid())
+        assert corridor.wait_for_subscribers(objects_key, 10.0) and corridor.wait_for_subscribers(cmd_key, 10.0)
+        corridor.publish_bytes(objects_key, b"objects")
+        corridor.publish_bytes(cmd_key, b"cmd")
+        deadline = time.monotonic() + 5.0
+        while not (got["objects"] and got["cmd"]) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert got == {"objects": [b"objects"], "cmd": [b"cmd"]}
+    with ZenohTransport() as plain:  # by default one session carries everything
+        plain.subscribe_bytes(keys.rsu_topic_expr(corridor_id, "objects"), lambda k, p: None)
+        assert plain._bulk_session is None
+
+
 # ------------------------------------------------------------------ transports
 def test_localbus_rejects_bad_input_and_isolates_handler_errors():
     bus = LocalBus()
