@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.corridor import Corridor
+from protocol.qos import ROUTER_NETWORK_QOS
 
 
 def service_publish_keys(corridor: Corridor) -> dict[str, list[str]]:
@@ -105,6 +106,7 @@ def router_config(corridor: Corridor, dictionary_file: str | None, listen: list[
         "mode": "router",
         "listen": {"endpoints": listen or ["tcp/0.0.0.0:7447"]},
         "scouting": {"multicast": {"enabled": False}},
+        "qos": {"network": ROUTER_NETWORK_QOS},
         "transport": {"auth": {"usrpwd": {"dictionary_file": dictionary_file}}} if dictionary_file else {},
         "access_control": {"enabled": True, "default_permission": "deny", "rules": rules,
                            "subjects": subjects, "policies": policies},

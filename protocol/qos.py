@@ -60,6 +60,18 @@ BY_TOPIC: dict[str, QosClass] = {
 }
 
 
+ROUTER_NETWORK_QOS: list[dict] = [{
+    "id": "forwarding_never_blocks", "messages": ["put"], "flows": ["egress"],
+    "key_exprs": [f"**/{topic}" for topic, q in BY_TOPIC.items() if q.congestion == "BLOCK"],
+    "overwrite": {"congestion_control": "drop"}}]
+"""A router's ``qos/network`` (every router config of the project carries it): the router never blocks on what
+it forwards of the ``BLOCK`` kinds. Such a message queued for a host whose link has stalled would hold up the
+task that reads its publisher's link, and with it everything that publisher sends to every other host (a DDM cut
+off for 2 s silenced the vehicle's state to the simulator for a second). Forwarded, they are dropped instead when
+the stalled host's queue is full, and the application repeats them: commands until acknowledged, an ack with
+every repeat, alerts refreshed at 2 Hz. A publisher's own session still blocks: nothing is dropped at its source."""
+
+
 def qos_for_key(key: str) -> QosClass:
     """The QoS of a concrete key by its last chunk (its topic); unknown topics travel as ``OBJECTS``."""
     return BY_TOPIC.get(key.rsplit("/", 1)[-1], OBJECTS)

@@ -15,6 +15,7 @@ import threading
 import time
 
 from protocol.logsetup import add_log_level_argument, configure_logging
+from protocol.qos import ROUTER_NETWORK_QOS
 
 log = logging.getLogger("iea.router")
 
@@ -39,15 +40,24 @@ def build_parser(prog: str = "iea-router") -> argparse.ArgumentParser:
 def open_router(listen: list[str], config_file: str | None = None, multicast: bool = True):
     import zenoh
 
+    return zenoh.open(router_config(listen, config_file, multicast))
+
+
+def router_config(listen: list[str], config_file: str | None = None, multicast: bool = True):
+    """The Zenoh config of ``iea router``: ``config_file`` (or defaults) with the listen endpoints, scouting and
+    the project's ``qos/network`` (``protocol.qos.ROUTER_NETWORK_QOS``) set."""
+    import zenoh
+
     conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps("router"))
     if listen:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
+    conf.insert_json5("qos/network", json.dumps(ROUTER_NETWORK_QOS))  # forwarding never blocks
     if not multicast:
         conf.insert_json5("scouting/multicast/enabled", "false")
     elif not config_file:
         conf.insert_json5("scouting/multicast/interface", json.dumps("lo"))
-    return zenoh.open(conf)
+    return conf
 
 
 def main(argv: list[str] | None = None, prog: str = "iea-router") -> int:
