@@ -83,6 +83,12 @@ def qos_lossless(key: str) -> QosClass:
     return QosClass(qos_for_key(key).priority, "BLOCK", True)
 
 
+def is_control_expr(key_expr: str) -> bool:
+    """True for the keys of a vehicle's control loop with the DDM: commands, acks and the 1 Hz beats (health).
+    Everything else (state, object lists, alerts, world, video) a vehicle can take over a second connection."""
+    return key_expr.rsplit("/", 1)[-1] in ("cmd", "ack", "health")
+
+
 def is_bulk_expr(key_expr: str) -> bool:
     """True when every key of ``key_expr`` is a bulk kind (its last chunk ``objects``, ``world``, ``video``):
     such subscriptions are delivered off the network thread through a bounded ring that keeps the newest

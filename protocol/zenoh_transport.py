@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from protocol.keys import key_matches
-from protocol.qos import QosClass, is_bulk_expr, qos_for_key
+from protocol.qos import QosClass, is_bulk_expr, is_control_expr, qos_for_key
 from protocol.transport import BytesCallback, PresenceCallback, QueryHandler, Subscription, Transport
 
 log = logging.getLogger("protocol.transport")
@@ -93,6 +93,9 @@ class ZenohSettings:
         return conf
 
 
+COMMAND_TOPICS = ("cmd", "ack")
+"""The topics a transport with ``command_connections`` > 1 sends and hears on every command session."""
+
 BULK_THREAD_NICE = 19
 """Niceness of the thread that decodes bulk samples (object lists, snapshots, video)."""
 BULK_SWITCH_INTERVAL_S = 0.0001
@@ -108,7 +111,7 @@ class ZenohTransport(Transport):
 
     def __init__(self, settings: ZenohSettings | None = None, *,
                  qos: Callable[[str], QosClass] = qos_for_key, bulk_queue: int = 16,
-                 bulk_connection: bool = False) -> None:
+                 stream_connection: bool = False, command_connections: int = 1) -> None:
         super().__init__()
         import zenoh
 
@@ -117,20 +120,54 @@ class ZenohTransport(Transport):
         self.qos = qos
         self.bulk_queue = bulk_queue
         """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
-        self.bulk_connection = bulk_connection and bulk_queue > 0
-        """Bulk subscriptions on a second session, its own connection to the router: on a lossy link TCP
-        delivers a connection's bytes in order, so a command queued behind object lists in the same stream waits
-        for every retransmission of theirs; on its own connection it waits only for its own."""
+        self.stream_connection = stream_connection
+        """Commands, acks and beats (``protocol.qos.is_control_expr``) alone on the first session; every other
+        publisher and subscription (state, object lists, alerts) on a second session, its own connection to the
+        router. On a lossy link TCP delivers a connection's bytes in order and at 50 % loss carries a few kB/s: a
+        command or an ack queued behind other kinds' bytes waits for every retransmission of theirs; on a
+        connection of its own it waits only for its own. Liveliness and queries stay on the first."""
+        if command_connections < 1:
+            raise ValueError(f"command_connections must be >= 1, got {command_connections}")
+        self.command_connections = command_connections
+        """Commands and acks (topics ``cmd``, ``ack``) published and subscribed on this many sessions, each its
+        own connection: a copy is late only when every connection is stalled at once (path diversity, as a radio
+        repeats a frame on several channels). Receivers see duplicates; commands and acks are idempotent."""
         self.session = zenoh.open(self.settings.to_config())
-        self._bulk_session: Any = None
+        self._stream_session: Any = None
+        self._command_sessions: list[Any] = []
         self._publishers: dict[str, Any] = {}
+        self._copy_publishers: dict[str, list[Any]] = {}
         self._subs: list[Any] = []
         self._drains: list[threading.Thread] = []
         self._lock = threading.Lock()
+        self._stream_lock = threading.Lock()
         self._closed = False
 
     def publish_bytes(self, key: str, payload: bytes) -> None:
         self._publisher(key).put(payload)
+        for pub in self._copies(key):
+            pub.put(payload)
+
+    def _copies(self, key: str) -> list[Any]:
+        """The publishers of ``key`` on the extra command sessions (none unless ``command_connections`` > 1)."""
+        if self.command_connections == 1 or key.rsplit("/", 1)[-1] not in COMMAND_TOPICS:
+            return []
+        copies = self._copy_publishers.get(key)
+        if copies is None:
+            q = self.qos(key)
+            with self._lock:
+                copies = [sess.declare_publisher(key, congestion_control=getattr(self._zenoh.CongestionControl,
+                                                                                 q.congestion),
+                                                 priority=getattr(self._zenoh.Priority, q.priority), express=q.express)
+                          for sess in self._extra_command_sessions()]
+                self._copy_publishers[key] = copies
+        return copies
+
+    def _extra_command_sessions(self) -> list[Any]:
+        with self._stream_lock:
+            while len(self._command_sessions) < self.command_connections - 1:
+                self._command_sessions.append(self._zenoh.open(self.settings.to_config()))
+            return list(self._command_sessions)
 
     def wait_for_subscribers(self, key: str, timeout_s: float) -> bool:
         """Poll the key's publisher's matching status (zenoh ``Publisher.matching_status``) until a remote
@@ -151,7 +188,8 @@ class ZenohTransport(Transport):
                 pub = self._publishers.get(key)
                 if pub is None:
                     q = self.qos(key)
-                    pub = self.session.declare_publisher(
+                    session = self._session_for(key)
+                    pub = session.declare_publisher(
                         key,
                         congestion_control=getattr(self._zenoh.CongestionControl, q.congestion),
                         priority=getattr(self._zenoh.Priority, q.priority),
@@ -169,11 +207,21 @@ class ZenohTransport(Transport):
 
         if self.bulk_queue > 0 and is_bulk_expr(key_expr):
             return self._subscribe_bulk(key_expr, callback)
-        return self._declared(self.session.declare_subscriber(key_expr, on_sample))
+        main = self._declared(self._session_for(key_expr).declare_subscriber(key_expr, on_sample))
+        if self.command_connections == 1 or key_expr.rsplit("/", 1)[-1] not in COMMAND_TOPICS:
+            return main
+        copies = [self._declared(sess.declare_subscriber(key_expr, on_sample))
+                  for sess in self._extra_command_sessions()]
+
+        def close() -> None:
+            for sub in (main, *copies):
+                sub.close()
+
+        return Subscription(close)
 
     def _subscribe_bulk(self, key_expr: str, callback: BytesCallback) -> Subscription:
         """A ring channel (zenoh drops the oldest sample when full, without the GIL) drained by a worker."""
-        sub = self._bulk_session_or_main().declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
+        sub = self._session_for(key_expr).declare_subscriber(key_expr, self._zenoh.handlers.RingChannel(self.bulk_queue))
         # a decode in the worker holds the GIL; let the network thread's callbacks in every BULK_SWITCH_INTERVAL_S
         sys.setswitchinterval(min(sys.getswitchinterval(), BULK_SWITCH_INTERVAL_S))
 
@@ -198,13 +246,13 @@ class ZenohTransport(Transport):
         self._drains = [t for t in self._drains if t.is_alive()] + [worker]  # those of closed subscriptions ended
         return self._declared(sub)
 
-    def _bulk_session_or_main(self) -> Any:
-        if not self.bulk_connection:
+    def _session_for(self, key_expr: str) -> Any:
+        if not self.stream_connection or is_control_expr(key_expr):
             return self.session
-        with self._lock:
-            if self._bulk_session is None:
-                self._bulk_session = self._zenoh.open(self.settings.to_config())
-            return self._bulk_session
+        with self._stream_lock:
+            if self._stream_session is None:
+                self._stream_session = self._zenoh.open(self.settings.to_config())
+            return self._stream_session
 
     def _declared(self, entity: Any) -> Subscription:
         """Keep ``entity`` (subscriber, token, queryable) until closed here or with the session."""
@@ -275,14 +323,16 @@ class ZenohTransport(Transport):
             except Exception:
                 pass
         self._subs.clear()
-        for pub in self._publishers.values():
+        for pub in [*self._publishers.values(), *(p for ps in self._copy_publishers.values() for p in ps)]:
             try:
                 pub.undeclare()
             except Exception:
                 pass
         self._publishers.clear()
-        if self._bulk_session is not None:
-            self._bulk_session.close()
+        self._copy_publishers.clear()
+        for extra in [self._stream_session, *self._command_sessions]:
+            if extra is not None:
+                extra.close()
         self.session.close()
         # a drain thread still waiting in recv() when the interpreter finalises would re-take the GIL there and
         # be ended by pthread_exit inside zenoh's Rust frames, which abort the process ("FATAL: exception not

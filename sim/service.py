@@ -29,8 +29,10 @@ from sim.world import World
 log = logging.getLogger("iea.sim")
 WORLD_RATE_HZ = 20.0
 HEALTH_PERIOD_S = 1.0
-AV_STATE_TIMEOUT_S = 1.0
-"""Without vehicle state for this long, the AV goes back to its script (from its last pose)."""
+AV_STATE_TIMEOUT_S = 3.0
+"""Without vehicle state for this long, the AV goes back to its script (from its last pose). Until then the
+world carries its last state forward (``World.set_av_pose``): a car whose radio is lossy still moves, and its
+states arrive in bursts seconds apart (the DDM carries them forward as long, ``ddm.world.EGO_PREDICTION_MAX_S``)."""
 
 
 @dataclass
@@ -60,6 +62,7 @@ class SimService:
         self.av_updates = 0
         self._pending_states: dict[str, VehicleState] = {}
         self._last_state: dict[str, float] = {}
+        self._last_msg: dict[str, VehicleState] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._step_ms = 0.0
@@ -112,11 +115,16 @@ class SimService:
             self.world.set_av_pose(st)
             self.av_updates += 1
             self._last_state[st.vehicle_id] = now
+            self._last_msg[st.vehicle_id] = st
         for vid, t_last in list(self._last_state.items()):
-            if now - t_last > AV_STATE_TIMEOUT_S and vid not in states:
+            if vid in states:
+                continue
+            if now - t_last > AV_STATE_TIMEOUT_S:
                 self.world.release_av(vid)
                 del self._last_state[vid]
                 log.info("no state from %s for %.1f s: AV scripted again", vid, now - t_last)
+            else:
+                self.world.set_av_pose(self._last_msg[vid], now - t_last)
         t0 = time.perf_counter()
         self.world.step(self.dt_s)
         self._step_ms = (time.perf_counter() - t0) * 1e3

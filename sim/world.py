@@ -79,9 +79,12 @@ class World:
         if close is not None:
             close()
 
-    def set_av_pose(self, state: VehicleState) -> None:
-        """Take the AV's pose from the vehicle process (``iea/{c}/vehicle/{veh}/state``)."""
-        self.traffic.set_external_pose(state.vehicle_id, state.pos_x_m, state.pos_y_m, state.heading_rad,
+    def set_av_pose(self, state: VehicleState, age_s: float = 0.0) -> None:
+        """Take the AV's pose from the vehicle process (``iea/{c}/vehicle/{veh}/state``), carried forward
+        ``age_s`` at its speed along its heading (dead reckoning: the car moves on between the states it sends)."""
+        step_m = state.speed_mps * max(0.0, age_s)
+        self.traffic.set_external_pose(state.vehicle_id, state.pos_x_m + step_m * math.cos(state.heading_rad),
+                                       state.pos_y_m + step_m * math.sin(state.heading_rad), state.heading_rad,
                                        state.speed_mps)
 
     def release_av(self, vehicle_id: str) -> None:

@@ -109,9 +109,11 @@ def run_vehicle(options: VehicleOptions, duration_s: float | None = None, record
     in real time until SIGTERM / Ctrl-C or ``duration_s``, write the run to ``record_dir`` when given; 0."""
     corridor = vehicle_corridor(options)
     gate = command_gate(options, corridor)
-    # the corridor's object lists on their own connection: a lossy radio's retransmissions of bulk never hold a
-    # command back (protocol.zenoh_transport)
-    transport = ZenohTransport(options.zenoh, bulk_connection=options.zenoh.mode == "client")
+    # commands, acks and beats alone on one connection, its state, the alerts and object lists on another, and
+    # commands and acks on a second connection as well: a lossy radio's retransmissions of the rest never hold a
+    # command or an ack back, and one stalled connection does not hold it either (protocol.zenoh_transport)
+    client = options.zenoh.mode == "client"
+    transport = ZenohTransport(options.zenoh, stream_connection=client, command_connections=2 if client else 1)
     try:
         service = _service(options, corridor, gate, transport, WallClock(), attach)
     except BaseException:

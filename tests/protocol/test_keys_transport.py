@@ -130,27 +130,31 @@ def test_zenoh_waits_for_a_subscriber_of_another_session_before_publishing(corri
     assert LocalBus().wait_for_subscribers(key, 0.0)  # in-process: nothing to wait for
 
 
-def test_zenoh_bulk_connection_carries_bulk_on_a_second_session(corridor_id):
-    """With ``bulk_connection`` the object lists arrive over a session of their own (its own connection to a
-    router); a command still arrives over the main one."""
+def test_zenoh_stream_connection_carries_streams_on_a_second_session(corridor_id):
+    """With ``stream_connection`` object lists arrive and the vehicle's state leaves over a session of their own
+    (its own connection to a router); commands keep the first."""
     objects_key = keys.rsu_key(corridor_id, "rsu1", "objects")
     cmd_key = keys.vehicle_key(corridor_id, "av1", "cmd")
-    got: dict[str, list[bytes]] = {"objects": [], "cmd": []}
-    with ZenohTransport(bulk_connection=True) as car, ZenohTransport() as corridor:
+    state_key = keys.vehicle_key(corridor_id, "av1", "state")
+    got: dict[str, list[bytes]] = {"objects": [], "cmd": [], "state": []}
+    with ZenohTransport(stream_connection=True) as car, ZenohTransport() as corridor:
         car.subscribe_bytes(keys.rsu_topic_expr(corridor_id, "objects"), lambda k, p: got["objects"].append(p))
         car.subscribe_bytes(cmd_key, lambda k, p: got["cmd"].append(p))
-        assert car._bulk_session is not None
-        assert str(car._bulk_session.info.zid()) != str(car.session.info.zid())
+        corridor.subscribe_bytes(state_key, lambda k, p: got["state"].append(p))
+        assert car._stream_session is not None
+        assert str(car._stream_session.info.zid()) != str(car.session.info.zid())
         assert corridor.wait_for_subscribers(objects_key, 10.0) and corridor.wait_for_subscribers(cmd_key, 10.0)
+        assert car.wait_for_subscribers(state_key, 10.0)
         corridor.publish_bytes(objects_key, b"objects")
         corridor.publish_bytes(cmd_key, b"cmd")
+        car.publish_bytes(state_key, b"state")
         deadline = time.monotonic() + 5.0
-        while not (got["objects"] and got["cmd"]) and time.monotonic() < deadline:
+        while not all(got.values()) and time.monotonic() < deadline:
             time.sleep(0.01)
-    assert got == {"objects": [b"objects"], "cmd": [b"cmd"]}
+    assert got == {"objects": [b"objects"], "cmd": [b"cmd"], "state": [b"state"]}
     with ZenohTransport() as plain:  # by default one session carries everything
         plain.subscribe_bytes(keys.rsu_topic_expr(corridor_id, "objects"), lambda k, p: None)
-        assert plain._bulk_session is None
+        assert plain._stream_session is None
 
 
 # ------------------------------------------------------------------ transports

@@ -320,3 +320,10 @@ def test_acl_router_admits_own_tokens_and_queryables_only(spawn, tmp_path, corri
     _wait_line(router, "router ready", 20.0)
     _acl_checks(lambda user: ZenohTransport(ZenohSettings(mode="client", connect=[ep],
                                                           config_file=str(acl / f"{user}.json5"))), corridor_id)
+
+
+def test_control_keys_are_commands_acks_and_beats():
+    assert qos.is_control_expr("iea/c/vehicle/av1/cmd") and qos.is_control_expr("iea/c/vehicle/av1/ack")
+    assert qos.is_control_expr("iea/c/ddm/health") and qos.is_control_expr("iea/c/vehicle/av1/health")
+    for other in ("iea/c/vehicle/av1/state", "iea/c/rsu/*/ev", "iea/c/rsu/*/objects", "iea/c/sim/world"):
+        assert not qos.is_control_expr(other)

@@ -159,24 +159,25 @@ def test_service_publishes_snapshots_at_20hz_and_follows_the_av_state():
     health: list[Health] = []
     bus.subscribe(sim_world_key("tc"), lambda _k, m: got.append(m))
     bus.subscribe(sim_health_key("tc"), lambda _k, m: health.append(m))
-    svc = SimService(load_scenario("rellis_ev_yield"), bus, clock, corridor_id="tc", duration_s=2.0)
+    svc = SimService(load_scenario("rellis_ev_yield"), bus, clock, corridor_id="tc", duration_s=4.0)
     st = VehicleState(src="veh", stamp=100.0, vehicle_id="av1", pos_x_m=60.0, pos_y_m=1.0, lat_deg=30.6,
                       lon_deg=-96.4, heading_rad=0.0, speed_mps=3.0, mode=VehicleMode.MANOEUVRE)
     bus.publish(vehicle_key("tc", "av1", "state"), st)
     bus.publish(vehicle_key("tc", "ghost", "state"), VehicleState(**{**st.model_dump(), "vehicle_id": "ghost"}))
     n = svc.run()
-    assert n == 40 and len(got) == 40
-    assert clock.now() == pytest.approx(102.0)
+    assert n == 80 and len(got) == 80
+    assert clock.now() == pytest.approx(104.0)
     dts = np.diff([m.sim_time_s for m in got])
     assert np.allclose(dts, 0.05)
-    assert [m.seq for m in got] == list(range(40))
-    av = next(a for a in got[0].actors if a.actor_id == "av1")
-    assert av.pos_x_m == pytest.approx(60.0)
-    # no state for more than 1 s: the AV is scripted again from that pose (lane keeping, moving on)
-    av_last = next(a for a in got[-1].actors if a.actor_id == "av1")
-    assert av_last.pos_x_m > 60.5 and av_last.pos_y_m == pytest.approx(1.0, abs=0.9)
-    assert av_last.pos_x_m > next(a for a in got[25].actors if a.actor_id == "av1").pos_x_m
-    assert 2 <= len(health) <= 3 and health[0].role.value == "sim" and health[-1].rejected.get("unknown_vehicle") == 1
+    assert [m.seq for m in got] == list(range(80))
+    av = [next(a for a in m.actors if a.actor_id == "av1") for m in got]
+    assert av[0].pos_x_m == pytest.approx(60.0)
+    # no state since: the last one carried forward at 3 m/s along its heading for up to 3 s ...
+    assert av[20].pos_x_m == pytest.approx(60.0 + 3.0 * 1.0, abs=0.05) and av[20].pos_y_m == pytest.approx(1.0)
+    assert av[50].pos_x_m == pytest.approx(60.0 + 3.0 * 2.5, abs=0.05)
+    # ... then the AV is scripted again from that pose (lane keeping, moving on)
+    assert av[-1].pos_x_m > av[62].pos_x_m > 68.0 and av[-1].pos_y_m == pytest.approx(1.0, abs=0.9)
+    assert 4 <= len(health) <= 5 and health[0].role.value == "sim" and health[-1].rejected.get("unknown_vehicle") == 1
 
 
 def test_service_holds_the_world_until_the_av_reports():
