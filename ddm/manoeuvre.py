@@ -99,8 +99,8 @@ class GapCheck(tuple):
 
 def _lane_neighbours(ego_s: float, ego_len: float, others: list[Track], frame: RoadFrame,
                      lane: int) -> list[tuple[Track, float, float, float]]:
-    """(track, station offset from the AV m, bumper-to-bumper clearance m, speed along the road m/s) of every
-    track whose width overlaps ``lane``."""
+    """(track, station offset from the AV m, bumper-to-bumper clearance m less the track's
+    ``staleness_margin_m``, speed along the road m/s) of every track whose width overlaps ``lane``."""
     if not others:
         return []
     s, d = frame.to_frenet(np.array([o.x_m for o in others]), np.array([o.y_m for o in others]))
@@ -113,8 +113,22 @@ def _lane_neighbours(ego_s: float, ego_len: float, others: list[Track], frame: R
         if d[k] + half_w <= lo or d[k] - half_w >= hi:
             continue  # not in that lane
         ds = float(s[k]) - ego_s
-        out.append((o, ds, abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0, float(vl[k])))
+        out.append((o, ds, abs(ds) - (ego_len + max(o.length_m, 3.0)) / 2.0 - staleness_margin_m(o.age_s),
+                    float(vl[k])))
     return out
+
+
+STALE_DECEL_MPS2 = 2.0
+"""How hard a vehicle may have braked or sped up since an RSU last saw it (a driver slowing for an EV)."""
+STALE_AGE_MAX_S = 3.0
+
+
+def staleness_margin_m(age_s: float) -> float:
+    """How far a track seen ``age_s`` ago may be from its constant-velocity prediction: 0.5 a t^2 with
+    ``STALE_DECEL_MPS2``, ``age_s`` clamped to ``STALE_AGE_MAX_S``. A picture 0.1 s old costs 1 cm; one that a
+    saturated backhaul delivers every 2.5 s, 6 m of every gap."""
+    t = min(max(age_s, 0.0), STALE_AGE_MAX_S)
+    return 0.5 * STALE_DECEL_MPS2 * t * t
 
 
 def _room_behind_m(clearance_m: float, leader_speed_mps: float, cfg: DdmConfig) -> float:

@@ -46,6 +46,8 @@ class Track:
     last_update_s: float
     pos_var_m2: float
     rsus: tuple[str, ...] = ()
+    age_s: float = 0.0
+    """Since an RSU last saw it, at the time it was read (its position is predicted over that time)."""
 
     @property
     def speed_mps(self) -> float:
@@ -137,6 +139,8 @@ class TrackTable:
     keys_of_slot: Mapping[int, frozenset[tuple[int, int]]]
     alert_of_slot: Mapping[int, str]
     vehicle_of_slot: Mapping[int, str]
+    read_s: float = math.nan
+    """The time the table was read at (each record's ``age_s`` counts from ``seen_s`` to it)."""
 
     def __len__(self) -> int:
         return len(self.gid)
@@ -151,9 +155,11 @@ class TrackTable:
             self.gid, self.x_m, self.y_m, self.vx_mps, self.vy_mps, self.length_m, self.width_m, self.type_code,
             self.is_ev, self.lane, self.hits, self.first_s, self.seen_s, self.pos_var_m2, self.slot)), strict=True)
         names, keys, alerts, vehicles = self.rsu_names, self.keys_of_slot, self.alert_of_slot, self.vehicle_of_slot
+        read = self.read_s
         return [
             Track(g, x, y, vx, vy, ln, wd, TYPES[ot], ev, alerts.get(s), None if lane < 0 else lane,
-                  vehicles.get(s), hits, first, seen, var, tuple(sorted({names[ri] for ri, _ in keys.get(s, ())})))
+                  vehicles.get(s), hits, first, seen, var, tuple(sorted({names[ri] for ri, _ in keys.get(s, ())})),
+                  max(0.0, read - seen) if read == read else 0.0)
             for g, x, y, vx, vy, ln, wd, ot, ev, lane, hits, first, seen, var, s in cols
         ]
 
@@ -322,7 +328,8 @@ class TrackStore:
         for a in cols:
             a.setflags(write=False)
         return TrackTable(*cols, tuple(self.rsu_names), MappingProxyType(dict(self._keys_of_slot)),
-                          MappingProxyType(dict(self.alert_of_slot)), MappingProxyType(dict(self.vehicle_of_slot)))
+                          MappingProxyType(dict(self.alert_of_slot)), MappingProxyType(dict(self.vehicle_of_slot)),
+                          float(now))
 
     def records(self, slots: np.ndarray, now: float, is_ev: np.ndarray) -> list[Track]:
         """Track records for ``slots`` predicted to ``now``."""

@@ -215,3 +215,16 @@ def test_an_ev_lost_from_view_is_predicted_before_resuming():
 def test_an_ev_at_the_avs_own_position_is_the_av_itself():
     ghost = trk(9, 100.5, 1, 13.4, ev=True)  # an RSU track that switched onto the AV
     assert decide(ego(), [ghost], [ghost], FRAME, CFG, Response()).action == "none"
+
+
+def test_gap_check_counts_a_stale_track_as_possibly_closer():
+    """A track last seen 2.5 s ago may have braked since: its gap is judged 0.5 a t^2 = 6.25 m shorter."""
+    from ddm.manoeuvre import staleness_margin_m
+
+    s_me = float(FRAME.to_frenet(100.0, lane_y(1))[0][0])
+    xs = np.arange(100.0, 200.0, 0.25)
+    first_ok = next(x for x in xs if gap_check(s_me, 13.4, 8.0, 4.9, 0, [trk(5, x, 0, 13.4)], FRAME, 4.0, CFG)[0])
+    stale = replace(trk(5, first_ok, 0, 13.4), age_s=2.5)
+    assert staleness_margin_m(2.5) == pytest.approx(6.25) and staleness_margin_m(0.1) < 0.011
+    assert not gap_check(s_me, 13.4, 8.0, 4.9, 0, [stale], FRAME, 4.0, CFG)[0]
+    assert gap_check(s_me, 13.4, 8.0, 4.9, 0, [replace(stale, x_m=first_ok + 6.5)], FRAME, 4.0, CFG)[0]
