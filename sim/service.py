@@ -111,10 +111,17 @@ class SimService:
         with self._lock:
             states, self._pending_states = self._pending_states, {}
         now = self.clock.now()
-        for st in states.values():
-            self.world.set_av_pose(st)
+        for st in list(states.values()):
+            last = self._last_msg.get(st.vehicle_id)
+            age_s = max(now - st.stamp, 0.0)
+            if (last is not None and st.stamp < last.stamp) or age_s > AV_STATE_TIMEOUT_S:
+                del states[st.vehicle_id]  # older than one applied already, or too old to carry forward
+                continue
+            # a state is where the car was at its stamp: one that a lossy link delivers seconds late (TCP hands
+            # a stall's states over in a burst) is carried forward to now, not taken as where the car is now
+            self.world.set_av_pose(st, age_s)
             self.av_updates += 1
-            self._last_state[st.vehicle_id] = now
+            self._last_state[st.vehicle_id] = now - age_s
             self._last_msg[st.vehicle_id] = st
         for vid, t_last in list(self._last_state.items()):
             if vid in states:

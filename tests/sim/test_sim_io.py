@@ -190,7 +190,9 @@ def test_service_holds_the_world_until_the_av_reports():
     assert not svc.wait_to_start(0.2)  # nobody drives av1: gives up after the timeout
     st = VehicleState(src="veh", stamp=1.0, vehicle_id="av1", pos_x_m=40.0, pos_y_m=5.5, lat_deg=30.6,
                       lon_deg=-96.4, heading_rad=0.0, speed_mps=13.4, mode=VehicleMode.DRIVING)
-    timer = threading.Timer(0.3, lambda: bus.publish(vehicle_key("tw", "av1", "state"), st))
+    # stamped when sent, by the clock the world runs on (a state is where the car was at its stamp)
+    timer = threading.Timer(0.3, lambda: bus.publish(vehicle_key("tw", "av1", "state"),
+                                                     st.model_copy(update={"stamp": svc.clock.now()})))
     got: list[WorldSnapshot] = []
     bus.subscribe(sim_world_key("tw"), lambda _k, m: got.append(m))
     t0 = time.monotonic()
@@ -365,3 +367,26 @@ def test_iea_up_lighting_reaches_the_simulator_and_its_snapshots(tmp_path):
     with pytest.raises(ValueError, match="lighting must be one of"):
         corridor_services(corridor, "tw", scenario="rellis_ev_yield", duration_s=5.0, run_dir=tmp_path,
                           detector="project", zenoh_args=[], lighting="noon")
+
+
+def test_a_late_state_is_carried_forward_from_its_stamp_and_an_older_one_ignored():
+    """States that a lossy link hands over seconds late place the AV where it is now, not where it was; one older
+    than the last applied or than ``AV_STATE_TIMEOUT_S`` is history."""
+    bus = LocalBus()
+    clock = SimClock(100.0)
+    got: list[WorldSnapshot] = []
+    bus.subscribe(sim_world_key("tl"), lambda _k, m: got.append(m))
+    svc = SimService(load_scenario("rellis_ev_yield"), bus, clock, corridor_id="tl", duration_s=0.1)
+    st = VehicleState(src="veh", stamp=99.0, vehicle_id="av1", pos_x_m=60.0, pos_y_m=1.0, lat_deg=30.6,
+                      lon_deg=-96.4, heading_rad=0.0, speed_mps=10.0, mode=VehicleMode.DRIVING)
+    bus.publish(vehicle_key("tl", "av1", "state"), st)  # 1 s old when the world steps
+    svc.step_once()
+    av = next(a for a in got[-1].actors if a.actor_id == "av1")
+    assert av.pos_x_m == pytest.approx(70.0, abs=0.01)
+    bus.publish(vehicle_key("tl", "av1", "state"), st.model_copy(update={"stamp": 98.5, "pos_x_m": 0.0}))
+    svc.step_once()  # older than the one applied: ignored, the AV carried on from the newer one
+    av = next(a for a in got[-1].actors if a.actor_id == "av1")
+    assert av.pos_x_m == pytest.approx(70.0, abs=0.01)
+    bus.publish(vehicle_key("tl", "av1", "state"), st.model_copy(update={"stamp": clock.now() - 3.5, "pos_x_m": 0.0}))
+    svc.step_once()  # too old to carry forward (more than AV_STATE_TIMEOUT_S): ignored as well
+    assert next(a for a in got[-1].actors if a.actor_id == "av1").pos_x_m == pytest.approx(70.0, abs=0.01)
