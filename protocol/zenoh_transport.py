@@ -121,9 +121,9 @@ class ZenohTransport(Transport):
         self.bulk_queue = bulk_queue
         """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
         self.stream_connection = stream_connection
-        """Commands, acks and beats (``protocol.qos.is_control_expr``) alone on the first session; every other
-        publisher and subscription (state, object lists, alerts) on a second session, its own connection to the
-        router. On a lossy link TCP delivers a connection's bytes in order and at 50 % loss carries a few kB/s: a
+        """Commands, acks and beats (``protocol.qos.is_control_expr``) alone on the main Zenoh session; every
+        other publisher and subscription (state, object lists, alerts) on another Zenoh session, its own
+        connection to the router. On a lossy link TCP delivers a connection's bytes in order and at 50 % loss carries a few kB/s: a
         command or an ack queued behind other kinds' bytes waits for every retransmission of theirs; on a
         connection of its own it waits only for its own. Liveliness and queries stay on the first."""
         if command_connections < 1:
