@@ -43,7 +43,11 @@ SCALES_PX = (None, 160, 100, 64, 44)
 JPEG_Q = 60
 TRAFFIC_CLIPS = ("ambdet_video_3.mp4", "elevated_dense_day_dhaka.mp4", "haarcascades_video1.avi",
                  "overpass_dusk_taillights.mp4")
-FRAME_STEP_S = 0.5
+EV_CLIPS = ("closeup_police_lightbar_cycle.mp4", "elevated_police_nyc_redbars.mp4",
+            "handheld_ambulance_florence_blue.mp4", "handheld_night_fire_engines.mp4",
+            "incar_night_ambulance_ahead_blue.mp4", "india_ambulance_police_escort.mp4",
+            "news_ambulances_australia_redblue.mp4", "street_ambulance_japan_red.mp4")
+FRAME_STEP_S = 0.25
 MIN_WIDTH_PX = 40.0
 ABOVE_FRACTION = 0.25
 BAND_FRACTION = (0.25 + 0.4) / 1.25
@@ -127,6 +131,50 @@ def traffic_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[
                     if band is not None and band.shape[0] >= 2 and band.shape[1] >= 2:
                         x.append(band_input(band))
                         y.append(0)
+                        val.append(sampled % VAL_EVERY == 0)
+                        src.append(clip)
+                sampled += 1
+            i += 1
+        cap.release()
+    return x, y, val, src
+
+
+def ev_clip_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[str]]:
+    """Inputs of the vehicles of the tuning EV clips (``EV_CLIPS``) every ``FRAME_STEP_S``: label 1 for a detector
+    box on a labelled EV whose lights are on (IoU >= 0.3), 0 for one on no EV (IoU < 0.05 with every EV); boxes of
+    EVs with their lights off, or half on one, are left out. A flashing lamp is dark in some of the lit frames: those
+    labels are noisy, the photos are not."""
+    from rsu.scan_labels import iou, load_labels
+
+    x, y, val, src = [], [], [], []
+    for clip in EV_CLIPS:
+        labels = load_labels(ROOT / "bench" / "labels" / f"{Path(clip).stem}.json")
+        cap = cv2.VideoCapture(str(REAL / "ev_videos" / clip))
+        fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+        step = max(1, round(FRAME_STEP_S * fps))
+        i = sampled = 0
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            if i % step == 0:
+                t = i / fps
+                evs = [a for a in (v.at(t) for v in labels.evs) if a is not None]
+                for box in det.detect(frame).boxes:
+                    if box[2] - box[0] < MIN_WIDTH_PX:
+                        continue
+                    overlaps = [(iou(box, a[0]), a[1]) for a in evs]
+                    best = max(overlaps, default=(0.0, False))
+                    if best[0] >= 0.3 and best[1]:
+                        label = 1
+                    elif best[0] < 0.05:
+                        label = 0
+                    else:
+                        continue
+                    band = _rsu_band(frame, box)
+                    if band is not None and band.shape[0] >= 2 and band.shape[1] >= 2:
+                        x.append(band_input(band))
+                        y.append(label)
                         val.append(sampled % VAL_EVERY == 0)
                         src.append(clip)
                 sampled += 1
@@ -223,6 +271,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "models" / "lamp_state.onnx")
     ap.add_argument("--epochs", type=int, default=40)
+    ap.add_argument("--no-ev-clips", dest="ev_clips", action="store_false",
+                    help="train on the photos and traffic clips only (not on the tuning EV clips' vehicles)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     import torch
@@ -231,8 +281,9 @@ def main(argv=None) -> int:
     det = _detector()
     px, py, pv, ps = photo_samples(det)
     tx, ty, tv, ts = traffic_samples(det)
-    x, y = np.stack(px + tx).astype(np.float32), np.array(py + ty)
-    val, src = np.array(pv + tv), np.array(ps + ts)
+    ex, ey, ev, es = ev_clip_samples(det) if args.ev_clips else ([], [], [], [])
+    x, y = np.stack(px + tx + ex).astype(np.float32), np.array(py + ty + ey)
+    val, src = np.array(pv + tv + ev), np.array(ps + ts + es)
     net = train(x[~val], y[~val], args.epochs)
     p = predict(net, x[val])
     t = operating_point(p, y[val])
@@ -241,6 +292,9 @@ def main(argv=None) -> int:
     for s in ("police_crops", "police_scenes"):
         m = src[val] == s
         out[f"val_{s}"] = metrics(p[m], y[val][m], t)
+    m = np.isin(src[val], EV_CLIPS)
+    if m.any():
+        out["val_ev_clips"] = metrics(p[m], y[val][m], t)
     for clip in TRAFFIC_CLIPS:
         m = src[val] == clip
         out[f"val_false_lit_{Path(clip).stem}"] = round(float((p[m] >= t).mean()), 3) if m.any() else None
