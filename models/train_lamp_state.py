@@ -273,6 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--epochs", type=int, default=40)
     ap.add_argument("--no-ev-clips", dest="ev_clips", action="store_false",
                     help="train on the photos and traffic clips only (not on the tuning EV clips' vehicles)")
+    ap.add_argument("--exclude", default="", help="comma-separated clip stems left out of training (a held-back fold)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     import torch
@@ -284,10 +285,12 @@ def main(argv=None) -> int:
     ex, ey, ev, es = ev_clip_samples(det) if args.ev_clips else ([], [], [], [])
     x, y = np.stack(px + tx + ex).astype(np.float32), np.array(py + ty + ey)
     val, src = np.array(pv + tv + ev), np.array(ps + ts + es)
-    net = train(x[~val], y[~val], args.epochs)
+    left_out = np.isin(np.array([Path(c).stem for c in src]), [c for c in args.exclude.split(",") if c])
+    net = train(x[~val & ~left_out], y[~val & ~left_out], args.epochs)
     p = predict(net, x[val])
     t = operating_point(p, y[val])
-    out = dict(threshold=t, train=int((~val).sum()), train_lit=int(y[~val].sum()), val=int(val.sum()),
+    out = dict(threshold=t, train=int((~val & ~left_out).sum()), train_lit=int(y[~val & ~left_out].sum()),
+               val=int(val.sum()),
                val_all=metrics(p, y[val], t))
     for s in ("police_crops", "police_scenes"):
         m = src[val] == s

@@ -162,9 +162,10 @@ class TrackEvClassifier:
             raise ValueError(f"occluded_hold_s must be >= 0, got {occluded_hold_s}")
         self.occluded_hold_s = float(occluded_hold_s)
         self.nearer_owner_share = 0.25
-        """A track whose crop lies this much (area share) within the crop of a *nearer* confirmed or flashing EV sees
-        that EV's lamps (a second box on the EV's roof, a car just behind it whose crop takes in its bar): its flashes
-        confirm only with a confident body (``_ev_ahead``)."""
+        """A track whose crop lies this much (area share) within the crop of a *nearer* confirmed EV sees that EV's
+        lamps (a second box on the EV's roof): its flashes confirm only with a confident body (``_ev_ahead``). Only a
+        confirmed one: a farther EV whose flashes light a nearer car's roof makes that car flash too, and two tracks
+        that each held the other's flashes back would never confirm."""
         """How long a lost flashing track, its moved-on box's bottom edge hidden behind a nearer vehicle, still owns
         the flashes around it (``_lost_evs``)."""
         self.config = config or EvidenceConfig()
@@ -378,9 +379,9 @@ class TrackEvClassifier:
         for j, other in enumerate(boxes):
             if j == k:
                 continue
-            if other[3] > box[3]:  # a nearer vehicle: its lamps when this crop lies largely within its crop
+            if other[3] > box[3]:  # a nearer confirmed EV: its lamps when this crop lies largely within its crop
                 info = self.tracks.get(ids[j])
-                if (info is not None and _may_own_flashes(info) and bounds[j] is not None
+                if (info is not None and info.evidence.state == EvState.CONFIRMED and bounds[j] is not None
                         and crop_share_within(crop, bounds[j]) >= self.nearer_owner_share):
                     return True
                 continue

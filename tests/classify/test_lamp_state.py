@@ -1,5 +1,5 @@
-"""The lamp-state model (rsu.classify.lamp_state) and what the recogniser does with it: a flash pattern confirms
-without a confident body only where the model sees lit lamps; a box inside a nearer flashing EV's crop sees that
+"""The lamp-state model (rsu.classify.lamp_state) and what the recogniser does with it: a light-bar flash pattern confirms
+without a confident body only where the model sees lit lamps; a box inside a nearer confirmed EV's crop sees that
 EV's lamps, not its own."""
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def test_a_light_bar_flash_pattern_confirms_alone_only_where_the_lamp_state_mode
     assert EvState.CONFIRMED not in _flashing(0.2)  # tail lights flickering at dusk, a blue fringe on a white van
 
 
-def test_a_box_inside_a_nearer_flashing_evs_crop_does_not_own_its_lamps():
+def test_a_box_inside_a_nearer_confirmed_evs_crop_does_not_own_its_lamps():
     clf = TrackEvClassifier()
     boxes = np.array([[100.0, 100.0, 220.0, 200.0],   # the EV, nearer the camera
                       [120.0, 80.0, 200.0, 110.0]])   # a second box on its roof, where the beacons are
@@ -72,7 +72,7 @@ def test_a_box_inside_a_nearer_flashing_evs_crop_does_not_own_its_lamps():
     ev.evidence.state = EvState.CONFIRMED
     clf.tracks = {1: ev}
     assert clf._ev_ahead(1, [1, 2], boxes, bounds)
-    ev.evidence.state = EvState.NONE  # no lamps of its own: the roof box's lamps are judged as its own
+    ev.evidence.state = EvState.CANDIDATE  # not confirmed: the roof box's lamps are judged as its own
     assert not clf._ev_ahead(1, [1, 2], boxes, bounds)
     apart = np.array([boxes[0], [300.0, 80.0, 380.0, 110.0]])
     ev.evidence.state = EvState.CONFIRMED
