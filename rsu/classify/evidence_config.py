@@ -86,9 +86,11 @@ class EvidenceConfig:
     (``ev_two_lanes_dense`` 21674, rsu1: missed with it), but so did the EV's red and blue glow on a car beside it
     at night (11-33 % of the band, clipped, alternating: ``night_ev`` 31372, a false alert)."""
     lit_min: float = 0.6
-    """A light-bar colour's strong flash pattern (``strong_bar_flashes``) confirms without a confident EV body only when
-    the lamp-state model (:mod:`rsu.classify.lamp_state`) sees lit lamps: the ``lit_quantile`` of its p(lit) over the
-    last ``flash_window_s`` at least this (no model: no test). Set on the tuning clips of ``bench/ev_real_bench.py``:
+    """A light-bar colour's flash pattern confirms (alone when strong, ``strong_bar_flashes``, else with a confident EV
+    body) only when the lamp-state model (:mod:`rsu.classify.lamp_state`) sees lit lamps: the ``lit_quantile`` of its
+    p(lit) over the last ``flash_window_s`` at least this (no model: no test). With a confident body too: a flicker of
+    white on a dark bar (p(lit) 0-0.3) and an ambulance body confirmed an EV whose lights were never on (ev_bench
+    ``ev_lights_never_on``, seed 99765). Set on the tuning clips of ``bench/ev_real_bench.py``:
     without it the tail lights of ``overpass_dusk_taillights`` and a blue object above a van's roof in
     ``street_ambulance_japan_red`` alert (1 traffic, 2 wrong-vehicle alerts); from 0.5 to 0.7 none does and no EV is
     lost or delayed, at 0.8 one alert comes 0.5 s later: 0.6, the middle. The lamp-bright flash (a lamp that saturates

@@ -339,7 +339,7 @@ class TrackEvidence:
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
             elif lamps_alone and lamp_cue is not None and self._strong_bar_flash(now_s) and (body or self.looks_lit(now_s)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (EvCue.FLASH, *body)
-            elif body and lamp_cue is not None:
+            elif body and lamp_cue is not None and (flash is not None or flash_cue is None or self.looks_lit(now_s)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (lamp_cue, *body)
             elif self.level > cfg.candidate_level or lamp_cue is not None:
                 self.state = EvState.CANDIDATE

@@ -77,3 +77,21 @@ def test_a_box_inside_a_nearer_confirmed_evs_crop_does_not_own_its_lamps():
     apart = np.array([boxes[0], [300.0, 80.0, 380.0, 110.0]])
     ev.evidence.state = EvState.CONFIRMED
     assert not clf._ev_ahead(1, [1, 2], apart, [clf.crop_bounds(b, 400, 300) for b in apart])
+
+
+def test_a_white_flicker_on_a_dark_bar_does_not_confirm_with_a_confident_body_where_the_model_sees_no_lit_lamp():
+    """An ambulance whose lights are off: a white glint flickering on its dark bar is a light-bar flash pattern, and
+    its body is confident; only the lamp-state model tells the bar is dark."""
+    def run(lit_p):
+        ev = TrackEvidence()
+        states = []
+        for i in range(int(4 * FPS)):
+            t = i / FPS
+            lit = t >= 1.0 and ((t - 1.0) * 2.0) % 1.0 < 0.5
+            bar = LampMeasurement(0.0, 0.0, white=0.02 if lit else 0.0)
+            states.append(ev.update(t, LampMeasurement(0.0, 0.0), None, 0.9, bar, lit_p=lit_p))
+        return states
+
+    assert EvState.CONFIRMED in run(None)
+    assert EvState.CONFIRMED in run(0.95)
+    assert EvState.CONFIRMED not in run(0.05)
