@@ -7,7 +7,7 @@
 Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent). Four measurements:
 
 - **clips**: every clip of ``ev_videos`` and ``traffic_videos`` through :func:`rsu.scan.scan_video`, as an
-  RSU runs it (COCO YOLOX-Nano, SORT, per-track lamp evidence with the EV-body classifier,
+  RSU runs it (COCO YOLOX-Nano, SORT, per-track lamp evidence with the lamp-state and EV-body models,
   ``EvAlertManager``), scored per vehicle against its label file ``bench/labels/<clip>.json``
   (:mod:`rsu.scan_labels`): ``ev_recall`` (labelled EVs lit and >= 40 px wide for >= 1 s that an alerted
   track overlapping them, IoU >= 0.3, found while lit), ``alert_delay_median_s`` / ``alert_delay_max_s`` (from
