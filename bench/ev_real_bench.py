@@ -1,13 +1,13 @@
 """EV recognition on real footage, scored per vehicle against labels, and on photos: the held-out split, cost per crop.
 
     python bench/ev_real_bench.py [--json] [--quick] [--clips-only] [--split tune|held_out|all] [--clips A,B]
-                                  [--scans DIR [--rescore]]
+                                  [--scans DIR [--rescore]] [--detections DIR]
                                   [--max-s S] [--ev-body default|none|PATH]
 
 Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent). Four measurements:
 
 - **clips**: every clip of ``ev_videos`` and ``traffic_videos`` through :func:`rsu.scan.scan_video`, as an
-  RSU runs it (COCO YOLOX-Nano, SORT, per-track lamp evidence with the EV-body classifier,
+  RSU runs it (COCO YOLOX-Nano, SORT, per-track lamp evidence with the lamp-state and EV-body models,
   ``EvAlertManager``), scored per vehicle against its label file ``bench/labels/<clip>.json``
   (:mod:`rsu.scan_labels`): ``ev_recall`` (labelled EVs lit and >= 40 px wide for >= 1 s that an alerted
   track overlapping them, IoU >= 0.3, found while lit), ``alert_delay_median_s`` / ``alert_delay_max_s`` (from
@@ -87,17 +87,19 @@ QUICK_CLIPS = ("elevated_day_ambulance_japan_red", "ambdet_video_4")
 
 
 def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: Path | None = None,
-                 rescore: bool = False) -> tuple[dict, object]:
+                 rescore: bool = False, detections: Path | None = None) -> tuple[dict, object]:
     """One clip's scan and, where it has a label file, its per-vehicle score (None without one). ``scans``: a
     folder where each clip's scan is kept (``<stem>.pkl``); ``rescore``: read it from there instead of scanning
-    (scores again against the labels as they are now)."""
+    (scores again against the labels as they are now); ``detections``: a folder where each clip's detector output is
+    kept and replayed (``rsu.scan.scan_video``'s ``detections_dir``): the recogniser runs again, the detector not."""
     kept = None if scans is None else scans / f"{path.stem}.pkl"
     if rescore:
         if kept is None or not kept.is_file():
             raise FileNotFoundError(f"--rescore: no kept scan {kept} (run once with --scans {scans} first)")
         r = pickle.loads(kept.read_bytes())
     else:
-        r = scan_video(path, detector_model=YOLOX, body=body, max_s=max_s, threads=1, record_boxes=True)
+        r = scan_video(path, detector_model=YOLOX, body=body, max_s=max_s, threads=1, record_boxes=True,
+                       detections_dir=detections)
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
             kept.write_bytes(pickle.dumps(r))
@@ -230,6 +232,9 @@ def main(argv=None) -> int:
                     help="score the tuning clips, the held-out clips, or all (default)")
     ap.add_argument("--clips", default=None, help="comma-separated clip names (stems) to scan instead")
     ap.add_argument("--scans", type=Path, default=None, help="keep each clip's scan in this folder (a cache)")
+    ap.add_argument("--detections", type=Path, default=None,
+                    help="keep each clip's detector output in this folder and replay it (keyed by video, model and "
+                         "detector code): recogniser changes re-run without the detector")
     ap.add_argument("--rescore", action="store_true",
                     help="score the scans kept in --scans against the labels as they are now, without scanning")
     ap.add_argument("--crop-calls", type=int, default=300, help="single-crop calls timed for crop_ms")
@@ -255,7 +260,8 @@ def main(argv=None) -> int:
     print(f"clips (YOLOX-Nano, EV body {args.ev_body}{'' if args.max_s is None else f', first {args.max_s} s'}):")
     try:
         for kind, path in paths:
-            out, score = clip_figures(path, kind, args.ev_body, args.max_s, args.scans, args.rescore)
+            out, score = clip_figures(path, kind, args.ev_body, args.max_s, args.scans, args.rescore,
+                                       args.detections)
             per_clip.append(out)
             if score is not None:
                 scores.append(score)

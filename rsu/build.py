@@ -24,6 +24,7 @@ from rsu.classify.body import load_body_classifier
 from rsu.classify.box_gate import SingleVehicleGate
 from rsu.classify.classifiers import load_classifier
 from rsu.classify.ev import TrackEvClassifier
+from rsu.classify.lamp_state import DEFAULT_LAMP_STATE_MODEL, LampStateModel
 from rsu.detect import PROJECT_MODEL, Detector, MotionDetector, vehicle_detector
 from rsu.detect_roi import ROI_MARGIN_M, detection_roi, zone_box_px
 from rsu.frames import FrameSource, ImageFolderSource, VideoSource
@@ -71,6 +72,9 @@ class PipelineConfig:
     """Per-track lamp evidence (:class:`~rsu.classify.ev.TrackEvClassifier`) and EV alerts."""
     ev_body: str | None = "default"
     """EV-body classifier: ``default`` (models/ev_body.onnx), ``none`` / None, or a path."""
+    ev_lamp_state: str | None = "default"
+    """Lamp-state model (p(warning lamps lit) of the lamp band): ``default`` (models/lamp_state.onnx), ``none`` /
+    None, or a path."""
     ev_crop_classifier: str = "none"
     """Per-crop EV probability fused into the evidence: ``none``, ``cnn``, ``hsv8-gb`` or PATH.onnx[:FEATURE]."""
     ev_box_gate: bool = False
@@ -134,6 +138,9 @@ def build_classifier(config: PipelineConfig, corridor: Corridor | None = None,
         if corridor is None or rsu_id is None:
             raise ValueError("ev_box_gate needs the corridor and the RSU id (its camera calibration)")
         kw["box_gate"] = SingleVehicleGate(corridor.rsu(rsu_id).camera, corridor.road)
+    if config.ev_lamp_state not in (None, "none"):
+        kw.setdefault("lamp_state", LampStateModel(DEFAULT_LAMP_STATE_MODEL if config.ev_lamp_state == "default"
+                                                   else config.ev_lamp_state))
     return TrackEvClassifier(body=load_body_classifier(config.ev_body, threads=threads), **kw)
 
 

@@ -22,7 +22,9 @@ activity or an EV state, and a label with id, state, cues and body score.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import pickle
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -32,6 +34,7 @@ import cv2
 import numpy as np
 
 from protocol.enums import AlertState, EvState, LightState
+from rsu import detect as _detect_module
 from rsu.build import PipelineConfig, build_pipeline
 from rsu.classify.ev import TrackEvClassifier
 from rsu.frames import VideoSource
@@ -159,17 +162,57 @@ class ImageOnlyLocalizer:
                                    ages_s=np.asarray(ages, float).reshape(n))
 
 
+def _file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def detections_key(video: Path, detector_model: str | Path, config: PipelineConfig, max_s: float | None) -> str:
+    """The key of a clip's kept detections: the video's and the detector model's bytes, the detector's code and
+    the settings that change its boxes; any change gives a new key, so a kept file never goes stale silently."""
+    h = hashlib.sha256()
+    model = Path(detector_model)
+    for part in (_file_digest(video), _file_digest(model) if model.is_file() else str(detector_model),
+                 _file_digest(Path(_detect_module.__file__)), repr((config.score_threshold, config.framework, max_s))):
+        h.update(part.encode())
+    return h.hexdigest()[:20]
+
+
+class DetectionsReplay:
+    """A detector that gives the detections kept for each frame in turn (``rows``), or, with ``inner``, runs that
+    detector and keeps what it gives (``rows`` then fills)."""
+
+    def __init__(self, inner=None, rows: list | None = None, name: str = "detector") -> None:
+        self.inner, self.rows, self.index = inner, [] if rows is None else rows, 0
+        self.name = getattr(inner, "name", name)
+
+    def detect(self, image: np.ndarray) -> Detections:
+        if self.inner is not None:
+            out = self.inner.detect(image)
+            self.rows.append(out)
+            return out
+        if self.index >= len(self.rows):
+            raise ValueError("kept detections end before the video: its key should have changed")
+        self.index += 1
+        return self.rows[self.index - 1]
+
+
 def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
                max_s: float | None = None, annotate_path: str | Path | None = None, threads: int | None = 1,
                progress: Callable[[float, int, int], None] | None = None,
-               record_boxes: bool = False) -> ScanResult:
+               record_boxes: bool = False, detections_dir: str | Path | None = None) -> ScanResult:
     """Run ``path`` (a video file) through the RSU's EV recognition; see the module docstring.
 
     ``detector_model``: an ONNX detector or ``motion``; ``body``: ``default`` (models/ev_body.onnx),
     ``none`` or a path; ``max_s``: stop after this much video; ``threads``: onnxruntime threads of the
     detector and the body classifier; ``progress(t_s, frames, ev_tracks)``: called every
     :data:`PROGRESS_EVERY_S` of video; ``record_boxes``: keep every track's box per frame
-    (:attr:`ScanResult.track_boxes`). Raises FileNotFoundError (video or model missing), ValueError
+    (:attr:`ScanResult.track_boxes`); ``detections_dir``: a folder where each clip's detector output is kept under
+    :func:`detections_key` and read back on the next scan (the detector is most of a scan's cost; the tracker and
+    the EV recognition always run). Raises FileNotFoundError (video or model missing), ValueError
     (no frame could be decoded, or the annotated video cannot be written) and rsu.frames.SourceError.
     """
     path = Path(path)
@@ -177,6 +220,11 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
         raise FileNotFoundError(f"video {str(path)!r} not found")
     config = PipelineConfig(detector=str(detector_model), threads=threads, max_age=3, ev_body=body)
     pipeline = build_pipeline(config, localizer=ImageOnlyLocalizer())
+    kept = None
+    if detections_dir is not None:
+        kept = Path(detections_dir) / f"{path.stem}-{detections_key(path, detector_model, config, max_s)}.pkl"
+        pipeline.detector = (DetectionsReplay(rows=pickle.loads(kept.read_bytes()), name=pipeline.detector.name)
+                             if kept.is_file() else DetectionsReplay(pipeline.detector))
     detector, clf = pipeline.detector, pipeline.classifier
     decisions: dict[int, TrackDecision] = {}
     first_seen: dict[int, float] = {}
@@ -219,6 +267,9 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
                 writer.release()
     if frames == 0:
         raise ValueError(f"{path}: no frame could be decoded (not a video, or an unsupported codec)")
+    if kept is not None and detector.inner is not None:
+        kept.parent.mkdir(parents=True, exist_ok=True)
+        kept.write_bytes(pickle.dumps(detector.rows))
     tracks = sorted(decisions.values(), key=lambda d: (d.confirmed_s is None, d.confirmed_s or d.first_seen_s))
     return ScanResult(str(path), frames, last_t, time.perf_counter() - t0, getattr(detector, "name", "detector"),
                       None if clf.body is None else str(body), tracks, alerts, track_boxes)

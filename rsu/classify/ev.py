@@ -110,6 +110,14 @@ def _may_own_flashes(info: TrackInfo) -> bool:
     return info.evidence.state == EvState.CONFIRMED or info.evidence.flashed_recently
 
 
+def crop_share_within(crop: tuple[int, int, int, int], other: tuple[int, int, int, int]) -> float:
+    """The share of the xyxy rectangle ``crop``'s area inside the rectangle ``other``."""
+    iw = min(crop[2], other[2]) - max(crop[0], other[0])
+    ih = min(crop[3], other[3]) - max(crop[1], other[1])
+    area = (crop[2] - crop[0]) * (crop[3] - crop[1])
+    return float(iw * ih) / area if iw > 0 and ih > 0 and area > 0 else 0.0
+
+
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -140,7 +148,8 @@ class TrackEvClassifier:
                  forget_after_s: float = 2.0, max_tracks: int = 512,
                  box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
                  handover_after_s: float = 0.5, handover_iou: float = 0.3, bright_above_fraction: float = 0.1,
-                 occluded_hold_s: float = 2.0) -> None:
+                 occluded_hold_s: float = 2.0, lamp_state: Callable[[np.ndarray, np.ndarray | None], float] | None = None
+                 ) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
         if handover_after_s < 0 or not 0.0 < handover_iou <= 1.0:
@@ -152,6 +161,11 @@ class TrackEvClassifier:
         if occluded_hold_s < 0:
             raise ValueError(f"occluded_hold_s must be >= 0, got {occluded_hold_s}")
         self.occluded_hold_s = float(occluded_hold_s)
+        self.nearer_owner_share = 0.25
+        """A track whose crop lies this much (area share) within the crop of a *nearer* confirmed EV sees that EV's
+        lamps (a second box on the EV's roof): its flashes confirm only with a confident body (``_ev_ahead``). Only a
+        confirmed one: a farther EV whose flashes light a nearer car's roof makes that car flash too, and two tracks
+        that each held the other's flashes back would never confirm."""
         """How long a lost flashing track, its moved-on box's bottom edge hidden behind a nearer vehicle, still owns
         the flashes around it (``_lost_evs``)."""
         self.config = config or EvidenceConfig()
@@ -160,6 +174,9 @@ class TrackEvClassifier:
             self.config = dataclasses.replace(self.config, body_threshold=float(confident))
         self.crop_score = crop_score
         self.body = body
+        self.lamp_state = lamp_state
+        """p(warning lamps lit) of a lamp band (``band, ignore_mask -> p``: :class:`rsu.classify.lamp_state.LampStateModel`),
+        measured on every measured track each frame; None: no lamp-state evidence (the colour tests alone)."""
         if above_fraction is None:  # as the body classifier was trained (its metadata), else 0.25
             above_fraction = float(getattr(body, "above_fraction", DEFAULT_ABOVE_FRACTION))
         if body_period_s < 0:
@@ -238,6 +255,18 @@ class TrackEvClassifier:
                 lamps = LampMeasurement(0.0, 0.0)
         return lamps, bar, score, crop
 
+    def _lit(self, crop: np.ndarray | None, bounds: tuple[int, int, int, int] | None,
+             exclusions: list[tuple[int, int, int, int]]) -> float | None:
+        """The lamp-state model's p(lit) of the crop's lamp band, other vehicles' pixels left out; None without a
+        model or a crop."""
+        if self.lamp_state is None or crop is None or bounds is None:
+            return None
+        rows = max(2, int(round(crop.shape[0] * self.band_fraction)))
+        ignore = rect_mask(bounds, exclusions)
+        if ignore is not None and ignore[:rows].all():
+            return None
+        return float(self.lamp_state(crop[:rows], None if ignore is None else ignore[:rows]))
+
     def _body_score(self, info: TrackInfo, now_s: float, lamps: LampMeasurement, bar: LampMeasurement,
                     crop: np.ndarray | None, bounds: tuple[int, int, int, int] | None,
                     others: Iterable[tuple[int, int, int, int]]) -> float | None:
@@ -288,7 +317,9 @@ class TrackEvClassifier:
                 state = ev.state
             else:
                 farther = farther_boxes(k, boxes)
-                lamps, bar, score, crop = self._measure(image, bounds[k], band_exclusions(k, boxes, bounds), farther)
+                exclusions = band_exclusions(k, boxes, bounds)
+                lamps, bar, score, crop = self._measure(image, bounds[k], exclusions, farther)
+                lit = self._lit(crop, bounds[k], exclusions)
                 if lost_evs is None:
                     lost_evs = self._lost_evs(now, ids, boxes)
                 ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs)
@@ -296,7 +327,7 @@ class TrackEvClassifier:
                 # vehicle too, and its body score says as much about it as about this one: none taken now
                 body = None if ahead else self._body_score(info, now, lamps, bar, crop,
                                                            bounds[k], above_top(farther, box))
-                state = ev.update(now, lamps, score, body, bar, lamps_alone=not ahead)
+                state = ev.update(now, lamps, score, body, bar, lamps_alone=not ahead, lit_p=lit)
             scores.append(ev.ev_score)
             lights.append(ev.light_state)
             states.append(state)
@@ -346,8 +377,15 @@ class TrackEvClassifier:
         if crop is None:
             return False
         for j, other in enumerate(boxes):
-            if j == k or other[3] > box[3] or not (other[0] < crop[2] and other[2] > crop[0]
-                                                   and other[1] < crop[3] and other[3] > crop[1]):
+            if j == k:
+                continue
+            if other[3] > box[3]:  # a nearer confirmed EV: its lamps when this crop lies largely within its crop
+                info = self.tracks.get(ids[j])
+                if (info is not None and info.evidence.state == EvState.CONFIRMED and bounds[j] is not None
+                        and crop_share_within(crop, bounds[j]) >= self.nearer_owner_share):
+                    return True
+                continue
+            if not (other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3] and other[3] > crop[1]):
                 continue
             info = self.tracks.get(ids[j])
             if info is not None and _may_own_flashes(info):

@@ -85,6 +85,19 @@ class EvidenceConfig:
     (measured on tuning seeds) a close EV driving away, its bar filling 13-40 % of the band, confirmed
     (``ev_two_lanes_dense`` 21674, rsu1: missed with it), but so did the EV's red and blue glow on a car beside it
     at night (11-33 % of the band, clipped, alternating: ``night_ev`` 31372, a false alert)."""
+    lit_min: float = 0.6
+    """A light-bar colour's flash pattern confirms (alone when strong, ``strong_bar_flashes``, else with a confident EV
+    body) only when the lamp-state model (:mod:`rsu.classify.lamp_state`) sees lit lamps: the ``lit_quantile`` of its
+    p(lit) over the last ``flash_window_s`` at least this (no model: no test). With a confident body too: a flicker of
+    white on a dark bar (p(lit) 0-0.3) and an ambulance body confirmed an EV whose lights were never on (ev_bench
+    ``ev_lights_never_on``, seed 99765). Set on the tuning clips of ``bench/ev_real_bench.py``:
+    without it the tail lights of ``overpass_dusk_taillights`` and a blue object above a van's roof in
+    ``street_ambulance_japan_red`` alert (1 traffic, 2 wrong-vehicle alerts); from 0.5 to 0.7 none does and no EV is
+    lost or delayed, at 0.8 one alert comes 0.5 s later: 0.6, the middle. The lamp-bright flash (a lamp that saturates
+    the sensor) is not held to it: the model was
+    trained on real photos and video, and the simulator's lamps, which it never saw, are lamp-bright."""
+    lit_quantile: float = 0.75
+    """... the quantile: a flashing lamp is dark about half the time, so the median would miss it."""
     body_threshold: float = 0.5
     """EV-body score that counts as confident (the body model's ``confident_threshold``, from its metadata)."""
     body_min_scores: int = 3

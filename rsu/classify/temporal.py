@@ -84,7 +84,7 @@ COLOURS = {"bright": ("red", "blue"), "bar": ("red", "blue", "white")}
 """The lamp colours each measurement kind keeps (white only in the light-bar definition)."""
 CORE = ("bar_red_core", "bar_blue_core", "bar_red_peak", "bar_blue_peak")
 """The light-bar signals that also keep the lamp-core share and the brightest channel of their pixels."""
-SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre")) + CORE
+SIGNALS = tuple(f"{k}_{c}{x}" for k, cs in COLOURS.items() for c in cs for x in ("", "_centre")) + CORE + ("lit_p",)
 """Per-frame signals a track keeps: lamp-bright red and blue, light-bar red, blue and white, and their centre shares."""
 
 
@@ -253,6 +253,19 @@ class TrackEvidence:
                 return True
         return False
 
+    def lit_level(self, now_s: float) -> float | None:
+        """The ``lit_quantile`` of the lamp-state model's p(lit) over the last ``flash_window_s`` (None without any: no
+        model, or no measured frame)."""
+        x = self._recent("lit_p", now_s, self.config.flash_window_s)
+        x = x[~np.isnan(x)]
+        return float(np.quantile(x, self.config.lit_quantile)) if len(x) else None
+
+    def looks_lit(self, now_s: float) -> bool:
+        """Does the lamp-state model see lit warning lamps in the band (``lit_level`` >= ``lit_min``)? True without a
+        model: the colour tests then decide alone."""
+        level = self.lit_level(now_s)
+        return level is None or level >= self.config.lit_min
+
     @property
     def body_score(self) -> float | None:
         """Mean of the last ``body_window`` EV-body scores; None before any."""
@@ -277,11 +290,12 @@ class TrackEvidence:
 
     def update(self, now_s: float, lamps: LampMeasurement, crop_score: float | None = None,
                body_score: float | None = None, bar: LampMeasurement | None = None,
-               lamps_alone: bool = True) -> EvState:
+               lamps_alone: bool = True, lit_p: float | None = None) -> EvState:
         """One frame: ``lamps`` measured with the lamp-bright colours, ``bar`` with the light-bar colours
         (:mod:`rsu.classify.lamps`; default: ``lamps``), the optional crop score and EV-body score.
         ``lamps_alone`` False: the lamps may be another vehicle's (a confirmed EV just ahead, whose flashes light
-        this vehicle's roof), so a flash pattern does not confirm alone now; with a confident body it does."""
+        this vehicle's roof), so a flash pattern does not confirm alone now; with a confident body it does. ``lit_p``: the
+        lamp-state model's p(lit) of the band (:mod:`rsu.classify.lamp_state`), None without one."""
         cfg = self.config
         bar = lamps if bar is None else bar
         self._t.append(now_s)
@@ -292,6 +306,7 @@ class TrackEvidence:
         for c in ("red", "blue"):
             self._signals[f"bar_{c}_core"].append(getattr(bar, f"{c}_core"))
             self._signals[f"bar_{c}_peak"].append(getattr(bar, f"{c}_peak"))
+        self._signals["lit_p"].append(math.nan if lit_p is None else float(lit_p))
         while len(self._t) > cfg.max_history or (self._t and self._t[0] < now_s - 2 * cfg.flash_window_s):
             self._t.popleft()
             for d in self._signals.values():
@@ -322,9 +337,9 @@ class TrackEvidence:
         if self.state in (EvState.NONE, EvState.CLEARED, EvState.CANDIDATE):
             if self.level >= cfg.confirm_level and flash is not None and (lamps_alone or body):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
-            elif lamps_alone and lamp_cue is not None and self._strong_bar_flash(now_s):
+            elif lamps_alone and lamp_cue is not None and self._strong_bar_flash(now_s) and (body or self.looks_lit(now_s)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (EvCue.FLASH, *body)
-            elif body and lamp_cue is not None:
+            elif body and lamp_cue is not None and (flash is not None or flash_cue is None or self.looks_lit(now_s)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (lamp_cue, *body)
             elif self.level > cfg.candidate_level or lamp_cue is not None:
                 self.state = EvState.CANDIDATE
