@@ -14,6 +14,7 @@ import numpy as np
 
 from protocol.enums import ActorKind, Lighting
 from protocol.messages import Actor, LightBar, VehicleState, WorldSnapshot
+from protocol.ranges import MAX_POSITION_M
 from sim.scenario import Scenario
 from sim.traffic import IdmTraffic, TrafficModel, build_population
 from sim.vehicles import SimVehicle
@@ -83,9 +84,10 @@ class World:
         """Take the AV's pose from the vehicle process (``iea/{c}/vehicle/{veh}/state``), carried forward
         ``age_s`` at its speed along its heading (dead reckoning: the car moves on between the states it sends)."""
         step_m = state.speed_mps * max(0.0, age_s)
-        self.traffic.set_external_pose(state.vehicle_id, state.pos_x_m + step_m * math.cos(state.heading_rad),
-                                       state.pos_y_m + step_m * math.sin(state.heading_rad), state.heading_rad,
-                                       state.speed_mps)
+        lim = MAX_POSITION_M  # a state at the edge of the corridor frame stays in it
+        x = min(max(state.pos_x_m + step_m * math.cos(state.heading_rad), -lim), lim)
+        y = min(max(state.pos_y_m + step_m * math.sin(state.heading_rad), -lim), lim)
+        self.traffic.set_external_pose(state.vehicle_id, x, y, state.heading_rad, state.speed_mps)
 
     def release_av(self, vehicle_id: str) -> None:
         """No vehicle state for a while: the AV is scripted again (lane keeping) from its last pose."""
