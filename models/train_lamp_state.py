@@ -113,30 +113,42 @@ def photo_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[st
     return x, y, val, src
 
 
-def traffic_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[str]]:
-    """Inputs (label 0) of the vehicles of the tuning traffic clips, validation flags and clip names."""
-    x, y, val, src = [], [], [], []
-    for clip in TRAFFIC_CLIPS:
-        cap = cv2.VideoCapture(str(REAL / "traffic_videos" / clip))
-        fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-        step = max(1, round(FRAME_STEP_S * fps))
-        i = sampled = 0
+def _sampled_frames(path: Path):
+    """(time s, frame, index among the sampled frames) of the video every ``FRAME_STEP_S``."""
+    cap = cv2.VideoCapture(str(path))
+    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+    step = max(1, round(FRAME_STEP_S * fps))
+    i = sampled = 0
+    try:
         while True:
             ok, frame = cap.read()
             if not ok:
-                break
+                return
             if i % step == 0:
-                for box in det.detect(frame).boxes:
-                    band = _rsu_band(frame, box) if box[2] - box[0] >= MIN_WIDTH_PX else None
-                    if band is not None and band.shape[0] >= 2 and band.shape[1] >= 2:
-                        x.append(band_input(band))
-                        y.append(0)
-                        val.append(sampled % VAL_EVERY == 0)
-                        src.append(clip)
+                yield i / fps, frame, sampled
                 sampled += 1
             i += 1
+    finally:
         cap.release()
-    return x, y, val, src
+
+
+def _add_band(out: tuple[list, list, list, list], frame: np.ndarray, box, label: int, sampled: int, clip: str) -> None:
+    """The box's lamp band as one input of ``out`` (inputs, labels, validation flags, clip names), if it has one."""
+    band = _rsu_band(frame, box)
+    if band is not None and band.shape[0] >= 2 and band.shape[1] >= 2:
+        for column, value in zip(out, (band_input(band), label, sampled % VAL_EVERY == 0, clip), strict=True):
+            column.append(value)
+
+
+def traffic_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[str]]:
+    """Inputs (label 0) of the vehicles of the tuning traffic clips, validation flags and clip names."""
+    out: tuple[list, list, list, list] = ([], [], [], [])
+    for clip in TRAFFIC_CLIPS:
+        for _t, frame, sampled in _sampled_frames(REAL / "traffic_videos" / clip):
+            for box in det.detect(frame).boxes:
+                if box[2] - box[0] >= MIN_WIDTH_PX:
+                    _add_band(out, frame, box, 0, sampled, clip)
+    return out
 
 
 def ev_clip_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[str]]:
@@ -146,41 +158,24 @@ def ev_clip_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[
     labels are noisy, the photos are not."""
     from rsu.scan_labels import iou, load_labels
 
-    x, y, val, src = [], [], [], []
+    out: tuple[list, list, list, list] = ([], [], [], [])
     for clip in EV_CLIPS:
         labels = load_labels(ROOT / "bench" / "labels" / f"{Path(clip).stem}.json")
-        cap = cv2.VideoCapture(str(REAL / "ev_videos" / clip))
-        fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-        step = max(1, round(FRAME_STEP_S * fps))
-        i = sampled = 0
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                break
-            if i % step == 0:
-                t = i / fps
-                evs = [a for a in (v.at(t) for v in labels.evs) if a is not None]
-                for box in det.detect(frame).boxes:
-                    if box[2] - box[0] < MIN_WIDTH_PX:
-                        continue
-                    overlaps = [(iou(box, a[0]), a[1]) for a in evs]
-                    best = max(overlaps, default=(0.0, False))
-                    if best[0] >= 0.3 and best[1]:
-                        label = 1
-                    elif best[0] < 0.05:
-                        label = 0
-                    else:
-                        continue
-                    band = _rsu_band(frame, box)
-                    if band is not None and band.shape[0] >= 2 and band.shape[1] >= 2:
-                        x.append(band_input(band))
-                        y.append(label)
-                        val.append(sampled % VAL_EVERY == 0)
-                        src.append(clip)
-                sampled += 1
-            i += 1
-        cap.release()
-    return x, y, val, src
+        for t, frame, sampled in _sampled_frames(REAL / "ev_videos" / clip):
+            evs = [a for a in (v.at(t) for v in labels.evs) if a is not None]
+            for box in det.detect(frame).boxes:
+                if box[2] - box[0] < MIN_WIDTH_PX:
+                    continue
+                overlaps = [(iou(box, a[0]), a[1]) for a in evs]
+                best = max(overlaps, default=(0.0, False))
+                if best[0] >= 0.3 and best[1]:
+                    label = 1
+                elif best[0] < 0.05:
+                    label = 0
+                else:
+                    continue
+                _add_band(out, frame, box, label, sampled, clip)
+    return out
 
 
 def make_net():
