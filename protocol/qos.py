@@ -83,10 +83,20 @@ def qos_lossless(key: str) -> QosClass:
     return QosClass(qos_for_key(key).priority, "BLOCK", True)
 
 
+COMMAND_TOPICS = ("cmd", "ack")
+"""A command and its acknowledgement: idempotent, so they may travel as several copies."""
+CONTROL_TOPICS = (*COMMAND_TOPICS, "health")
+"""A vehicle's control loop with the DDM: commands, acks and the 1 Hz beats."""
+
+
+def is_command_expr(key_expr: str) -> bool:
+    return key_expr.rsplit("/", 1)[-1] in COMMAND_TOPICS
+
+
 def is_control_expr(key_expr: str) -> bool:
-    """True for the keys of a vehicle's control loop with the DDM: commands, acks and the 1 Hz beats (health).
-    Everything else (state, object lists, alerts, world, video) a vehicle can take over a second connection."""
-    return key_expr.rsplit("/", 1)[-1] in ("cmd", "ack", "health")
+    """True for the keys of ``CONTROL_TOPICS``. Everything else (state, object lists, alerts, world, video) a
+    vehicle can take over a connection of its own."""
+    return key_expr.rsplit("/", 1)[-1] in CONTROL_TOPICS
 
 
 def is_bulk_expr(key_expr: str) -> bool:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from protocol.keys import key_matches
-from protocol.qos import QosClass, is_bulk_expr, is_control_expr, qos_for_key
+from protocol.qos import QosClass, is_bulk_expr, is_command_expr, is_control_expr, qos_for_key
 from protocol.transport import BytesCallback, PresenceCallback, QueryHandler, Subscription, Transport
 
 log = logging.getLogger("protocol.transport")
@@ -93,9 +93,6 @@ class ZenohSettings:
         return conf
 
 
-COMMAND_TOPICS = ("cmd", "ack")
-"""The topics a transport with ``command_connections`` > 1 sends and hears on every command session."""
-
 BULK_THREAD_NICE = 19
 """Niceness of the thread that decodes bulk samples (object lists, snapshots, video)."""
 BULK_SWITCH_INTERVAL_S = 0.0001
@@ -121,15 +118,15 @@ class ZenohTransport(Transport):
         self.bulk_queue = bulk_queue
         """Samples kept per bulk subscription (0: deliver bulk on the network thread, as other kinds)."""
         self.stream_connection = stream_connection
-        """Commands, acks and beats (``protocol.qos.is_control_expr``) alone on the main Zenoh session; every
+        """Commands, acks and beats (``protocol.qos.CONTROL_TOPICS``) alone on the main Zenoh session; every
         other publisher and subscription (state, object lists, alerts) on another Zenoh session, its own
-        connection to the router. On a lossy link TCP delivers a connection's bytes in order and at 50 % loss carries a few kB/s: a
-        command or an ack queued behind other kinds' bytes waits for every retransmission of theirs; on a
-        connection of its own it waits only for its own. Liveliness and queries stay on the first."""
+        connection to the router. On a lossy link TCP delivers a connection's bytes in order and at 50 % loss
+        carries a few kB/s: a command or an ack queued behind other kinds' bytes waits for every retransmission of
+        theirs; on a connection of its own it waits only for its own. Liveliness and queries stay on the main."""
         if command_connections < 1:
             raise ValueError(f"command_connections must be >= 1, got {command_connections}")
         self.command_connections = command_connections
-        """Commands and acks (topics ``cmd``, ``ack``) published and subscribed on this many sessions, each its
+        """Commands and acks (``protocol.qos.COMMAND_TOPICS``) published and subscribed on this many sessions, each its
         own connection: a copy is late only when every connection is stalled at once (path diversity, as a radio
         repeats a frame on several channels). Receivers see duplicates; commands and acks are idempotent."""
         self.session = zenoh.open(self.settings.to_config())
@@ -140,7 +137,8 @@ class ZenohTransport(Transport):
         self._subs: list[Any] = []
         self._drains: list[threading.Thread] = []
         self._lock = threading.Lock()
-        self._stream_lock = threading.Lock()
+        self._sessions_lock = threading.Lock()
+        """Guards opening the stream and extra command sessions (``_lock`` may be held while one is opened)."""
         self._closed = False
 
     def publish_bytes(self, key: str, payload: bytes) -> None:
@@ -150,21 +148,20 @@ class ZenohTransport(Transport):
 
     def _copies(self, key: str) -> list[Any]:
         """The publishers of ``key`` on the extra command sessions (none unless ``command_connections`` > 1)."""
-        if self.command_connections == 1 or key.rsplit("/", 1)[-1] not in COMMAND_TOPICS:
+        if not self._extra_sessions_carry(key):
             return []
         copies = self._copy_publishers.get(key)
         if copies is None:
-            q = self.qos(key)
             with self._lock:
-                copies = [sess.declare_publisher(key, congestion_control=getattr(self._zenoh.CongestionControl,
-                                                                                 q.congestion),
-                                                 priority=getattr(self._zenoh.Priority, q.priority), express=q.express)
-                          for sess in self._extra_command_sessions()]
+                copies = [self._declare_publisher(sess, key) for sess in self._extra_command_sessions()]
                 self._copy_publishers[key] = copies
         return copies
 
+    def _extra_sessions_carry(self, key_expr: str) -> bool:
+        return self.command_connections > 1 and is_command_expr(key_expr)
+
     def _extra_command_sessions(self) -> list[Any]:
-        with self._stream_lock:
+        with self._sessions_lock:
             while len(self._command_sessions) < self.command_connections - 1:
                 self._command_sessions.append(self._zenoh.open(self.settings.to_config()))
             return list(self._command_sessions)
@@ -187,16 +184,15 @@ class ZenohTransport(Transport):
             with self._lock:
                 pub = self._publishers.get(key)
                 if pub is None:
-                    q = self.qos(key)
-                    session = self._session_for(key)
-                    pub = session.declare_publisher(
-                        key,
-                        congestion_control=getattr(self._zenoh.CongestionControl, q.congestion),
-                        priority=getattr(self._zenoh.Priority, q.priority),
-                        express=q.express,
-                    )
+                    pub = self._declare_publisher(self._session_for(key), key)
                     self._publishers[key] = pub
         return pub
+
+    def _declare_publisher(self, session: Any, key: str) -> Any:
+        """A publisher of ``key`` on ``session`` with its kind's QoS."""
+        q = self.qos(key)
+        return session.declare_publisher(key, congestion_control=getattr(self._zenoh.CongestionControl, q.congestion),
+                                         priority=getattr(self._zenoh.Priority, q.priority), express=q.express)
 
     def subscribe_bytes(self, key_expr: str, callback: BytesCallback) -> Subscription:
         def on_sample(sample: Any) -> None:
@@ -208,7 +204,7 @@ class ZenohTransport(Transport):
         if self.bulk_queue > 0 and is_bulk_expr(key_expr):
             return self._subscribe_bulk(key_expr, callback)
         main = self._declared(self._session_for(key_expr).declare_subscriber(key_expr, on_sample))
-        if self.command_connections == 1 or key_expr.rsplit("/", 1)[-1] not in COMMAND_TOPICS:
+        if not self._extra_sessions_carry(key_expr):
             return main
         copies = [self._declared(sess.declare_subscriber(key_expr, on_sample))
                   for sess in self._extra_command_sessions()]
@@ -249,7 +245,7 @@ class ZenohTransport(Transport):
     def _session_for(self, key_expr: str) -> Any:
         if not self.stream_connection or is_control_expr(key_expr):
             return self.session
-        with self._stream_lock:
+        with self._sessions_lock:
             if self._stream_session is None:
                 self._stream_session = self._zenoh.open(self.settings.to_config())
             return self._stream_session

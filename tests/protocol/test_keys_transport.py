@@ -157,6 +157,32 @@ def test_zenoh_stream_connection_carries_streams_on_a_second_session(corridor_id
         assert plain._stream_session is None
 
 
+def test_zenoh_command_connections_carry_commands_and_acks_twice(corridor_id):
+    """With ``command_connections=2`` a command arrives and an ack leaves over two sessions (two copies each);
+    state and health travel once."""
+    cmd_key, ack_key = keys.vehicle_key(corridor_id, "av1", "cmd"), keys.vehicle_key(corridor_id, "av1", "ack")
+    health_key = keys.vehicle_key(corridor_id, "av1", "health")
+    got: dict[str, list[bytes]] = {"cmd": [], "ack": [], "health": []}
+    with ZenohTransport(stream_connection=True, command_connections=2) as car, ZenohTransport() as ddm:
+        car.subscribe_bytes(cmd_key, lambda k, p: got["cmd"].append(p))
+        ddm.subscribe_bytes(ack_key, lambda k, p: got["ack"].append(p))
+        ddm.subscribe_bytes(health_key, lambda k, p: got["health"].append(p))
+        assert len(car._command_sessions) == 1
+        assert ddm.wait_for_subscribers(cmd_key, 10.0) and car.wait_for_subscribers(ack_key, 10.0)
+        assert car.wait_for_subscribers(health_key, 10.0)
+        time.sleep(0.5)  # the second session's subscription reaches the publisher too
+        ddm.publish_bytes(cmd_key, b"cmd")
+        car.publish_bytes(ack_key, b"ack")
+        car.publish_bytes(health_key, b"beat")
+        deadline = time.monotonic() + 5.0
+        while (len(got["cmd"]) < 2 or len(got["ack"]) < 2) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)
+    assert got == {"cmd": [b"cmd"] * 2, "ack": [b"ack"] * 2, "health": [b"beat"]}
+    with pytest.raises(ValueError, match="command_connections"):
+        ZenohTransport(command_connections=0)
+
+
 # ------------------------------------------------------------------ transports
 def test_localbus_rejects_bad_input_and_isolates_handler_errors():
     bus = LocalBus()
