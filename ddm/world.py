@@ -27,7 +27,6 @@ downstream writes back into the world).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,9 +94,7 @@ def ego_position_now(state: VehicleState, now: float) -> tuple[float, float]:
     clean link the age is a control period and this moves the car by a metre; on a lossy TCP link states arrive
     in bursts seconds late, and a path planned from where the car was would start behind it (the car rejects a
     path that starts more than ``vehicle.commands.CommandLimits.max_start_behind_m`` behind it)."""
-    age = min(max(now - state.stamp, 0.0), EGO_PREDICTION_MAX_S)
-    step = state.speed_mps * age
-    return (state.pos_x_m + step * math.cos(state.heading_rad), state.pos_y_m + step * math.sin(state.heading_rad))
+    return state.position_after(min(now - state.stamp, EGO_PREDICTION_MAX_S))
 
 
 class CorridorWorld:

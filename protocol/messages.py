@@ -19,6 +19,7 @@ publish, nor accept, a message that is out of range, and arithmetic on a decoded
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, ClassVar, Literal
 
 from pydantic import (
@@ -316,6 +317,12 @@ class VehicleState(Envelope):
     yaw_rate_error_rps: YawRateRps = 0.0
     localisation_age_s: DurationS = 0.0
     detail: Text = ""
+
+    def position_after(self, age_s: float) -> tuple[float, float]:
+        """Where the car is ``age_s`` after this state's stamp, carried forward at its speed along its heading
+        (constant velocity; a negative age counts as none)."""
+        step_m = self.speed_mps * max(0.0, age_s)
+        return (self.pos_x_m + step_m * math.cos(self.heading_rad), self.pos_y_m + step_m * math.sin(self.heading_rad))
 
 
 # ---------------------------------------------------------------- every service

@@ -61,8 +61,8 @@ class SimService:
         self.published = 0
         self.av_updates = 0
         self._pending_states: dict[str, VehicleState] = {}
-        self._last_state: dict[str, float] = {}
-        self._last_msg: dict[str, VehicleState] = {}
+        self._last_state: dict[str, tuple[VehicleState, float]] = {}
+        """Per AV, the newest state applied and the time it describes (its stamp, at most when it was applied)."""
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._step_ms = 0.0
@@ -112,18 +112,17 @@ class SimService:
             states, self._pending_states = self._pending_states, {}
         now = self.clock.now()
         for st in list(states.values()):
-            last = self._last_msg.get(st.vehicle_id)
+            last = self._last_state.get(st.vehicle_id)
             age_s = max(now - st.stamp, 0.0)
-            if (last is not None and st.stamp < last.stamp) or age_s > AV_STATE_TIMEOUT_S:
+            if (last is not None and st.stamp < last[0].stamp) or age_s > AV_STATE_TIMEOUT_S:
                 del states[st.vehicle_id]  # older than one applied already, or too old to carry forward
                 continue
             # a state is where the car was at its stamp: one that a lossy link delivers seconds late (TCP hands
             # a stall's states over in a burst) is carried forward to now, not taken as where the car is now
             self.world.set_av_pose(st, age_s)
             self.av_updates += 1
-            self._last_state[st.vehicle_id] = now - age_s
-            self._last_msg[st.vehicle_id] = st
-        for vid, t_last in list(self._last_state.items()):
+            self._last_state[st.vehicle_id] = (st, now - age_s)
+        for vid, (last, t_last) in list(self._last_state.items()):
             if vid in states:
                 continue
             if now - t_last > AV_STATE_TIMEOUT_S:
@@ -131,7 +130,7 @@ class SimService:
                 del self._last_state[vid]
                 log.info("no state from %s for %.1f s: AV scripted again", vid, now - t_last)
             else:
-                self.world.set_av_pose(self._last_msg[vid], now - t_last)
+                self.world.set_av_pose(last, now - t_last)
         t0 = time.perf_counter()
         self.world.step(self.dt_s)
         self._step_ms = (time.perf_counter() - t0) * 1e3

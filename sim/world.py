@@ -83,10 +83,8 @@ class World:
     def set_av_pose(self, state: VehicleState, age_s: float = 0.0) -> None:
         """Take the AV's pose from the vehicle process (``iea/{c}/vehicle/{veh}/state``), carried forward
         ``age_s`` at its speed along its heading (dead reckoning: the car moves on between the states it sends)."""
-        step_m = state.speed_mps * max(0.0, age_s)
         lim = MAX_POSITION_M  # a state at the edge of the corridor frame stays in it
-        x = min(max(state.pos_x_m + step_m * math.cos(state.heading_rad), -lim), lim)
-        y = min(max(state.pos_y_m + step_m * math.sin(state.heading_rad), -lim), lim)
+        x, y = (min(max(c, -lim), lim) for c in state.position_after(age_s))
         self.traffic.set_external_pose(state.vehicle_id, x, y, state.heading_rad, state.speed_mps)
 
     def release_av(self, vehicle_id: str) -> None:
