@@ -161,13 +161,13 @@ class TrackEvClassifier:
         if occluded_hold_s < 0:
             raise ValueError(f"occluded_hold_s must be >= 0, got {occluded_hold_s}")
         self.occluded_hold_s = float(occluded_hold_s)
+        """How long a lost flashing track, its moved-on box's bottom edge hidden behind a nearer vehicle, still owns
+        the flashes around it (``_lost_evs``)."""
         self.nearer_owner_share = 0.25
         """A track whose crop lies this much (area share) within the crop of a *nearer* confirmed EV sees that EV's
         lamps (a second box on the EV's roof): its flashes confirm only with a confident body (``_ev_ahead``). Only a
         confirmed one: a farther EV whose flashes light a nearer car's roof makes that car flash too, and two tracks
         that each held the other's flashes back would never confirm."""
-        """How long a lost flashing track, its moved-on box's bottom edge hidden behind a nearer vehicle, still owns
-        the flashes around it (``_lost_evs``)."""
         self.config = config or EvidenceConfig()
         confident = getattr(body, "confident_threshold", None)
         if confident is not None and config is None:  # the body model's own confident operating point
