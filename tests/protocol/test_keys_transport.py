@@ -170,7 +170,7 @@ def test_zenoh_command_connections_carry_commands_and_acks_twice(corridor_id):
         assert len(car._command_sessions) == 1
         assert ddm.wait_for_subscribers(cmd_key, 10.0) and car.wait_for_subscribers(ack_key, 10.0)
         assert car.wait_for_subscribers(health_key, 10.0)
-        time.sleep(0.5)  # the second session's subscription reaches the publisher too
+        time.sleep(0.5)  # the extra command connection's subscription reaches the publisher too
         ddm.publish_bytes(cmd_key, b"cmd")
         car.publish_bytes(ack_key, b"ack")
         car.publish_bytes(health_key, b"beat")
