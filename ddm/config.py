@@ -164,6 +164,10 @@ class DdmConfig:
     """... and at most this many sends (about 12 s), then the command expires explicitly."""
     command_validity_s: float = 60.0
     """valid_until = issued_at + this (an EV pass takes ~10-30 s)."""
+    in_flight_replan_behind_m: float = 7.5
+    """An unacknowledged command whose path starts this far behind where the car is now is planned again from
+    the car's position (half the 15 m behind the car that ``vehicle.commands.CommandLimits`` still accepts):
+    on a stalled link the retransmissions would arrive with a path the car has driven past."""
 
     # ------------------------------------------------------------------ service (ddm/service.py)
     rate_hz: float = 20.0

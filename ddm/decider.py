@@ -19,7 +19,9 @@ manager makes commands, and nothing here reads or writes the world.
 
 - Rollback: a command rejected or expired restores that memory and delays the vehicle's next decision by
   ``replan_backoff_s``; a vehicle heard again after ``relink_gap_s`` of silence with its command still
-  unacknowledged has it rolled back and planned again at once (``check_relink``).
+  unacknowledged has it rolled back and planned again at once (``check_relink``); so has a command still
+  unacknowledged when the car has driven ``in_flight_replan_behind_m`` past its path's start
+  (``_refresh_in_flight``: a stalled link, the vehicle's state still arriving).
 - Adoption after a restart (``adopt``): a vehicle executing a command this DDM never issued (a
   predecessor did) is treated as yielding; no RESUME before the RSUs' alerts have had
   ``ev_alert_timeout_s`` to reach the new DDM.
@@ -111,6 +113,7 @@ class Decider:
         """One decision step over ``picture`` (``near``: an EV alert's position, to decide only for the vehicles
         within ``ev_lookbehind_m`` + ``ALERT_RADIUS_MARGIN_M`` of it). Returns how many EV commands were issued."""
         now = picture.now
+        self._refresh_in_flight(picture)
         egos = self._due(picture, unreachable, near)
         ev = {i.vehicle_id: i for i in ev_intents(picture, egos, self._responses(egos, "ev"), self.context)}
         # EV over hazard: the hazard policy decides for the vehicles the EV policy leaves alone
@@ -219,6 +222,30 @@ class Decider:
         entry = self._rollback.pop(command_id, None)
         if entry is not None:
             mem.restore(*entry)
+
+    def _refresh_in_flight(self, picture: Picture) -> None:
+        """Plan again, from where the car is now, each unacknowledged command whose path starts more than
+        ``in_flight_replan_behind_m`` behind the car (along its heading): the retransmissions of a command
+        stalled on its link carry a path the car is driving past, and the car rejects one that starts 15 m
+        behind it. The next decision supersedes the command with a path from the car's position."""
+        limit_m = self.config.in_flight_replan_behind_m
+        for ego in picture.vehicles:
+            cur = self.commands.state_of(ego.vehicle_id)
+            if cur is None or cur.state != CommandState.SENT or cur.command is None or not cur.command.waypoints:
+                continue
+            x0, y0 = cur.command.waypoints[0]
+            behind_m = (ego.x_m - x0) * math.cos(ego.heading_rad) + (ego.y_m - y0) * math.sin(ego.heading_rad)
+            if behind_m <= limit_m:
+                continue
+            mem = self.memory.setdefault(ego.vehicle_id, VehicleMemory())
+            if cur.command_id not in self._rollback:
+                continue  # already planned again; the next command supersedes it
+            self._roll_back(cur.command_id, mem)
+            mem.replan_after_s = -1.0
+            self.counters["cmd_replanned_in_flight"] += 1
+            log.warning("%s: command %s unacknowledged after %.1f s, its path now starts %.1f m behind the car: "
+                        "planning it again from the car's position", ego.vehicle_id, cur.command_id,
+                        picture.now - cur.first_sent_s, behind_m)
 
     def check_relink(self, vid: str, silent_s: float) -> None:
         """The vehicle is heard again after ``silent_s`` without state (a radio outage) while its command is

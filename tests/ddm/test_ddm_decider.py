@@ -90,6 +90,36 @@ def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_agai
     assert decider.commands.state_of("av1").command_id != cmd.command_id
 
 
+def test_an_unacknowledged_command_the_car_drives_past_is_planned_again_from_where_the_car_is():
+    cfg = DdmConfig()
+    decider, world = setup(cfg)
+    world.ingest_vehicle_state(av_state(T0), T0)
+    world.ingest_ev_alert(ev_alert(T0), T0)
+    decider.decide(world.snapshot(T0))
+    (first,) = decider.due_commands(T0)
+    # the link stalls: no ack, the car's state still arrives; 0.3 s on it is 4 m past the path's start
+    t = T0 + 0.3
+    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 0.3), t)
+    world.ingest_ev_alert(ev_alert(t, x=-30.0 + 20.0 * 0.3), t)
+    assert decider.decide(world.snapshot(t)) == 0 and decider.counters["cmd_replanned_in_flight"] == 0
+    # 1 s on it is 13.4 m past it (the car rejects 15 m): planned again from the car's position, superseding
+    t = T0 + 1.0
+    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4), t)
+    world.ingest_ev_alert(ev_alert(t, x=-30.0 + 20.0), t)
+    assert decider.decide(world.snapshot(t)) == 1 and decider.counters["cmd_replanned_in_flight"] == 1
+    (second,) = decider.due_commands(t)
+    assert second.supersedes == first.command_id and second.manoeuvre == Manoeuvre.PULL_OVER
+    assert abs(second.waypoints[0][0] - (20.0 + 13.4)) < 1.0 and first.waypoints[0][0] < 21.0
+    assert decider.commands.state_of("av1").state == CommandState.SENT
+    # acknowledged: never planned again, however far the car drives along it
+    decider.on_ack(CommandAck(src="av1", stamp=t, command_id=second.command_id, vehicle_id="av1",
+                              status=AckStatus.ACCEPTED), t)
+    t = T0 + 3.0
+    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 3.0), t)
+    decider.decide(world.snapshot(t))
+    assert decider.counters["cmd_replanned_in_flight"] == 1
+
+
 def test_an_ev_command_supersedes_a_hazard_command_and_resets_the_hazard_memory():
     decider, world = setup()
     world.ingest_vehicle_state(av_state(T0), T0)
