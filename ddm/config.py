@@ -164,10 +164,12 @@ class DdmConfig:
     """... and at most this many sends (about 12 s), then the command expires explicitly."""
     command_validity_s: float = 60.0
     """valid_until = issued_at + this (an EV pass takes ~10-30 s)."""
-    in_flight_replan_behind_m: float = 7.5
-    """An unacknowledged command whose path starts this far behind where the car is now is planned again from
-    the car's position (half the 15 m behind the car that ``vehicle.commands.CommandLimits`` still accepts):
-    on a stalled link the retransmissions would arrive with a path the car has driven past."""
+    in_flight_replan_behind_m: float = 10.0
+    """An unacknowledged command the car does not report executing, whose path starts this far behind where the
+    car is now, is planned again from the car's position (two thirds of the 15 m behind the car that
+    ``vehicle.commands.CommandLimits`` still accepts): on a stalled link the retransmissions would arrive with a
+    path the car has driven past. A command merely late (its ack on the way) is left alone: the car's state names
+    it as active first, or the car is still short of this distance."""
 
     # ------------------------------------------------------------------ service (ddm/service.py)
     rate_hz: float = 20.0

@@ -224,15 +224,18 @@ class Decider:
             mem.restore(*entry)
 
     def _refresh_in_flight(self, picture: Picture) -> None:
-        """Plan again, from where the car is now, each unacknowledged command whose path starts more than
-        ``in_flight_replan_behind_m`` behind the car (along its heading): the retransmissions of a command
-        stalled on its link carry a path the car is driving past, and the car rejects one that starts 15 m
-        behind it. The next decision supersedes the command with a path from the car's position."""
+        """Plan again, from where the car is now, each unacknowledged command that the car's state does not name
+        as active and whose path starts more than ``in_flight_replan_behind_m`` behind the car (along its
+        heading): the retransmissions of a command stalled on its link carry a path the car is driving past, and
+        the car rejects one that starts 15 m behind it. The next decision supersedes the command with a path
+        from the car's position."""
         limit_m = self.config.in_flight_replan_behind_m
         for ego in picture.vehicles:
             cur = self.commands.state_of(ego.vehicle_id)
             if cur is None or cur.state != CommandState.SENT or cur.command is None or not cur.command.waypoints:
                 continue
+            if ego.active_command_id == cur.command_id:
+                continue  # the car executes it: only its ack is late
             x0, y0 = cur.command.waypoints[0]
             behind_m = (ego.x_m - x0) * math.cos(ego.heading_rad) + (ego.y_m - y0) * math.sin(ego.heading_rad)
             if behind_m <= limit_m:

@@ -97,10 +97,15 @@ def test_an_unacknowledged_command_the_car_drives_past_is_planned_again_from_whe
     world.ingest_ev_alert(ev_alert(T0), T0)
     decider.decide(world.snapshot(T0))
     (first,) = decider.due_commands(T0)
-    # the link stalls: no ack, the car's state still arrives; 0.3 s on it is 4 m past the path's start
-    t = T0 + 0.3
-    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 0.3), t)
-    world.ingest_ev_alert(ev_alert(t, x=-30.0 + 20.0 * 0.3), t)
+    # the link stalls: no ack, the car's state still arrives; 0.6 s on it is 8 m past the path's start
+    t = T0 + 0.6
+    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 0.6), t)
+    world.ingest_ev_alert(ev_alert(t, x=-30.0 + 20.0 * 0.6), t)
+    assert decider.decide(world.snapshot(t)) == 0 and decider.counters["cmd_replanned_in_flight"] == 0
+    # a car that reports executing the command has it: only the ack is late, nothing planned again
+    t = T0 + 0.9
+    world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 0.9, mode=VehicleMode.MANOEUVRE,
+                                        active=first.command_id), t)
     assert decider.decide(world.snapshot(t)) == 0 and decider.counters["cmd_replanned_in_flight"] == 0
     # 1 s on it is 13.4 m past it (the car rejects 15 m): planned again from the car's position, superseding
     t = T0 + 1.0
