@@ -18,6 +18,7 @@ from typing import Any
 
 from deploy.netlab.lab import Lab, lab_guard, run_dir_for
 from deploy.netlab.schedule import (
+    ANSWER_WAIT_S,
     EVERY_RSU,
     FIRST_ALERT_RSU,
     SEGMENT_OF_FIRST_ALERT,
@@ -26,6 +27,7 @@ from deploy.netlab.schedule import (
     command_delay_s,
     judge_row,
     message_figures,
+    unanswered_commands,
 )
 from deploy.process_faults import Recorder
 from deploy.procs import wait_until
@@ -49,6 +51,12 @@ class NetRecorder(Recorder):
         elif msg.KIND == "ObjectList":
             with self.lock:
                 self.objects.setdefault(msg.rsu_id, []).append(time.time())
+
+
+def _unanswered(rec: NetRecorder) -> int:
+    with rec.lock:
+        return unanswered_commands({c: t for c, (t, *_) in rec.commands.items()}, {cid for _, cid, _ in rec.acks},
+                                   rec.cmd_expired)
 
 
 def _trigger(at: str, lab: Lab, rec: NetRecorder) -> bool:
@@ -156,6 +164,7 @@ def _run(fault: NetFault, run_root: Path | None, duration_s: float, timeout_s: f
         wait_until(lambda: lab.monitor.events.get("ev_passed_av") is not None,
               pass_wait_s + fault.min_duration_s, 0.2)
         time.sleep(1.5)
+        wait_until(lambda: _unanswered(rec) == 0, ANSWER_WAIT_S, 0.2)
         if bytes0:
             span = time.time() - t_fault
             details["uplink_bytes_per_s"] = {v: round((lab.net.link_bytes(v)[0] - bytes0[v][0]) / span)

@@ -43,6 +43,10 @@ FIRST_ALERT_RSU = "first_alert_rsu"
 EVERY_RSU = "every_rsu"
 SEGMENT_OF_FIRST_ALERT = "segment_of_first_alert"
 IN_FLIGHT_S = 1.0
+ANSWER_WAIT_S = 6.0
+"""After the EV has passed, a row is observed until every command has its answer (acked, itself or by a later
+one, or expired at the DDM), for at most this long: over a lossy link a command still retransmitted is not lost
+yet, and one issued as the EV passes may take seconds to be acked."""
 STALE_LIMIT_S = 2.0
 RECONNECT_LIMIT_S = 10.0
 
@@ -146,6 +150,13 @@ def _pct(xs: Sequence[float], q: float) -> float | None:
         return None
     s = sorted(xs)
     return s[min(len(s) - 1, round(q / 100 * (len(s) - 1)))]
+
+
+def unanswered_commands(issued_at_s: dict[str, float], acked: set[str] | frozenset[str], expired: int) -> int:
+    """How many commands still wait for their answer: neither acked (itself, or a later one) nor among the
+    ``expired`` the DDM gave up on (``issued_at_s``: command id -> when it was issued)."""
+    issued = sorted(issued_at_s, key=issued_at_s.__getitem__)
+    return max(0, len(lost_commands(issued, acked)) - expired)
 
 
 def message_figures(seen: RowSeen) -> dict[str, Any]:

@@ -13,6 +13,7 @@ from deploy.netlab.schedule import (
     judge_row,
     message_figures,
     summary,
+    unanswered_commands,
 )
 from scenario.fault_judges import FaultOutcome
 
@@ -65,6 +66,14 @@ def test_message_figures_count_lost_expired_and_in_flight_commands():
     assert f["ack_latency_p50_s"] == pytest.approx(0.4)
     assert message_figures(_seen(commands={"c1": (101.0, "pull_over"), "c2": (110.0, "pull_over")},
                                  acks=((101.4, "c1", "accepted"),)))["commands_lost"] == 1
+
+
+def test_a_row_waits_for_commands_without_an_answer():
+    issued = {"c3": 3.0, "c1": 1.0, "c2": 2.0}
+    assert unanswered_commands(issued, set(), 0) == 3
+    assert unanswered_commands(issued, {"c2"}, 0) == 1  # c1 answered by the later c2's ack, c3 still waits
+    assert unanswered_commands(issued, {"c2"}, 1) == 0  # ... or it was expired at the DDM
+    assert unanswered_commands(issued, {"c3"}, 0) == 0 and unanswered_commands({}, set(), 0) == 0
 
 
 def test_recovery_is_the_slowest_cut_off_host_heard_again():
