@@ -148,7 +148,7 @@ class TrackEvClassifier:
                  forget_after_s: float = 2.0, max_tracks: int = 512,
                  box_gate: Callable[[Iterable[float], int, int], bool] | None = None,
                  handover_after_s: float = 0.5, handover_iou: float = 0.3, bright_above_fraction: float = 0.1,
-                 occluded_hold_s: float = 2.0, lamp_state: Callable[[np.ndarray, np.ndarray | None], float] | None = None
+                 occluded_hold_s: float = 2.0, fill_view_fraction: float = 0.8, lamp_state: Callable[[np.ndarray, np.ndarray | None], float] | None = None
                  ) -> None:
         if forget_after_s <= 0 or max_tracks < 1:
             raise ValueError("forget_after_s must be > 0 and max_tracks >= 1")
@@ -199,7 +199,15 @@ class TrackEvClassifier:
         self.min_box_px = float(min_box_px)
         self.border_px = 2.0
         """A box whose side is within this of the image's left or right edge (or whose lamp band leaves the
-        top) is cut by the border and not measured."""
+        top) is cut by the border and not measured, unless it fills the view (``fill_view_fraction``)."""
+        if not 0.0 < fill_view_fraction <= 1.0:
+            raise ValueError(f"fill_view_fraction must be in (0, 1], got {fill_view_fraction}")
+        self.fill_view_fraction = float(fill_view_fraction)
+        """A box cut by the border that spans at least this share of the image's width or height is measured all the
+        same: the vehicle is so near that it is larger than the view (a roadside camera beside an EV, a close-up of its
+        light bar), and the part in view is all there is to see; its lamp band is the top of that part, clipped to the
+        image. A vehicle entering or leaving the view at its side or far end is a fraction of it and stays
+        unmeasured."""
         self.box_gate = box_gate
         self.forget_after_s = forget_after_s
         self.max_tracks = max_tracks
@@ -404,7 +412,9 @@ class TrackEvClassifier:
         x1, y1, x2, y2 = (float(v) for v in box)
         h, w = image.shape[:2]
         top = y1 - self.above_fraction * (y2 - y1)
-        return x1 < self.border_px or x2 > w - self.border_px or top < 0.0
+        if not (x1 < self.border_px or x2 > w - self.border_px or top < 0.0):
+            return False
+        return not (x2 - x1 >= self.fill_view_fraction * w or y2 - y1 >= self.fill_view_fraction * h)
 
     def _hand_over(self, now_s: float, ids: list[int], boxes: np.ndarray) -> None:
         """New ids take over the evidence of recently lost tracks they overlap (module docstring)."""

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -166,6 +166,20 @@ class TrackEvidence:
         return [r for r in runs if (m := lit & (t >= r.start_s) & (t <= r.end_s)).any()
                 and median_of(peak[m]) >= self.config.bar_flash_min_peak]
 
+    def _dark_before_in_history(self, runs: list[LampRun], name: str, on_level: float, off_level: float,
+                                frame_s: float) -> list[LampRun]:
+        """``runs`` (of the window) with the dark stretch before the first one measured over the whole history kept
+        (``2 * flash_window_s``), not cut at the window's start: a slow flasher (a light bar cycling its lamps,
+        0.5 s lit in 1.3 s) shows its second flash with its first one's dark stretch half outside the window, and
+        without its full length the first one reads as no flash (``LampRun.is_flash``)."""
+        if not runs or not runs[0].dark_before:
+            return runs
+        earlier = {r.start_s: r.dark_before_s for r in lamp_runs(self._history("t"), self._history(name), on_level,
+                                                                 off_level, frame_s)}
+        first = runs[0]
+        dark_s = earlier.get(first.start_s, first.dark_before_s)
+        return runs if dark_s <= first.dark_before_s else [replace(first, dark_before_s=dark_s), *runs[1:]]
+
     def _central(self, x: np.ndarray, centre: np.ndarray, on_level: float) -> bool:
         lit = x >= on_level
         return bool(lit.any()) and median_of(centre[lit]) >= self.config.centre_min_share
@@ -189,6 +203,7 @@ class TrackEvidence:
             rs = lamp_runs(t, x, on_level, cfg.lamp_off_ratio * peak, frame_s)
             if any(r.duration_s > cfg.max_on_s for r in rs):
                 continue  # lit longer than a 1 Hz flash: a steady lamp (tail/brake light, paint, glow)
+            rs = self._dark_before_in_history(rs, f"{kind}_{colour}", on_level, cfg.lamp_off_ratio * peak, frame_s)
             if kind == "bar":
                 rs = self._lamp_lit(rs, t, x, on_level, colour, now_s, cfg.flash_window_s)
             runs[colour] = rs

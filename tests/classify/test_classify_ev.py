@@ -240,6 +240,15 @@ def test_boxes_cut_by_the_left_right_or_top_border_are_not_measured():
     assert not seen and all(clf.tracks[t].evidence.frames == 0 for t in (7, 8, 9))
 
 
+def test_a_box_cut_by_the_border_that_fills_the_view_is_measured():
+    # a vehicle so near that its box spans the image's height: the part in view is measured, and its bar confirms
+    clf, states = run(int(3 * FPS), entries_of=lambda k: [(7, (100.0, -4.0, 180.0, 236.0))])
+    assert clf.tracks[7].evidence.frames == int(3 * FPS)
+    assert states[-1][1][7].ev_state == EvState.CONFIRMED
+    with pytest.raises(ValueError, match="fill_view_fraction"):
+        TrackEvClassifier(fill_view_fraction=0.0)
+
+
 def test_a_confirmed_ev_is_not_body_scored_again():
     """The body classifier runs on lamp-active tracks until they confirm, not on a confirmed EV (scoring one on
     four RSUs at once would halve their processed fps while an EV is in view)."""

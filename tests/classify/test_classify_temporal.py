@@ -92,6 +92,15 @@ def test_a_red_flash_handing_over_to_blue_is_enough_evidence():
     assert t is not None and t - 1.0 <= 0.25 + 2.0 / FPS + 1e-6
 
 
+def test_a_slow_flasher_confirms_on_its_second_flash():
+    # one colour lit 0.5 s in every 1.33 s: the first flash's dark stretch starts before the 2 s window
+    def sig(t):
+        return (0.0, ON if t >= 1.0 and ((t - 1.0) % (4 / 3)) < 0.5 else 0.0)
+    _, states = run(sig)
+    t = first_time(states, EvState.CONFIRMED)
+    assert t is not None and t <= 1.0 + 4 / 3 + 0.5 + 3 / FPS
+
+
 def test_runs_of_a_lamp_signal_with_hysteresis():
     from rsu.classify.lamps import lamp_runs
 
