@@ -19,7 +19,7 @@ classifies tracks, not frames). Three cues are combined:
      is brake pumping, 0.3-0.5 Hz), and
    - a *flash* is a complete run that followed a dark stretch at least ``min_dark_ratio`` of its own
      length (flashers are dark about half the time or more; a steady lamp that drops out of the band
-     for a frame is not);
+     for a frame is not), the dark stretch measured over the whole history kept, not only the window;
    - either one colour flashed twice at most ``max_dark_s`` apart, or a complete flash of
      one colour handed over to the other colour (it lit within ``handover_s`` of the flash's end, or
      together with it): red/blue alternation, seen after a single flash, which is what makes the
