@@ -52,7 +52,8 @@ The rule (per track, each frame):
 - ``candidate`` -> ``confirmed`` when L >= ``confirm_level`` **and** flash evidence is present now
   (a flash pattern alone: a light bar that is not flashing never confirms this way, whatever a crop
   classifier says), **or** when the body score is at least ``body_threshold`` over at least
-  ``body_min_scores`` scores **and** a lamp cue (flash, alternation or steady bar) is present now;
+  ``body_min_scores`` scores (or the last ``body_sure_min_scores`` each reach ``body_sure_threshold``)
+  **and** a lamp cue (flash, alternation or steady bar) is present now;
 - ``confirmed`` -> ``cleared`` when no lamp has been lit for ``clear_after_s`` (lights off; a
   flashing bar is never dark that long) — the RSU also clears a track that leaves the view;
 - ``candidate`` -> ``none`` when L falls back below ``candidate_level``.
@@ -291,9 +292,17 @@ class TrackEvidence:
 
     @property
     def body_confident(self) -> bool:
+        """The mean of the last ``body_window`` scores reaches ``body_threshold`` over at least ``body_min_scores``
+        scores, or the last ``body_sure_min_scores`` each reach ``body_sure_threshold``; and they score this track's
+        own box (``body_current``)."""
+        cfg = self.config
         b = self.body_score
-        return (self.body_current and b is not None and len(self.body_scores) >= self.config.body_min_scores
-                and b >= self.config.body_threshold)
+        if not self.body_current or b is None:
+            return False
+        n = len(self.body_scores)
+        sure = n >= cfg.body_sure_min_scores and min(
+            list(self.body_scores)[-cfg.body_sure_min_scores:]) >= cfg.body_sure_threshold
+        return sure or (n >= cfg.body_min_scores and b >= cfg.body_threshold)
 
     def handed_over(self) -> None:
         """This evidence now belongs to a new track id, matched by position alone (``TrackEvClassifier._hand_over``).

@@ -166,6 +166,20 @@ def test_median_of_is_numpys_median_on_short_windows():
     assert np.isnan(median_of(np.array([1.0, np.nan, 2.0])))
 
 
+@pytest.mark.parametrize("scores, confident", [
+    ((0.9,), False),             # one score is never a body
+    ((0.9, 0.8), True),          # two sure scores are
+    ((0.9, 0.6), False),         # one of them only confident: three are needed
+    ((0.9, 0.6, 0.5), True),
+    ((0.45, 0.45, 0.5), False),  # mean under the confident threshold
+])
+def test_two_sure_body_scores_or_three_confident_ones_make_a_body(scores, confident):
+    ev = TrackEvidence()
+    for i, b in enumerate(scores):
+        ev.update(i / FPS, LampMeasurement(0.0, 0.0), body_score=b)
+    assert ev.body_confident == confident
+
+
 def test_body_scores_handed_to_a_new_track_count_only_after_its_own_box_is_scored():
     ev = TrackEvidence()
     for i in range(4):
