@@ -12,7 +12,7 @@ import numpy as np
 from protocol.messages import Actor, WorldSnapshot
 from sim.bodies import FACE_IDX, FACE_NAMES, FACES, GLASS_BGR, ev_lamps_on, face_points
 from sim.camera import NEAR_M
-from sim.lamps import signal_on
+from sim.lamps import roof_state, signal_on
 from sim.render.effects import lit_bgr, queue_lamp_glow, shadow_hull, unlit_bgr
 from sim.render.renderer import Renderer
 from sim.scenery import LIGHTING
@@ -130,6 +130,7 @@ class ReferenceRenderer(Renderer):
                     cv2.fillConvexPoly(img, np.round(poly * 16).astype(np.int32), colour.tolist(), cv2.LINE_AA, 4)
             red_on, blue_on = ev_lamps_on(a.light_bar, t)
             sig_on = signal_on(a.style, t)
+            roof = roof_state(a.style, t)
             tail_bright = a.brake_on or L["running_lights"]
             shown = [dc for dc in decals if (dc.part, dc.face) in face_uv]
             if shown:
@@ -139,7 +140,7 @@ class ReferenceRenderer(Renderer):
                 puv = all_uv[4 * k_dc:4 * k_dc + 4]
                 if dc.lamp == "turn" and not sig_on:
                     continue  # the tail light under it shows
-                colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on)
+                colour = lit_bgr(dc.lamp, tail_bright, a.brake_on, red_on, blue_on, sig_on, roof, dc.segment)
                 lit = colour is not None
                 if not lit:
                     colour = unlit_bgr(dc.colour, dc.lamp, L)

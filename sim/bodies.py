@@ -1,6 +1,6 @@
 """Vehicle bodies for the renderer (``sim.render.renderer``): each actor as shaded 3-D part boxes in its own frame (lower
-body, glass cabin, cargo box, light bar; debris shapes) with decals (windows, tail and brake lights, liveries, EV
-lamps, hazard flashers and turn signals: ``sim.lamps``), derived from the ``Actor`` fields (kind, size,
+body, glass cabin, cargo box, light bar, a works vehicle's beacon; debris shapes) with decals (windows, tail and
+brake lights, liveries, EV lamps, hazard flashers, turn signals, beacons and LED strips: ``sim.lamps``), derived from the ``Actor`` fields (kind, size,
 colour_bgr, brake_on, light_bar and ``style``: ``sim.vehicles``)."""
 
 from __future__ import annotations
@@ -10,8 +10,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.messages import Actor
-from sim.lamps import signal_decals
-from sim.vehicles import LIVERY_AMBULANCE, LIVERY_POLICE, LIVERY_TWO_TONE, style_detail, style_livery
+from sim.lamps import BEACON_OFF_BGR, LED_OFF_BGR, LED_SEGMENTS, signal_decals, style_roof
+from sim.vehicles import (
+    LIVERY_AMBULANCE,
+    LIVERY_POLICE,
+    LIVERY_TWO_TONE,
+    LIVERY_WORKS,
+    style_detail,
+    style_livery,
+)
 
 GLASS_BGR = np.array([70, 55, 45], dtype=float)
 DARK_BGR = np.array([28, 28, 30], dtype=float)
@@ -73,7 +80,9 @@ class Decal:
     v0: float
     v1: float
     colour: np.ndarray | tuple
-    lamp: str = ""  # "", "tail", "ev_red", "ev_blue", "hazard", "turn" (sim.lamps)
+    lamp: str = ""  # "", "tail", "ev_red", "ev_blue", "hazard", "turn", "beacon", "led_blue", "led_white" (sim.lamps)
+    segment: int = 0
+    """An LED strip's segment along its face (``sim.lamps.roof_segment_lit``)."""
 
 
 
@@ -231,6 +240,28 @@ def body_parts(actor: Actor) -> tuple[list[Part], list[Decal]]:
         if kind == "ev" and livery == LIVERY_AMBULANCE:  # rear flashers at the top corners
             decals.append(Decal(1, "rear", 0.02, 0.12, 0.88, 0.97, LAMP_OFF_BLUE, "ev_blue"))
             decals.append(Decal(1, "rear", 0.88, 0.98, 0.88, 0.97, LAMP_OFF_RED, "ev_red"))
+    if livery == LIVERY_WORKS and kind in ("van", "truck"):
+        chevron_part = 1
+        for j in range(6):  # red and yellow stripes across the lower rear
+            decals.append(Decal(chevron_part, "rear", j / 6, (j + 1) / 6, 0.05, 0.4,
+                                np.array([40, 35, 200.0]) if j % 2 == 0 else np.array([30, 215, 245.0])))
+    roof_lamps = style_roof(actor.style)
+    if roof_lamps is not None and roof_lamps.mode == "beacon" and kind in ("car", "van", "truck"):
+        bx = {"car": (-0.2, 0.2), "van": (hl * 0.62 - 0.4, hl * 0.62 - 0.1),
+              "truck": (hl * 0.7 - 0.5, hl * 0.7 - 0.15)}[kind]
+        i = len(parts)  # the last part, like a light bar: its lit faces share one halo
+        parts.append(Part(bx[0], bx[1], -hw * 0.75, hw * 0.75, top_z, top_z + 0.15, DARK_BGR))
+        for face in ("rear", "front", "left", "right", "top"):
+            decals.append(Decal(i, face, 0.04, 0.96, 0.12, 0.92, BEACON_OFF_BGR, "beacon"))
+    elif roof_lamps is not None and roof_lamps.mode != "beacon" and kind == "bus":
+        lamp = "led_white" if roof_lamps.white else "led_blue"
+        # face: (u span, v span): the strips along the roof edge, the destination boards front and rear
+        for face, (u0, u1), (v0, v1) in (("left", (0.03, 0.97), (0.9, 0.96)), ("right", (0.03, 0.97), (0.9, 0.96)),
+                                         ("front", (0.15, 0.85), (0.91, 0.98)), ("rear", (0.25, 0.75), (0.88, 0.95))):
+            step = (u1 - u0) / LED_SEGMENTS
+            for j in range(LED_SEGMENTS):  # u seen from outside: front to back on the left face, back to front on
+                seg = j if face in ("left", "front") else LED_SEGMENTS - 1 - j  # the right: the chase runs backwards
+                decals.append(Decal(1, face, u0 + j * step, u0 + (j + 0.9) * step, v0, v1, LED_OFF_BGR, lamp, seg))
     tails = [(dc.part, dc.u0, dc.u1, dc.v0, dc.v1) for dc in decals if dc.lamp == "tail"]
     decals.extend(Decal(*fields) for fields in signal_decals(kind, actor.style, tails))
     return parts, decals

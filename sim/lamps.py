@@ -1,8 +1,10 @@
-"""Signal lamps of ordinary vehicles: hazard flashers and US-style red rear turn signals.
+"""Lamps of ordinary vehicles that are not EV light bars: hazard flashers, US-style red rear turn signals,
+amber roof beacons of works vehicles and blue or white LED strips of buses.
 
 They are decoys for the RSU's EV identification: a lamp that blinks at 1-2 Hz, as a naive
-flashing-light rule would take for a light bar. The vehicles stay ordinary traffic (``kind`` car, van,
-truck or bus; label class ``vehicle``; never an EV in ground truth or datasets).
+flashing-light rule would take for a light bar, an amber bar flashing on a roof, or a lamp-bright blue strip
+along a bus's roof. The vehicles stay ordinary traffic (``kind`` car, van, truck or bus; label class
+``vehicle``; never an EV in ground truth or datasets).
 
 - **hazard**: four amber lamps (BGR ``AMBER_ON_BGR`` when lit), one at each corner of the lower body:
   rear ones beside (below, or above where the body ends) each tail light, front ones at headlight
@@ -19,6 +21,21 @@ format is unchanged: bits 12-13 the mode (0 none, 1 hazard, 2 left, 3 right), bi
 (1.0 + code / 15 Hz), bits 18-25 the phase (code / 256 of a period). ``assign_signal_lamps`` gives a
 seeded fraction of the background traffic such lamps (``TrafficSpec.hazard_flasher_fraction``,
 ``turn_signal_fraction``).
+
+Roof lamps (``ROOF_MODES``), in bits 26-40 of ``style`` (bits 26-27 the mode, 28-31 the rate (code / 15 of
+the mode's range), 32-39 the phase (code / 256 of a period), bit 40 white):
+
+- **beacon**: an amber bar across the roof of a works vehicle (``sim.bodies``), all of it flashing together
+  at 1.5-4 Hz (UN ECE R65 warning lamps: 2-4 Hz; rotating beacons from ~1.5 Hz), lit ``BEACON_DUTY`` of
+  each period: a central, roof-height flasher, in amber (``BEACON_ON_BGR``: red channel clipped, green 135).
+- **led**: a steady blue (or white) LED strip along the top of a bus's sides and its front and rear
+  destination boards, lit all the time.
+- **led_chase**: the same strip cut into ``LED_SEGMENTS`` segments per face of which half are lit, the lit
+  block running along the strip once a period (1.5-4 Hz).
+
+``assign_roof_lamps`` gives a seeded fraction of the background buses an LED strip
+(``TrafficSpec.bus_led_fraction``, ``bus_led_chase_fraction``); works vehicles come from a scenario's
+``[[works]]`` tables (``sim.traffic.build_population``).
 """
 
 from __future__ import annotations
@@ -64,9 +81,9 @@ class SignalLamps(NamedTuple):
 
 
 def with_signal_lamps(style: int, mode: str, frequency_hz: float, phase_frac: float) -> int:
-    """``style`` with signal lamps set (mode "" clears them). The frequency is clipped to 1-2 Hz and
-    quantised to 1/15 Hz, the phase (a fraction of a period) to 1/256."""
-    base = int(style) & ((1 << _SHIFT) - 1)
+    """``style`` with signal lamps set (mode "" clears them), its other bits kept. The frequency is clipped to
+    1-2 Hz and quantised to 1/15 Hz, the phase (a fraction of a period) to 1/256."""
+    base = int(style) & ~(((1 << (2 + _FREQ_BITS + _PHASE_BITS)) - 1) << _SHIFT)
     if not mode:
         return base
     f_code = int(round((float(np.clip(frequency_hz, FREQ_MIN_HZ, FREQ_MAX_HZ)) - FREQ_MIN_HZ)
@@ -78,7 +95,7 @@ def with_signal_lamps(style: int, mode: str, frequency_hz: float, phase_frac: fl
 
 def style_signal(style: int) -> SignalLamps | None:
     """The signal lamps encoded in ``style``; None when it has none."""
-    bits = int(style) >> _SHIFT
+    bits = (int(style) >> _SHIFT) & ((1 << (2 + _FREQ_BITS + _PHASE_BITS)) - 1)
     mode = bits & _MODE_MASK
     if mode == 0:
         return None
@@ -139,3 +156,128 @@ def assign_signal_lamps(vehicles: Iterable[SimVehicle], hazard_fraction: float, 
         v.style = with_signal_lamps(v.style, mode, f, ph)
         n += 1
     return n
+
+
+ROOF_MODES = ("", "beacon", "led", "led_chase")
+BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ = 1.5, 4.0
+"""Flash rate of amber warning beacons (UN ECE R65: 2-4 Hz; rotating beacons from ~1.5 Hz) and chase rate of an
+LED strip (one run along it per period)."""
+BEACON_DUTY = 0.4
+"""Lit share of a beacon's period (a rotating reflector sweeps past the camera for less than half a turn)."""
+BEACON_ON_BGR = (0, 135, 255)
+BEACON_OFF_BGR = (35, 95, 150)
+LED_BLUE_BGR = (255, 120, 30)
+LED_WHITE_BGR = (255, 245, 235)
+LED_OFF_BGR = (60, 45, 40)
+LED_SEGMENTS = 6
+"""Segments per face of an LED strip; a chasing strip lights half of them, a block that runs along it."""
+BEACON_GLOW = 0.6
+LED_GLOW = 0.35
+"""Halo strengths of a lit beacon and of a lit LED segment (render: signal lamps 0.6, light bar 1.0)."""
+ROOF_LAMPS = ("beacon", "led_blue", "led_white")
+"""``Decal.lamp`` names of the roof lamps (render.py)."""
+ROOF_ALL_LIT = -1
+"""``roof_state`` of a lit beacon or a steady strip: every segment lit."""
+
+_ROOF_SHIFT = 26
+_ROOF_FIELDS = 2 + _FREQ_BITS + _PHASE_BITS + 1
+
+
+class RoofLamps(NamedTuple):
+    mode: str  # "beacon", "led" or "led_chase"
+    frequency_hz: float
+    phase_s: float
+    white: bool
+
+
+def with_roof_lamps(style: int, mode: str, frequency_hz: float = 2.0, phase_frac: float = 0.0,
+                    white: bool = False) -> int:
+    """``style`` with roof lamps set (mode "" clears them), its other bits kept. The rate is clipped to
+    1.5-4 Hz and quantised to 1/6 Hz, the phase (a fraction of a period) to 1/256; ``white``: a white LED strip
+    (blue otherwise; a beacon is amber either way)."""
+    if mode not in ROOF_MODES:
+        raise ValueError(f"roof lamp mode must be one of {ROOF_MODES}, got {mode!r}")
+    base = int(style) & ~(((1 << _ROOF_FIELDS) - 1) << _ROOF_SHIFT)
+    if not mode:
+        return base
+    f_code = int(round((float(np.clip(frequency_hz, BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ)) - BEACON_FREQ_MIN_HZ)
+                       / (BEACON_FREQ_MAX_HZ - BEACON_FREQ_MIN_HZ) * _FREQ_STEPS))
+    p_code = int(phase_frac * (1 << _PHASE_BITS)) % (1 << _PHASE_BITS)
+    bits = ROOF_MODES.index(mode) | f_code << 2 | p_code << (2 + _FREQ_BITS) | int(bool(white)) << (2 + _FREQ_BITS
+                                                                                                     + _PHASE_BITS)
+    return base | bits << _ROOF_SHIFT
+
+
+def style_roof(style: int) -> RoofLamps | None:
+    """The roof lamps encoded in ``style``; None when it has none."""
+    bits = int(style) >> _ROOF_SHIFT
+    mode = bits & _MODE_MASK
+    if mode == 0:
+        return None
+    f = BEACON_FREQ_MIN_HZ + ((bits >> 2) & _FREQ_STEPS) / _FREQ_STEPS * (BEACON_FREQ_MAX_HZ - BEACON_FREQ_MIN_HZ)
+    phase = ((bits >> (2 + _FREQ_BITS)) & ((1 << _PHASE_BITS) - 1)) / (1 << _PHASE_BITS)
+    return RoofLamps(ROOF_MODES[mode], f, phase / f, bool(bits >> (2 + _FREQ_BITS + _PHASE_BITS) & 1))
+
+
+def roof_state(style: int, t_s: float) -> int:
+    """The roof lamps' state at sim time t_s: 0 dark (none, or a beacon between flashes), ``ROOF_ALL_LIT`` (a lit
+    beacon, a steady strip), or 1 + the first lit segment of a chasing strip."""
+    if int(style) >> _ROOF_SHIFT == 0:
+        return 0
+    roof = style_roof(style)
+    cycle = ((t_s - roof.phase_s) * roof.frequency_hz) % 1.0
+    if roof.mode == "beacon":
+        return ROOF_ALL_LIT if cycle < BEACON_DUTY else 0
+    if roof.mode == "led":
+        return ROOF_ALL_LIT
+    return 1 + min(LED_SEGMENTS - 1, int(cycle * LED_SEGMENTS))
+
+
+def roof_segment_lit(state: int, segment: int) -> bool:
+    """Whether segment ``segment`` of a roof lamp is lit in ``roof_state`` ``state`` (a chase lights half the
+    segments, from the state's first one on, wrapping)."""
+    if state == ROOF_ALL_LIT:
+        return True
+    return state > 0 and (segment - (state - 1)) % LED_SEGMENTS < LED_SEGMENTS // 2
+
+
+def assign_roof_lamps(vehicles: Iterable[SimVehicle], led_fraction: float, chase_fraction: float,
+                      rng: np.random.Generator) -> int:
+    """Give a seeded fraction ``led_fraction`` of the buses among ``vehicles`` an LED strip, ``chase_fraction`` of
+    those chasing, a third of them white (blue otherwise); returns how many got one. Four draws per bus (none
+    for other vehicles) whatever the fractions."""
+    n = 0
+    for v in vehicles:
+        if v.kind != "bus" or v.is_static:
+            continue
+        r, chase, f, white = rng.random(), rng.random(), rng.uniform(BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ), rng.random()
+        if r >= led_fraction:
+            continue
+        v.style = with_roof_lamps(v.style, "led_chase" if chase < chase_fraction else "led", f, float(r),
+                                  white < 1 / 3)
+        n += 1
+    return n
+
+
+DECOY_KINDS = ("hazard", "turn_signal", "beacon", "led_strip", "brake_lights")
+"""The lamps ``decoy_kind`` names (``bench/ev_bench.py`` counts alerts on each)."""
+
+
+def decoy_kind(style: int) -> str | None:
+    """The decoy lamp of a vehicle with this style: ``beacon`` or ``led_strip`` (roof lamps, first), ``hazard`` or
+    ``turn_signal``; None when it has none (brake lights are a state, not a style: the caller names them)."""
+    roof = style_roof(style)
+    if roof is not None:
+        return "beacon" if roof.mode == "beacon" else "led_strip"
+    sig = style_signal(style)
+    if sig is not None:
+        return "hazard" if sig.mode == "hazard" else "turn_signal"
+    return None
+
+
+def decoy_lit(style: int, t_s: float) -> bool:
+    """Whether the decoy lamps of a vehicle with this style (``decoy_kind``) are lit at sim time t_s (a chasing
+    strip always has half its segments lit)."""
+    if style_roof(style) is not None:
+        return roof_state(style, t_s) != 0
+    return signal_on(style, t_s)

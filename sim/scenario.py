@@ -2,11 +2,12 @@
 
 A scenario names the corridor, the duration, the seed and the lighting, the background traffic
 (density, speeds, vehicle mix, the fraction of drivers that yield to an EV with lights on, the
-fractions with hazard flashers or a turn signal blinking), the EV
+fractions with hazard flashers or a turn signal blinking, the buses with LED strips, stop-and-go waves), the EV
 (start offset behind the AV, lane, speed, light bar switch-on time, pattern and frequency), static
-hazards, the AV script, and distractor vehicles (red cars, blue cars, red/white vans without lights,
-cars that brake). A bad file fails with ``ScenarioError`` naming the file, the field and what was
-expected. See ``sim/scenarios/rellis_ev_yield.toml`` for a commented example.
+hazards, the AV script, distractor vehicles (red cars, blue cars, red/white vans without lights,
+cars that brake, buses with LED strips) and works vehicles with amber roof beacons (``[[works]]``). A bad
+file fails with ``ScenarioError`` naming the file, the field and what was expected. See
+``sim/scenarios/rellis_ev_yield.toml`` for a commented example.
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 CORRIDOR_DIR = DEFAULT_CORRIDOR.parent
 LIGHTINGS = ("day", "dusk", "night")
 PATTERNS = ("alternating", "strobe")
-DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_van", "red_truck")
+DISTRACTOR_TYPES = ("red_car", "blue_car", "red_white_van", "brake_car", "white_van", "red_truck", "led_bus",
+                    "chasing_led_bus")
+WORKS_BODIES = ("van", "truck")
 EV_BODIES = ("ambulance", "police")
 TRAFFIC_MODELS = ("project", "sumo")
 """Who drives the traffic (``[scenario] traffic``, ``--traffic``): the simulator's own model or Eclipse SUMO."""
@@ -53,6 +56,13 @@ class TrafficSpec:
     """Background vehicles with amber hazard flashers blinking at their four corners (sim.lamps)."""
     turn_signal_fraction: float = 0.08
     """Background vehicles with one red rear turn signal blinking (US style)."""
+    bus_led_fraction: float = 0.25
+    """Background buses with an LED strip along the roof and destination boards (blue, a third white; sim.lamps)."""
+    bus_led_chase_fraction: float = 0.5
+    """... of which this share chase (a lit block runs along the strip); the others are steady."""
+    stop_and_go_period_s: float = 0.0
+    """Stop-and-go waves: every background driver slows hard for half of each period of a wave running upstream
+    at ``sim.traffic.STOP_GO_WAVE_MPS`` (brake lights come on down the queue); 0: off, else 2-120 s."""
     flow_veh_per_h: float = 0.0
     """SUMO traffic: vehicles per hour entering at the corridor's start (0: density x speed, per lane)."""
     side_flow_route: tuple[str, ...] = ()
@@ -117,6 +127,22 @@ class DistractorSpec:
 
 
 @dataclass(frozen=True)
+class WorksSpec:
+    """A works vehicle with an amber beacon flashing on its roof (sim.lamps): parked (speed 0; e.g. on the
+    shoulder with ``offset_m``) or driving slowly in its lane."""
+
+    s_m: float
+    lane: int = 0
+    offset_m: float = 0.0
+    """From the lane centre, -4..4 m (negative: to the right; about -2.6 puts it on the shoulder of lane 0)."""
+    speed_mps: float = 0.0
+    body: str = "van"
+    beacon_hz: float = 2.5
+    """1.5-4 Hz."""
+    hazard_flashers: bool = False
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     corridor: Corridor
@@ -128,6 +154,7 @@ class Scenario:
     ev: EvSpec | None
     hazards: tuple[HazardSpec, ...] = ()
     distractors: tuple[DistractorSpec, ...] = ()
+    works: tuple[WorksSpec, ...] = ()
     description: str = ""
     source: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
@@ -190,7 +217,7 @@ def _flag(r: FieldReader, key: str) -> bool:
 
 def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: Corridor | None = None) -> Scenario:
     top = FieldReader(source, data, error=ScenarioError)
-    top.check_keys({"scenario", "traffic", "av", "ev", "hazard", "distractor"})
+    top.check_keys({"scenario", "traffic", "av", "ev", "hazard", "distractor", "works"})
     sc = top.optional_table("scenario")
     if sc is None:
         raise top.fail("scenario", "a [scenario] table (missing)")
@@ -228,6 +255,9 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
             blue_fraction=tr.num("blue_fraction", d.blue_fraction, 0.0, 1.0),
             hazard_flasher_fraction=tr.num("hazard_flasher_fraction", d.hazard_flasher_fraction, 0.0, 1.0),
             turn_signal_fraction=tr.num("turn_signal_fraction", d.turn_signal_fraction, 0.0, 1.0),
+            bus_led_fraction=tr.num("bus_led_fraction", d.bus_led_fraction, 0.0, 1.0),
+            bus_led_chase_fraction=tr.num("bus_led_chase_fraction", d.bus_led_chase_fraction, 0.0, 1.0),
+            stop_and_go_period_s=tr.num("stop_and_go_period_s", 0.0, 0.0, 120.0),
             flow_veh_per_h=tr.num("flow_veh_per_h", 0.0, 0.0, 20000.0),
             side_flow_route=tuple(tr.str_list("side_flow_route")) if tr.has("side_flow_route") else (),
             side_flow_veh_per_h=tr.num("side_flow_veh_per_h", 0.0, 0.0, 20000.0),
@@ -240,6 +270,8 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
             raise tr.fail("van_fraction", "van + truck + bus fractions <= 1")
         if traffic.hazard_flasher_fraction + traffic.turn_signal_fraction > 1.0:
             raise tr.fail("turn_signal_fraction", "hazard_flasher_fraction + turn_signal_fraction <= 1")
+        if 0.0 < traffic.stop_and_go_period_s < 2.0:
+            raise tr.fail("stop_and_go_period_s", "0 (off) or 2..120 s", traffic.stop_and_go_period_s)
 
     av = None
     avr = top.optional_table("av")
@@ -291,9 +323,19 @@ def parse_scenario(data: dict[str, Any], source: str = "<scenario>", corridor: C
                                           s_m=dr.num("s_m", None, 0.0, road.length_m), lane=lane_of(dr, "lane", 0),
                                           speed_mps=dr.num("speed_mps", 11.0, 0.0, 40.0),
                                           brake_period_s=dr.num("brake_period_s", 0.0, 0.0, 60.0)))
+    works = []
+    for wr in top.tables("works", required=False):
+        wr.check_keys(set(WorksSpec.__dataclass_fields__))
+        works.append(WorksSpec(s_m=wr.num("s_m", None, 0.0, road.length_m), lane=lane_of(wr, "lane", 0),
+                               offset_m=wr.num("offset_m", 0.0, -4.0, 4.0),
+                               speed_mps=wr.num("speed_mps", 0.0, 0.0, 30.0),
+                               body=wr.text("body", "van", WORKS_BODIES),
+                               beacon_hz=wr.num("beacon_hz", 2.5, 1.5, 4.0),
+                               hazard_flashers=_flag(wr, "hazard_flashers")))
     return Scenario(
         name=name, corridor=corridor, duration_s=sc.num("duration_s", 30.0, 0.1, 3600.0),
         seed=sc.integer("seed", 0), lighting=sc.text("lighting", "day", LIGHTINGS), traffic=traffic, av=av, ev=ev,
-        hazards=tuple(hazards), distractors=tuple(distractors), description=sc.data.get("description", ""),
+        hazards=tuple(hazards), distractors=tuple(distractors), works=tuple(works),
+        description=sc.data.get("description", ""),
         source=source, traffic_model=sc.text("traffic", "project", TRAFFIC_MODELS),
     )

@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.road import Road
-from sim.lamps import assign_signal_lamps
+from sim.lamps import assign_roof_lamps, assign_signal_lamps, with_roof_lamps, with_signal_lamps
 from sim.scenario import DEBRIS_KINDS, Scenario
 from sim.vehicles import (
     BLUE_BGR,
@@ -26,7 +26,9 @@ from sim.vehicles import (
     LIVERY_PLAIN,
     LIVERY_POLICE,
     LIVERY_TWO_TONE,
+    LIVERY_WORKS,
     RED_BGR,
+    WORKS_BGR,
     SimVehicle,
     make_style,
     random_colour,
@@ -50,6 +52,10 @@ EV_REACT_BEHIND_M = 90.0
 EV_PASSED_AHEAD_M = 15.0
 YIELD_SPEED_FACTOR = 0.35
 YIELD_EDGE_SHIFT_M = 0.7
+STOP_GO_WAVE_MPS = 5.0
+"""Stop-and-go waves run upstream at about 18 km/h (Treiber and Kesting, Traffic Flow Dynamics, 2013)."""
+STOP_GO_SLOW_FACTOR = 0.15
+"""A driver in a wave's slow half wants this share of its speed (it brakes, brake lights on, then crawls)."""
 HAZARD_RUN_UP_M = 40.0
 """No background vehicle starts this close behind debris that lies in its lane at t = 0."""
 DEBRIS_COLOURS = {"box": (60, 75, 95), "rock": (105, 110, 112), "barrel": (30, 90, 200), "pallet": (120, 165, 195),
@@ -189,6 +195,8 @@ class IdmTraffic:
             des = v.desired_speed_mps
             if v.brake_period_s > 0 and (t_s % v.brake_period_s) >= v.brake_period_s / 2:
                 des *= 0.4
+            if v.wave_period_s > 0 and ((t_s + v.s_m / STOP_GO_WAVE_MPS) % v.wave_period_s) >= v.wave_period_s / 2:
+                des *= STOP_GO_SLOW_FACTOR
             if v.yielding:  # move right first, then slow down at the right edge
                 des *= YIELD_SPEED_FACTOR if road.lane_of_offset(v.d_m) == 0 else 0.8
             if v.kind == "ev":
@@ -303,9 +311,10 @@ def _kind_for(rng: np.random.Generator, spec) -> str:
 
 
 def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVehicle]:
-    """The initial vehicles of a scenario: AV, EV, distractors, hazards, then seeded background traffic
-    placed where it does not overlap them, a seeded fraction of it with hazard flashers or a turn signal
-    blinking (``sim.lamps``)."""
+    """The initial vehicles of a scenario: AV, EV, distractors, hazards, works vehicles, then seeded background
+    traffic placed where it does not overlap them, a seeded fraction of it with hazard flashers or a turn signal
+    blinking, of its buses with an LED strip (``sim.lamps``), all of it in stop-and-go waves when the scenario
+    asks."""
     road = scenario.corridor.road
     out: list[SimVehicle] = []
 
@@ -339,11 +348,17 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
             livery = LIVERY_PLAIN
         elif dsp.kind == "red_truck":
             kind, size, colour, livery = "truck", random_size("truck", rng), RED_BGR, LIVERY_PLAIN
+        elif dsp.kind in ("led_bus", "chasing_led_bus"):
+            kind, size, colour, livery = "bus", random_size("bus", rng), (230, 230, 230), LIVERY_PLAIN
         else:
             kind, size = "van", random_size("van", rng)
             colour, livery = (238, 238, 238), LIVERY_AMBULANCE if dsp.kind == "red_white_van" else LIVERY_PLAIN
+        style = make_style(livery, detail)
+        if kind == "bus":  # a blue strip; rate and phase from the detail draw
+            style = with_roof_lamps(style, "led" if dsp.kind == "led_bus" else "led_chase", 1.5 + detail / 102,
+                                    detail / 256)
         out.append(SimVehicle(f"d{k}", kind, dsp.s_m, centre(dsp.lane), dsp.speed_mps, dsp.lane, *size, colour,
-                              make_style(livery, detail), desired_speed_mps=dsp.speed_mps,
+                              style, desired_speed_mps=dsp.speed_mps,
                               brake_period_s=dsp.brake_period_s, yields_to_ev=False))
     for k, hz in enumerate(scenario.hazards):
         kind_index = DEBRIS_KINDS.index(hz.kind)
@@ -351,6 +366,15 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
                               hz.width_m, hz.height_m, DEBRIS_COLOURS[hz.kind], make_style(kind_index, k),
                               desired_speed_mps=0.0, is_static=True,
                               extra={"appear_s": hz.appear_s, "remove_s": hz.remove_s}))
+    for k, wk in enumerate(scenario.works):
+        size = random_size(wk.body, rng)
+        detail = int(rng.integers(256))
+        style = with_roof_lamps(make_style(LIVERY_WORKS, detail), "beacon", wk.beacon_hz, detail / 256)
+        if wk.hazard_flashers:
+            style = with_signal_lamps(style, "hazard", 1.5, detail / 256)
+        out.append(SimVehicle(f"w{k}", wk.body, wk.s_m, centre(wk.lane) + wk.offset_m, wk.speed_mps, wk.lane, *size,
+                              WORKS_BGR, style, desired_speed_mps=wk.speed_mps, is_static=wk.speed_mps == 0.0,
+                              idm_time_gap_s=2.0))
 
     ev_gap = None
     if av is not None and ev is not None and ev.lane == av.lane and ev.start_offset_m < 0:
@@ -403,4 +427,8 @@ def build_population(scenario: Scenario, rng: np.random.Generator) -> list[SimVe
             k += 1
     # decoy lamps last, so that the draws above (and the traffic they place) are those of older versions
     assign_signal_lamps(out[n_fixed:], tr.hazard_flasher_fraction, tr.turn_signal_fraction, rng)
+    assign_roof_lamps(out[n_fixed:], tr.bus_led_fraction, tr.bus_led_chase_fraction, rng)
+    if tr.stop_and_go_period_s > 0:
+        for v in out[n_fixed:]:
+            v.wave_period_s = tr.stop_and_go_period_s
     return out

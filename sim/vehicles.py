@@ -3,7 +3,7 @@
 Appearance travels in ``Actor.style`` (protocol has no livery field): ``style = livery << 8 | detail``
 where ``detail`` (0..255) seeds the body details (car shape: sedan / hatchback / SUV) and ``livery`` is
 one of ``LIVERY_*``; bits 12 and up hold the blinking hazard flashers or turn signal of an ordinary
-vehicle, if any (``sim.lamps``). The renderer derives everything else deterministically from kind,
+vehicle and its roof lamps (a works vehicle's amber beacon, a bus's LED strip), if any (``sim.lamps``). The renderer derives everything else deterministically from kind,
 size, colour and style.
 """
 
@@ -17,6 +17,7 @@ LIVERY_PLAIN = 0
 LIVERY_AMBULANCE = 1  # white body, red band (real EV or lookalike van without a light bar)
 LIVERY_POLICE = 2  # black and white
 LIVERY_TWO_TONE = 3  # roof lighter than body
+LIVERY_WORKS = 4  # works vehicle: red and yellow chevrons on the rear (with an amber roof beacon: sim.lamps)
 
 # (length, width, height) ranges per kind (m)
 SIZE_RANGES = {
@@ -34,6 +35,8 @@ CAR_COLOURS = [
 ]
 RED_BGR = (35, 30, 185)
 BLUE_BGR = (170, 70, 25)
+WORKS_BGR = (40, 205, 235)
+"""Body colour of a works vehicle (highway yellow)."""
 
 
 def make_style(livery: int, detail: int) -> int:
@@ -77,6 +80,9 @@ class SimVehicle:
     light_bar: dict | None = None
     """EV light bar: {"pattern", "frequency_hz", "phase_s", "on_at_s"}; None for other vehicles."""
     brake_period_s: float = 0.0
+    wave_period_s: float = 0.0
+    """Stop-and-go traffic: the driver slows to ``sim.traffic.STOP_GO_SLOW_FACTOR`` of its speed for half of every
+    period of a wave that runs upstream (``TrafficSpec.stop_and_go_period_s``); 0: never."""
     politeness: float = 0.3
     idm_time_gap_s: float = 1.4
     idm_max_accel_mps2: float = 1.4

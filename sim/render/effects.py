@@ -12,7 +12,18 @@ import cv2
 import numpy as np
 
 from sim.bodies import BLUE_LAMP_BGR, RED_LAMP_BGR, TAIL_OFF_BGR, TAIL_ON_BGR
-from sim.lamps import AMBER_ON_BGR, SIGNAL_GLOW, SIGNAL_LAMPS, TURN_ON_BGR
+from sim.lamps import (
+    AMBER_ON_BGR,
+    BEACON_GLOW,
+    BEACON_ON_BGR,
+    LED_BLUE_BGR,
+    LED_GLOW,
+    LED_WHITE_BGR,
+    SIGNAL_GLOW,
+    SIGNAL_LAMPS,
+    TURN_ON_BGR,
+    roof_segment_lit,
+)
 
 if TYPE_CHECKING:
     from sim.render.pose import ActorBatch
@@ -103,12 +114,14 @@ def shade_faces(batch: ActorBatch, rots: np.ndarray, positions: np.ndarray, came
 def queue_lamp_glow(glows: list, bar_halos: dict, key: tuple, lamp: str, on_bar: bool, brake_on: bool, face,
                     colour) -> None:
     """Queue the halo of a lit lamp face (``face``: its pixel points, or what stands for them: ``sim.render.renderer`` passes
-    its first point's index) with its strength (1 for an EV lamp, ``SIGNAL_GLOW`` for a flasher or turn signal,
-    0.55 / 0.3 for a tail lamp braking / not): in ``glows`` as (face, colour, strength), or, the faces of one
-    light-bar colour (``on_bar``: an EV lamp on the body's last part), gathered under ``key`` in ``bar_halos`` as
-    [faces, colour, strength]: they share one halo."""
-    strength = 1.0 if lamp.startswith("ev") else SIGNAL_GLOW if lamp in SIGNAL_LAMPS else (0.55 if brake_on else 0.3)
-    if lamp.startswith("ev") and on_bar:
+    its first point's index) with its strength (1 for an EV lamp, ``BEACON_GLOW`` for a beacon, ``SIGNAL_GLOW`` for a
+    flasher or turn signal, ``LED_GLOW`` for an LED segment, 0.55 / 0.3 for a tail lamp braking / not): in ``glows``
+    as (face, colour, strength), or, the faces of one light-bar colour or beacon (``on_bar``: an EV lamp or a beacon
+    on the body's last part), gathered under ``key`` in ``bar_halos`` as [faces, colour, strength]: they share one
+    halo."""
+    strength = (1.0 if lamp.startswith("ev") else BEACON_GLOW if lamp == "beacon" else SIGNAL_GLOW
+                if lamp in SIGNAL_LAMPS else LED_GLOW if lamp.startswith("led") else (0.55 if brake_on else 0.3))
+    if (lamp.startswith("ev") or lamp == "beacon") and on_bar:
         bar = bar_halos.get(key)
         if bar is None:
             bar_halos[key] = [[face], colour, strength]
@@ -125,10 +138,13 @@ def shadow_hull(corners: np.ndarray, sun: np.ndarray) -> np.ndarray:
     return cv2.convexHull(ground.astype(np.float32)).reshape(-1, 2)
 
 
-def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool):
+def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool,
+            roof: int = 0, segment: int = 0):
     """The colour of a decal's lamp when it is lit this frame, else None (the decal shows its unlit colour): a tail
     lamp when ``tail_bright`` (braking, or running lights at dusk and night), brighter when braking; the light bar's
-    red and blue halves as they flash; the flashers (amber) and turn signals (red) as they blink."""
+    red and blue halves as they flash; the flashers (amber) and turn signals (red) as they blink; a beacon (amber)
+    and an LED strip's segments (blue or white) as the roof lamps' state ``roof`` lights them
+    (``sim.lamps.roof_state``, ``roof_segment_lit``)."""
     if lamp == "tail":
         return (TAIL_ON_BGR if brake_on else (50, 50, 200)) if tail_bright else None
     if lamp == "ev_red" and red_on:
@@ -137,11 +153,13 @@ def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, b
         return BLUE_LAMP_BGR
     if lamp in SIGNAL_LAMPS and sig_on:
         return AMBER_ON_BGR if lamp == "hazard" else TURN_ON_BGR
+    if roof and lamp in ("beacon", "led_blue", "led_white") and roof_segment_lit(roof, segment):
+        return BEACON_ON_BGR if lamp == "beacon" else LED_BLUE_BGR if lamp == "led_blue" else LED_WHITE_BGR
     return None
 
 
-def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool
-                ) -> tuple[list, list]:
+def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue_on: bool, sig_on: bool,
+                roof: int = 0) -> tuple[list, list]:
     """Per decal of a body (``sim.bodies.BodyModel.decals``), the colour it is drawn in this frame (a BGR tuple:
     ``lit_bgr`` when its lamp is lit, else ``unlit_bgr``; None for a turn signal that is off, which is not drawn: the
     tail light under it shows) and the lamp it lights (its name, or None), given the ``lighting`` (a
@@ -155,7 +173,7 @@ def decal_paint(decals: list, lighting: dict, brake_on: bool, red_on: bool, blue
             colours.append(None)
             lamps.append(None)
             continue
-        colour = lit_bgr(dc.lamp, tail_bright, brake_on, red_on, blue_on, sig_on) if dc.lamp else None
+        colour = lit_bgr(dc.lamp, tail_bright, brake_on, red_on, blue_on, sig_on, roof, dc.segment) if dc.lamp else None
         colours.append(tuple(unlit_bgr(dc.colour, dc.lamp, lighting)) if colour is None else colour)
         lamps.append(None if colour is None else dc.lamp)
     return colours, lamps

@@ -26,7 +26,7 @@ from protocol.messages import Actor, WorldSnapshot
 from protocol.road import Road
 from sim.bodies import BodyModel, body_model, body_parts, ev_lamps_on
 from sim.camera import NEAR_M, PinholeCamera
-from sim.lamps import signal_on
+from sim.lamps import roof_state, signal_on
 from sim.render.effects import (
     decal_paint,
     halo_falloff,
@@ -195,14 +195,15 @@ class Renderer:
         return model
 
     def _decal_paint(self, model: BodyModel, lighting: str, brake_on: bool, red_on: bool, blue_on: bool,
-                     sig_on: bool) -> tuple[list, list]:
+                     sig_on: bool, roof: int = 0) -> tuple[list, list]:
         """Per decal, its colour this frame and the lamp it lights (``sim.render.effects.decal_paint``), kept on the
-        body model per lighting and lamp states (at most 48 sets)."""
-        key = (lighting, brake_on, red_on, blue_on, sig_on)
+        body model per lighting and lamp states (at most 48 sets; a chasing LED strip's seven roof states
+        multiply them)."""
+        key = (lighting, brake_on, red_on, blue_on, sig_on, roof)
         paint = model.paint.get(key)
         if paint is None:
             paint = model.paint[key] = decal_paint(model.decals, LIGHTING[lighting], brake_on, red_on, blue_on,
-                                                   sig_on)
+                                                   sig_on, roof)
         return paint
 
     def _frame_start(self, snapshot: WorldSnapshot, frame_index: int | None) -> tuple:
@@ -326,7 +327,7 @@ class Renderer:
             for f in range(face_start[k], face_start[k + 1]):
                 fill(img, faces[f], face_colours[f], cv2.LINE_AA, 4)
             colours, lit = self._decal_paint(model, lighting, a.brake_on, *ev_lamps_on(a.light_bar, t),
-                                             signal_on(a.style, t))
+                                             signal_on(a.style, t), roof_state(a.style, t))
             d0, q0, bar_part, n_lamps = decal_start[k], point_start[k] + 8 * len(parts), len(parts) - 1, len(lamps)
             for j in range(seen_start[k], seen_start[k + 1]):
                 k_dc = seen[j] - d0
