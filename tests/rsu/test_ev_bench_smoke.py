@@ -19,6 +19,8 @@ def test_ev_bench_quick_json():
     assert r.returncode == 0, r.stderr[-2000:]
     figures = json.loads(r.stdout.strip().splitlines()[-1])
     assert {"track_recall", "false_alerts", "lights_on_to_alert_median_s", "decoy_lamp_vehicles",
-            "false_alerts_on_decoy_lamps"} <= set(figures)
+            "false_alerts_on_decoy_lamps", "false_alerts_on_ev_box"} <= set(figures)
+    kinds = {"hazard", "turn_signal", "beacon", "led_strip", "brake_lights"}
+    assert set(figures["decoy_lamp_modes"]) == set(figures["false_alerts_on_decoy_modes"]) == kinds
     assert figures["track_recall"] is not None and figures["track_recall"] > 0
     assert figures["lights_on_to_alert_median_s"] is not None and figures["lights_on_to_alert_median_s"] < 2.0
