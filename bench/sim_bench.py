@@ -9,7 +9,8 @@ pipeline (vehicles, lamps with glow, motion blur, exposure, sensor noise) per li
 without the per-frame effects as the in-run baseline. render_ms (target <= 5): CPU time (process time,
 so other processes on a shared machine do not count) per full-pipeline day frame, best of three runs, and the same
 for dusk and night (``render_ms_max``: the most of the three) and for the straightforward reference renderer
-(``bench.render_reference``) in the same run. World
+(``bench.render_reference``) in the same run. ``render_ms_dusk_negatives``: the dusk scene with the hard negatives
+of ``sim.lamps`` (the bus with a chasing LED strip, a van in works livery with its amber beacon). World
 steps: the ev_two_lanes_dense scenario.
 """
 
@@ -31,16 +32,19 @@ from bench.render_reference import ReferenceRenderer  # noqa: E402
 from protocol.corridor import load_corridor  # noqa: E402
 from protocol.enums import ActorKind, Lighting
 from protocol.messages import Actor, LightBar, WorldSnapshot
+from sim.lamps import with_roof_lamps  # noqa: E402
 from sim.render.renderer import Renderer  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
 from sim.scenery import render_scenery  # noqa: E402
-from sim.vehicles import LIVERY_AMBULANCE, make_style, random_colour  # noqa: E402
+from sim.vehicles import LIVERY_AMBULANCE, LIVERY_WORKS, WORKS_BGR, make_style, random_colour  # noqa: E402
 from sim.world import World  # noqa: E402
 
 N_VEHICLES = 20
 
 
-def scene(t_s: float, lighting: str) -> WorldSnapshot:
+def scene(t_s: float, lighting: str, negatives: bool = False) -> WorldSnapshot:
+    """The bench's snapshot at ``t_s``; ``negatives``: its bus with a chasing LED strip and its first van a works van
+    with an amber beacon."""
     rng = np.random.default_rng(0)
     kinds = ["car"] * 13 + ["van"] * 3 + ["truck"] * 2 + ["bus"] + ["ev"]
     sizes = {"car": (4.5, 1.8, 1.5), "van": (5.5, 2.0, 2.4), "truck": (9.0, 2.5, 3.4), "bus": (12.0, 2.5, 3.2),
@@ -53,17 +57,22 @@ def scene(t_s: float, lighting: str) -> WorldSnapshot:
         x = 25.0 + (x0 - 25.0 + speed * t_s) % 95.0
         L, W, H = sizes[kind]
         lb = LightBar(on=True, pattern="alternating", frequency_hz=2.0) if kind == "ev" else None
+        colour = random_colour(rng)
+        style = make_style(LIVERY_AMBULANCE if kind == "ev" else 0, i)
+        if negatives and kind == "bus":
+            style = with_roof_lamps(style, "led_chase", 3.0, 0.2)
+        elif negatives and kind == "van" and i == kinds.index("van"):
+            colour, style = WORKS_BGR, with_roof_lamps(make_style(LIVERY_WORKS, i), "beacon", 2.5, 0.0)
         actors.append(Actor(actor_id=f"b{i}", kind=ActorKind(kind), pos_x_m=x, pos_y_m=1.85 + 3.7 * lane,
                             heading_rad=0.0, length_m=L, width_m=W, height_m=H, speed_mps=speed,
-                            colour_bgr=random_colour(rng), brake_on=bool(i % 5 == 0),
-                            light_bar=lb, style=make_style(LIVERY_AMBULANCE if kind == "ev" else 0, i)))
+                            colour_bgr=colour, brake_on=bool(i % 5 == 0), light_bar=lb, style=style))
     return WorldSnapshot(src="bench", stamp=t_s, scenario="bench", sim_time_s=t_s, lighting=Lighting(lighting),
                          actors=actors)
 
 
-def fps(renderer: Renderer, lighting: str, frames: int, repeats: int = 3) -> float:
+def fps(renderer: Renderer, lighting: str, frames: int, repeats: int = 3, negatives: bool = False) -> float:
     """Frames per second, best of ``repeats`` runs (the machine is shared: the best run is the least disturbed)."""
-    snaps = [scene(k / 15.0, lighting) for k in range(frames)]
+    snaps = [scene(k / 15.0, lighting, negatives) for k in range(frames)]
     renderer.render(snaps[0], 0)  # background and noise caches
     best = 0.0
     for _ in range(repeats):
@@ -74,9 +83,10 @@ def fps(renderer: Renderer, lighting: str, frames: int, repeats: int = 3) -> flo
     return best
 
 
-def cpu_ms_per_frame(renderer: Renderer, lighting: str, frames: int, repeats: int = 3) -> float:
+def cpu_ms_per_frame(renderer: Renderer, lighting: str, frames: int, repeats: int = 3, negatives: bool = False
+                     ) -> float:
     """CPU time (ms) per frame, best of ``repeats`` runs: process time counts this process's work only."""
-    snaps = [scene(k / 15.0, lighting) for k in range(frames)]
+    snaps = [scene(k / 15.0, lighting, negatives) for k in range(frames)]
     renderer.render(snaps[0], 0)  # background, noise and body-model caches
     best = float("inf")
     for _ in range(repeats):
@@ -108,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     figures["render_ms"] = cpu_ms_per_frame(full, "day", frames)
     figures["render_ms_dusk"] = cpu_ms_per_frame(full, "dusk", frames // 2)
     figures["render_ms_night"] = cpu_ms_per_frame(full, "night", frames // 2)
+    figures["render_fps_1280x720_dusk_negatives"] = fps(full, "dusk", frames // 2, negatives=True)
+    figures["render_ms_dusk_negatives"] = cpu_ms_per_frame(full, "dusk", frames // 2, negatives=True)
     figures["render_ms_max"] = max(figures[k] for k in ("render_ms", "render_ms_dusk", "render_ms_night"))
     reference = ReferenceRenderer(cam, corridor.road, seed=1)
     reference._backgrounds = full._backgrounds
@@ -142,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  CPU per frame        : {figures['render_ms']:.2f} ms day, {figures['render_ms_dusk']:.2f} dusk, "
           f"{figures['render_ms_night']:.2f} night (max {figures['render_ms_max']:.2f}, target <= 5); reference "
           f"renderer {figures['render_ms_reference']:.2f} ms day")
+    print(f"  dusk, hard negatives : {figures['render_fps_1280x720_dusk_negatives']:7.1f} fps, "
+          f"{figures['render_ms_dusk_negatives']:.2f} ms CPU (LED-strip bus, works van with beacon)")
     print(f"  labels (id buffer)   : {figures['labels_per_s']:7.1f} frames/s")
     print(f"  static background    : {figures['background_build_s']:7.2f} s once per camera and lighting")
     print(f"world ev_two_lanes_dense, {figures['world_vehicles']} vehicles: {figures['world_steps_per_s']:.0f} steps/s "
