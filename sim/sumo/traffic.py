@@ -318,7 +318,7 @@ class SumoTraffic:
                 mode = p.lamp_mode
                 if mode or (v.style >> 12):
                     v.style = with_signal_lamps(v.style, mode, convert.BLINKER_FREQUENCY_HZ,
-                                                convert.lamp_phase_frac(vid)) if mode else v.style & 0xFFF
+                                                convert.lamp_phase_frac(vid)) if mode else with_signal_lamps(v.style, "", 0.0, 0.0)
             moved.append(v)
         ev = self._live.get(demand.EV_ID)
         if ev is not None and ev.light_bar is not None and ev.vehicle_id in self._in_sumo:

@@ -69,6 +69,7 @@ def test_roof_lamps_share_the_style_with_livery_detail_and_signal_lamps():
     assert style_livery(s) == LIVERY_WORKS and style_detail(s) == 77 and style_signal(s) == style_signal(base)
     # setting the signal lamps again (the SUMO traffic does each step) keeps the roof lamps, and back
     assert style_roof(with_signal_lamps(s, "left", 1.2, 0.0)) == roof
+    assert style_roof(with_signal_lamps(s, "", 0.0, 0.0)) == roof and style_signal(with_signal_lamps(s, "", 0, 0)) is None
     assert with_roof_lamps(s, "") == base and style_roof(base) is None
     led = with_roof_lamps(0, "led_chase", 9.0, 0.0, white=True)
     assert style_roof(led).white and style_roof(led).frequency_hz == 4.0
