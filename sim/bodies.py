@@ -1,7 +1,7 @@
 """Vehicle bodies for the renderer (``sim.render.renderer``): each actor as shaded 3-D part boxes in its own frame (lower
 body, glass cabin, cargo box, light bar, a works vehicle's beacon; debris shapes) with decals (windows, tail and
-brake lights, liveries, EV lamps, hazard flashers, turn signals, beacons and LED strips: ``sim.lamps``), derived from the ``Actor`` fields (kind, size,
-colour_bgr, brake_on, light_bar and ``style``: ``sim.vehicles``)."""
+brake lights, liveries, EV lamps, hazard flashers, turn signals, beacons and LED strips: ``sim.lamps``), derived
+from the ``Actor`` fields (kind, size, colour_bgr, brake_on, light_bar and ``style``: ``sim.vehicles``)."""
 
 from __future__ import annotations
 

@@ -244,8 +244,8 @@ def roof_segment_lit(state: int, segment: int) -> bool:
 def assign_roof_lamps(vehicles: Iterable[SimVehicle], led_fraction: float, chase_fraction: float,
                       rng: np.random.Generator) -> int:
     """Give a seeded fraction ``led_fraction`` of the buses among ``vehicles`` an LED strip, ``chase_fraction`` of
-    those chasing, a third of them white (blue otherwise); returns how many got one. Four draws per bus (none
-    for other vehicles) whatever the fractions."""
+    those chasing, a third of them white (blue otherwise), rate and start phase seeded per bus; returns how many got
+    one. Four draws per bus (none for other vehicles) whatever the fractions."""
     n = 0
     for v in vehicles:
         if v.kind != "bus" or v.is_static:

@@ -19,6 +19,7 @@ from sim.lamps import (
     LED_BLUE_BGR,
     LED_GLOW,
     LED_WHITE_BGR,
+    ROOF_LAMPS,
     SIGNAL_GLOW,
     SIGNAL_LAMPS,
     TURN_ON_BGR,
@@ -153,7 +154,7 @@ def lit_bgr(lamp: str | None, tail_bright: bool, brake_on: bool, red_on: bool, b
         return BLUE_LAMP_BGR
     if lamp in SIGNAL_LAMPS and sig_on:
         return AMBER_ON_BGR if lamp == "hazard" else TURN_ON_BGR
-    if roof and lamp in ("beacon", "led_blue", "led_white") and roof_segment_lit(roof, segment):
+    if roof and lamp in ROOF_LAMPS and roof_segment_lit(roof, segment):
         return BEACON_ON_BGR if lamp == "beacon" else LED_BLUE_BGR if lamp == "led_blue" else LED_WHITE_BGR
     return None
 
