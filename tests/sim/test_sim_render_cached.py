@@ -64,9 +64,10 @@ def test_fast_path_matches_in_every_lighting_with_blur_shadows_and_lamps(corrido
     cam = corridor.rsu("rsu1").camera
     fast, ref = Renderer(cam, corridor.road, seed=1), ReferenceRenderer(cam, corridor.road, seed=1)
     ref._backgrounds = fast._backgrounds
-    for k in (0, 3, 7):  # the light bar's red and blue halves
-        s = scene(k / 15.0, lighting)
-        assert_within_noise(fast.render(s, k), ref.render(s, k), lighting, k)
+    for k in (0, 3, 7):  # the light bar's red and blue halves; a chasing LED strip's blocks, a beacon on and off
+        for negatives in (False, True):
+            s = scene(k / 15.0, lighting, negatives)
+            assert_within_noise(fast.render(s, k), ref.render(s, k), lighting, (k, negatives))
 
 
 def test_static_scene_rendered_once_per_lighting(corridor, monkeypatch):
