@@ -15,9 +15,9 @@ snapshot, the scenario's lights-on time) is used here to *score*:
   ``track_recall`` = found / EV tracks;
 - a **false alert** is an alert id whose track matches anything but an EV with lights on (or nothing). The vehicle
   it is put on (``false_detail``, the decoy counts below) is the track's majority match, or, when the track never
-  matched a label (a fragment box), the label holding at least half of its box; ``false_alerts_on_ev_box`` counts
-  those put on an EV (one with its lights off, or a lit one's own lamps on a box that is not the EV's: a split box
-  of an EV half hidden);
+  matched a label (a fragment box), the smallest label box holding at least half of it; ``false_alerts_on_ev_box``
+  counts those put on an EV (one with its lights off, or a lit one's own lamps on a box that is not the EV's: a
+  split box of an EV half hidden);
 - **lights-on -> alert**: per scenario run with an EV, first ``active`` alert on the EV (any RSU) minus
   the later of the scenario's lights-on time and the first frame the lit EV is visible to a camera
   within its zone;
@@ -101,15 +101,15 @@ def pipeline_config(detector: str, *, ev_body: str = "default", box_gate: bool =
 
 
 def box_inside(box: np.ndarray, labels: list, min_share: float = 0.5) -> str | None:
-    """The actor of the label that holds the largest share of ``box`` (x1, y1, x2, y2 px), when that share is at least
-    ``min_share``; else None."""
+    """The actor of the smallest label box that holds at least ``min_share`` of ``box`` (x1, y1, x2, y2 px); None when
+    none does. The smallest: a vehicle half hidden behind a nearer one has a box inside the nearer one's."""
     area = max(1.0, float((box[2] - box[0]) * (box[3] - box[1])))
-    best, share = None, min_share
+    best, best_area = None, float("inf")
     for lb in labels:
         x1, y1, x2, y2 = lb.bbox_px
         inter = max(0.0, min(box[2], x2) - max(box[0], x1)) * max(0.0, min(box[3], y2) - max(box[1], y1))
-        if inter / area >= share:
-            best, share = lb.actor_id, inter / area
+        if inter / area >= min_share and (x2 - x1) * (y2 - y1) < best_area:
+            best, best_area = lb.actor_id, (x2 - x1) * (y2 - y1)
     return best
 
 
