@@ -11,7 +11,8 @@ lamp whose light lies at the sides (centre share < 0.5) is a corner lamp and giv
 Two colour definitions are used. :data:`LAMP_BRIGHT` (HSV: V >= 240, S >= 120) is a lamp that
 saturates the sensor, as every lit lamp does in the simulator's renders; a flash pattern in it is strong
 enough to confirm an EV alone. :data:`BAR_COLOURED` is what a real light bar looks like in compressed
-video: a bright red or blue *chroma* (the channel >= 180 and R - max(G, B) or B - max(R, G) >= 50).
+video: a bright red or blue *chroma* (the channel >= 180 and R - max(G, B) or B - max(R, G) >= 50; a red one
+within 20 degrees of hue, so that an amber beacon is not red).
 Measured frame by frame (the escort, Japanese-ambulance and NYC-police clips are
 the tuning clips of this definition): the escort's bars have S ~ 100-115; the Japanese ambulance's lit
 lamps are pink-red points (RGB ~ (233, 101, 120), (255, 164, 195): hue 160-170, S ~ 90-140) on a
@@ -117,7 +118,9 @@ def measure_band(crop_bgr: np.ndarray, top_fraction: float, colour_sets: tuple[L
     for c in colour_sets:
         if c.kind == "chroma":
             b, g, r = bgr[..., 0], bgr[..., 1], bgr[..., 2]
-            red = (r >= c.min_value) & (r - np.maximum(g, b) >= c.min_chroma)
+            # hue within 20 degrees of red (60 (g - b) / (r - min(g, b)) <= 20), as the HSV test's: an amber
+            # works beacon (hue ~30 degrees) has as much red chroma as a red bar
+            red = (r >= c.min_value) & (r - np.maximum(g, b) >= c.min_chroma) & (3 * (g - b) <= r - np.minimum(g, b))
             blue = (b >= c.min_value) & (b - np.maximum(r, g) >= c.min_chroma)
         else:
             h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]

@@ -144,6 +144,20 @@ def test_bar_definition_measures_a_central_white_lamp():
     assert 0.03 < bar.white < 0.04 and bar.white_centre == 1.0 and bar.red == bar.blue == 0.0
 
 
+def test_bar_definition_reads_red_lamps_as_red_and_an_amber_beacon_as_no_colour():
+    from rsu.classify.lamps import BAR_COLOURED, measure_band
+
+    def red_of(bgr):
+        crop = np.full((100, 100, 3), 40, np.uint8)
+        crop[5:15, 40:60] = bgr
+        return measure_band(crop, 0.4, (BAR_COLOURED,))[0].red
+
+    assert red_of((40, 40, 255)) > 0.04  # a red lamp
+    assert red_of((120, 101, 233)) > 0.04  # a pink-red LED point (hue ~350 degrees)
+    assert red_of((40, 90, 255)) > 0.04  # a red lamp blooming towards orange (hue ~14 degrees)
+    assert red_of((0, 140, 255)) == 0.0 and red_of((30, 180, 250)) == 0.0  # amber beacons (hue 33-40 degrees)
+
+
 def _bar_run(bar_signal, duration_s=3.0):
     ev, states = TrackEvidence(), []
     for i in range(int(duration_s * FPS)):
