@@ -93,9 +93,12 @@ class EvidenceConfig:
     ``ev_lights_never_on``, seed 99765). Set on the tuning clips of ``bench/ev_real_bench.py``:
     without it the tail lights of ``overpass_dusk_taillights`` and a blue object above a van's roof in
     ``street_ambulance_japan_red`` alert (1 traffic, 2 wrong-vehicle alerts); from 0.5 to 0.7 none does and no EV is
-    lost or delayed, at 0.8 one alert comes 0.5 s later: 0.6, the middle. The lamp-bright flash (a lamp that saturates
-    the sensor) is not held to it: the model was
-    trained on real photos and video, and the simulator's lamps, which it never saw, are lamp-bright."""
+    lost or delayed, at 0.8 one alert comes 0.5 s later: 0.6, the middle. A lamp-bright flash (a lamp that saturates
+    the sensor) of one colour is held to it too, red/blue alternation of lamp-bright colours is not. One colour flashing is also what a
+    turn signal or hazard flasher shows when the band holds its lamp (``bench/ev_bench.py`` tuning seed 72567,
+    ``ev_two_lanes_dense``, rsu1: a car's red rear turn signal on a 51 px box, its p(lit) quantile 0.01, 1 false alert;
+    the day scenarios' EVs confirmed on one-colour flashes at 0.999); no ordinary vehicle's lamps alternate red and
+    blue, and the simulator's night EVs, whose renders the model reads at 0.02-0.5, confirm on alternation."""
     lit_quantile: float = 0.75
     """... the quantile: a flashing lamp is dark about half the time, so the median would miss it."""
     body_threshold: float = 0.5
