@@ -51,7 +51,8 @@ The rule (per track, each frame):
 - ``none`` -> ``candidate`` when L > ``candidate_level``;
 - ``candidate`` -> ``confirmed`` when L >= ``confirm_level`` **and** flash evidence is present now
   (a flash pattern alone: a light bar that is not flashing never confirms this way, whatever a crop
-  classifier says), **or** when the body score is at least ``body_threshold`` over at least
+  classifier says; a flash of one colour only where the lamp-state model sees lit lamps,
+  ``EvidenceConfig.lit_flash_min``, while red/blue alternation needs no model), **or** when the body score is at least ``body_threshold`` over at least
   ``body_min_scores`` scores (or the last ``body_sure_min_scores`` each reach ``body_sure_threshold``)
   **and** a lamp cue (flash, alternation or steady bar) is present now;
 - ``confirmed`` -> ``cleared`` when no lamp has been lit for ``clear_after_s`` (lights off; a
@@ -276,11 +277,11 @@ class TrackEvidence:
         x = x[~np.isnan(x)]
         return float(np.quantile(x, self.config.lit_quantile)) if len(x) else None
 
-    def looks_lit(self, now_s: float) -> bool:
-        """Does the lamp-state model see lit warning lamps in the band (``lit_level`` >= ``lit_min``)? True without a
-        model: the colour tests then decide alone."""
+    def looks_lit(self, now_s: float, min_level: float | None = None) -> bool:
+        """Does the lamp-state model see lit warning lamps in the band (``lit_level`` >= ``min_level``, by default
+        ``lit_min``)? True without a model: the colour tests then decide alone."""
         level = self.lit_level(now_s)
-        return level is None or level >= self.config.lit_min
+        return level is None or level >= (self.config.lit_min if min_level is None else min_level)
 
     @property
     def body_score(self) -> float | None:
@@ -359,7 +360,8 @@ class TrackEvidence:
         body = (EvCue.EV_BODY,) if self.body_confident else ()
 
         if self.state in (EvState.NONE, EvState.CLEARED, EvState.CANDIDATE):
-            if self.level >= cfg.confirm_level and flash is not None and (lamps_alone or body):
+            if self.level >= cfg.confirm_level and flash is not None and (lamps_alone or body) and (
+                    flash == EvCue.ALTERNATION or self.looks_lit(now_s, cfg.lit_flash_min)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (flash, *body)
             elif lamps_alone and lamp_cue is not None and self._strong_bar_flash(now_s) and (body or self.looks_lit(now_s)):
                 self.state, self.confirmed_at_s, self.cues = EvState.CONFIRMED, now_s, (EvCue.FLASH, *body)

@@ -95,3 +95,25 @@ def test_a_white_flicker_on_a_dark_bar_does_not_confirm_with_a_confident_body_wh
     assert EvState.CONFIRMED in run(None)
     assert EvState.CONFIRMED in run(0.95)
     assert EvState.CONFIRMED not in run(0.05)
+
+
+def test_a_one_colour_lamp_bright_flash_confirms_alone_only_where_the_lamp_state_model_sees_lit_lamps():
+    """One red lamp blinking at 2 Hz in the middle of the band, lamp-bright: a beacon, or a turn signal or hazard
+    flasher whose lamp the band holds. Without a confident body only the lamp-state model tells them apart; red/blue
+    alternation, which no ordinary vehicle's lamps show, confirms whatever the model says."""
+    def run(lit_p, body=None, alternate=False):
+        ev = TrackEvidence()
+        states = []
+        for i in range(int(4 * FPS)):
+            t = i / FPS
+            on = t >= 1.0
+            red = ((t - 1.0) * 2.0) % 1.0 < 0.5
+            bright = LampMeasurement(0.03 if on and red else 0.0, 0.03 if on and alternate and not red else 0.0)
+            states.append(ev.update(t, bright, None, body, lit_p=lit_p))
+        return states
+
+    assert EvState.CONFIRMED in run(None)  # no model: the colour tests decide
+    assert EvState.CONFIRMED in run(0.99)
+    assert EvState.CONFIRMED not in run(0.01)  # a decoy's blinking lamp
+    assert EvState.CONFIRMED in run(0.01, body=0.95)  # a confident body with the flash still confirms
+    assert EvState.CONFIRMED in run(0.01, alternate=True)
