@@ -223,6 +223,14 @@ class Decider:
         if entry is not None:
             mem.restore(*entry)
 
+    def _plan_again(self, vid: str, command_id: str, counter: str) -> None:
+        """Roll the vehicle's memory back to before ``command_id`` and decide for it at the next step (no backoff);
+        the new command supersedes that one. Counted under ``counter``."""
+        mem = self.memory.setdefault(vid, VehicleMemory())
+        self._roll_back(command_id, mem)
+        mem.replan_after_s = -1.0
+        self.counters[counter] += 1
+
     def _refresh_in_flight(self, picture: Picture) -> None:
         """Plan again, from where the car is now, each unacknowledged command that the car's state does not name
         as active and whose path starts more than ``in_flight_replan_behind_m`` behind the car (along its
@@ -238,14 +246,9 @@ class Decider:
                 continue  # the car executes it: only its ack is late
             x0, y0 = cur.command.waypoints[0]
             behind_m = (ego.x_m - x0) * math.cos(ego.heading_rad) + (ego.y_m - y0) * math.sin(ego.heading_rad)
-            if behind_m <= limit_m:
-                continue
-            mem = self.memory.setdefault(ego.vehicle_id, VehicleMemory())
-            if cur.command_id not in self._rollback:
-                continue  # already planned again; the next command supersedes it
-            self._roll_back(cur.command_id, mem)
-            mem.replan_after_s = -1.0
-            self.counters["cmd_replanned_in_flight"] += 1
+            if behind_m <= limit_m or cur.command_id not in self._rollback:
+                continue  # short of the limit, or already planned again (the next command supersedes it)
+            self._plan_again(ego.vehicle_id, cur.command_id, "cmd_replanned_in_flight")
             log.warning("%s: command %s unacknowledged after %.1f s, its path now starts %.1f m behind the car: "
                         "planning it again from the car's position", ego.vehicle_id, cur.command_id,
                         picture.now - cur.first_sent_s, behind_m)
@@ -260,10 +263,7 @@ class Decider:
         cur = self.commands.state_of(vid)
         if cur is None or cur.state != CommandState.SENT:
             return
-        mem = self.memory.setdefault(vid, VehicleMemory())
-        self._roll_back(cur.command_id, mem)
-        mem.replan_after_s = -1.0
-        self.counters["cmd_replanned_after_outage"] += 1
+        self._plan_again(vid, cur.command_id, "cmd_replanned_after_outage")
         log.warning("%s heard again after %.1f s with command %s unacknowledged: planning it again from the "
                     "car's fresh state", vid, silent_s, cur.command_id)
 

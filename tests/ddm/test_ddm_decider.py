@@ -12,7 +12,7 @@ from ddm.geometry import RoadFrame
 from ddm.world import CorridorWorld
 from protocol.corridor import load_corridor
 from protocol.enums import AckStatus, AlertState, Manoeuvre, VehicleMode
-from protocol.messages import CommandAck, EvAlert, HazardAlert, VehicleState
+from protocol.messages import CommandAck, EvAlert, HazardAlert, PathSwitchCommand, VehicleState
 
 CORRIDOR = load_corridor()
 T0 = 100.0
@@ -44,6 +44,16 @@ def hazard_alert(t: float, x: float) -> HazardAlert:
                        first_seen=t)
 
 
+def pull_over_sent(cfg: DdmConfig) -> tuple[Decider, CorridorWorld, PathSwitchCommand]:
+    """The decider after it sent the AV at x = 20 m its pull-over for an EV 50 m behind, at T0."""
+    decider, world = setup(cfg)
+    world.ingest_vehicle_state(av_state(T0), T0)
+    world.ingest_ev_alert(ev_alert(T0), T0)
+    decider.decide(world.snapshot(T0))
+    (cmd,) = decider.due_commands(T0)
+    return decider, world, cmd
+
+
 def test_an_ev_alert_in_the_world_becomes_a_pull_over_command_through_the_decider():
     decider, world = setup()
     world.ingest_vehicle_state(av_state(T0), T0)
@@ -68,11 +78,7 @@ def test_an_alert_far_from_the_vehicle_is_left_to_the_next_step():
 
 def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_again():
     cfg = DdmConfig()
-    decider, world = setup(cfg)
-    world.ingest_vehicle_state(av_state(T0), T0)
-    world.ingest_ev_alert(ev_alert(T0), T0)
-    decider.decide(world.snapshot(T0))
-    (cmd,) = decider.due_commands(T0)
+    decider, world, cmd = pull_over_sent(cfg)
     decider.on_ack(CommandAck(src="av1", stamp=T0 + 0.05, command_id=cmd.command_id, vehicle_id="av1",
                               status=AckStatus.REJECTED, reason="path starts behind the car"), T0 + 0.05)
     mem = decider.memory["av1"]
@@ -91,12 +97,7 @@ def test_a_rejected_command_rolls_the_memory_back_and_waits_before_planning_agai
 
 
 def test_an_unacknowledged_command_the_car_drives_past_is_planned_again_from_where_the_car_is():
-    cfg = DdmConfig()
-    decider, world = setup(cfg)
-    world.ingest_vehicle_state(av_state(T0), T0)
-    world.ingest_ev_alert(ev_alert(T0), T0)
-    decider.decide(world.snapshot(T0))
-    (first,) = decider.due_commands(T0)
+    decider, world, first = pull_over_sent(DdmConfig())
     # the link stalls: no ack, the car's state still arrives; 0.6 s on it is 8 m past the path's start
     t = T0 + 0.6
     world.ingest_vehicle_state(av_state(t, x=20.0 + 13.4 * 0.6), t)
