@@ -5,9 +5,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from lamp_rig import lamp_decals, snap
 
-from protocol.enums import ActorKind, Lighting
-from protocol.messages import Actor, WorldSnapshot
+from protocol.enums import ActorKind
+from protocol.messages import Actor
 from sim.bodies import face_points
 from sim.lamps import (
     DUTY,
@@ -29,20 +30,9 @@ def car(aid, x, y, style, heading=0.0, kind="car", size=(4.5, 1.8, 1.5)):
                  width_m=size[1], height_m=size[2], speed_mps=10.0, colour_bgr=(190, 190, 188), style=style)
 
 
-def snap(actors, t, lighting="day"):
-    return WorldSnapshot(src="t", stamp=t, scenario="t", sim_time_s=t, lighting=Lighting(lighting), actors=actors)
-
-
 def lamp_pixels(r: Renderer, a: Actor, lamp: str, face: str) -> list[tuple[int, int]]:
     """Image (x, y) of the centre of each of the actor's decals of that lamp on that face."""
-    _parts, decals, corners, _uv, _depth, _rot = r._actor_geometry(a)
-    out = []
-    for dc in decals:
-        if dc.lamp == lamp and dc.face == face:
-            uv, _ = r.cam.project(face_points(corners[dc.part], face, dc.u0, dc.u1, dc.v0, dc.v1).mean(axis=0,
-                                                                                                      keepdims=True))
-            out.append((int(round(uv[0, 0])), int(round(uv[0, 1]))))
-    return sorted(out)
+    return sorted((x, y) for x, y, _segment in lamp_decals(r, a, lamp, face))
 
 
 def face_x_range(r: Renderer, a: Actor, part: int, face: str) -> tuple[float, float]:

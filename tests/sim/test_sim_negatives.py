@@ -6,10 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from lamp_rig import lamp_decals, snap
 
-from protocol.enums import ActorKind, Lighting
-from protocol.messages import Actor, WorldSnapshot
-from sim.bodies import face_points
+from protocol.enums import ActorKind
+from protocol.messages import Actor
 from sim.lamps import (
     BEACON_DUTY,
     LED_SEGMENTS,
@@ -32,22 +32,6 @@ from sim.world import World
 def actor(kind, size, style, x=40.0, y=1.85, heading=0.0, colour=(230, 230, 230)):
     return Actor(actor_id="n", kind=ActorKind(kind), pos_x_m=x, pos_y_m=y, heading_rad=heading, length_m=size[0],
                  width_m=size[1], height_m=size[2], speed_mps=5.0, colour_bgr=colour, style=style)
-
-
-def snap(actors, t, lighting="day"):
-    return WorldSnapshot(src="t", stamp=t, scenario="t", sim_time_s=t, lighting=Lighting(lighting), actors=actors)
-
-
-def lamp_centres(r, a, lamp, face):
-    """Image (x, y) of the centre of each of the actor's decals of that lamp on that face, with its segment."""
-    _parts, decals, corners, _uv, _depth, _rot = r._actor_geometry(a)
-    out = []
-    for dc in decals:
-        if dc.lamp == lamp and dc.face == face:
-            uv, _ = r.cam.project(face_points(corners[dc.part], face, dc.u0, dc.u1, dc.v0, dc.v1).mean(axis=0,
-                                                                                                      keepdims=True))
-            out.append((int(round(uv[0, 0])), int(round(uv[0, 1])), dc.segment))
-    return out
 
 
 def amber(px) -> bool:
@@ -107,7 +91,7 @@ def test_works_beacon_renders_amber_on_the_roof_and_blinks(clean_renderer, kind,
     t_on, t_off = 2 * period + 0.2 * period, 2 * period + 0.7 * period
     a = actor(kind, size, style, colour=WORKS_BGR)
     lit, dark = r.render(snap([a], t_on)), r.render(snap([a], t_off))
-    pts = lamp_centres(r, a, "beacon", "rear")
+    pts = lamp_decals(r, a, "beacon", "rear")
     assert len(pts) == 1
     (px, py, _seg), = pts
     box = r.labels(snap([a], t_on))[0]
@@ -125,7 +109,7 @@ def test_bus_led_strip_is_a_steady_blue_and_a_chase_moves(clean_renderer):
     r = clean_renderer
     size = (12.0, 2.5, 3.2)
     steady = actor("bus", size, with_roof_lamps(make_style(0, 2), "led", 2.0, 0.0))
-    pts = lamp_centres(r, steady, "led_blue", "rear")
+    pts = lamp_decals(r, steady, "led_blue", "rear")
     assert len(pts) == LED_SEGMENTS
     frames = [r.render(snap([steady], t)) for t in (0.0, 0.1, 0.23, 0.41)]
     for px, py, _seg in pts:
@@ -135,7 +119,7 @@ def test_bus_led_strip_is_a_steady_blue_and_a_chase_moves(clean_renderer):
     lit_sets = set()
     for t in (0.01, 0.26):  # half a period apart: the lit block has moved to the other half
         img = r.render(snap([chase], t))
-        lit = frozenset(seg for px, py, seg in lamp_centres(r, chase, "led_blue", "rear") if lamp_blue(img[py, px]))
+        lit = frozenset(seg for px, py, seg in lamp_decals(r, chase, "led_blue", "rear") if lamp_blue(img[py, px]))
         assert len(lit) == LED_SEGMENTS // 2
         lit_sets.add(lit)
     assert len(lit_sets) == 2
