@@ -62,6 +62,26 @@ SIGNAL_GLOW = 0.6
 _SHIFT = 12
 _MODE_MASK, _FREQ_BITS, _PHASE_BITS = 0x3, 4, 8
 _FREQ_STEPS = (1 << _FREQ_BITS) - 1
+_LAMP_FIELD_BITS = 2 + _FREQ_BITS + _PHASE_BITS
+"""Bits of one lamp field of ``style``: the mode, the rate code and the phase code."""
+
+
+def _pack_lamp(mode_code: int, frequency_hz: float, rate_range_hz: tuple[float, float], phase_frac: float) -> int:
+    """A lamp field: the mode's code, the rate clipped to ``rate_range_hz`` and quantised to ``_FREQ_STEPS`` steps
+    of it, the phase (a fraction of a period) to 1/256."""
+    f_min, f_max = rate_range_hz
+    f_code = int(round((float(np.clip(frequency_hz, f_min, f_max)) - f_min) / (f_max - f_min) * _FREQ_STEPS))
+    p_code = int(phase_frac * (1 << _PHASE_BITS)) % (1 << _PHASE_BITS)
+    return mode_code | f_code << 2 | p_code << (2 + _FREQ_BITS)
+
+
+def _unpack_lamp(bits: int, rate_range_hz: tuple[float, float]) -> tuple[int, float, float]:
+    """(mode code, rate in Hz, phase in s) of a lamp field (``bits`` shifted down to it)."""
+    f_min, f_max = rate_range_hz
+    f = f_min + ((bits >> 2) & _FREQ_STEPS) / _FREQ_STEPS * (f_max - f_min)
+    phase = ((bits >> (2 + _FREQ_BITS)) & ((1 << _PHASE_BITS) - 1)) / (1 << _PHASE_BITS)
+    return bits & _MODE_MASK, f, phase / f
+
 
 FRONT_LAMPS = {
     "car": (1, (0.02, 0.15), (0.5, 0.78)),
@@ -83,25 +103,19 @@ class SignalLamps(NamedTuple):
 def with_signal_lamps(style: int, mode: str, frequency_hz: float, phase_frac: float) -> int:
     """``style`` with signal lamps set (mode "" clears them), its other bits kept. The frequency is clipped to
     1-2 Hz and quantised to 1/15 Hz, the phase (a fraction of a period) to 1/256."""
-    base = int(style) & ~(((1 << (2 + _FREQ_BITS + _PHASE_BITS)) - 1) << _SHIFT)
+    base = int(style) & ~(((1 << _LAMP_FIELD_BITS) - 1) << _SHIFT)
     if not mode:
         return base
-    f_code = int(round((float(np.clip(frequency_hz, FREQ_MIN_HZ, FREQ_MAX_HZ)) - FREQ_MIN_HZ)
-                       / (FREQ_MAX_HZ - FREQ_MIN_HZ) * _FREQ_STEPS))
-    p_code = int(phase_frac * (1 << _PHASE_BITS)) % (1 << _PHASE_BITS)
-    bits = MODES.index(mode) | f_code << 2 | p_code << (2 + _FREQ_BITS)
-    return base | bits << _SHIFT
+    return base | _pack_lamp(MODES.index(mode), frequency_hz, (FREQ_MIN_HZ, FREQ_MAX_HZ), phase_frac) << _SHIFT
 
 
 def style_signal(style: int) -> SignalLamps | None:
     """The signal lamps encoded in ``style``; None when it has none."""
-    bits = (int(style) >> _SHIFT) & ((1 << (2 + _FREQ_BITS + _PHASE_BITS)) - 1)
-    mode = bits & _MODE_MASK
-    if mode == 0:
+    bits = (int(style) >> _SHIFT) & ((1 << _LAMP_FIELD_BITS) - 1)
+    if bits & _MODE_MASK == 0:
         return None
-    f = FREQ_MIN_HZ + ((bits >> 2) & _FREQ_STEPS) / _FREQ_STEPS * (FREQ_MAX_HZ - FREQ_MIN_HZ)
-    phase = ((bits >> (2 + _FREQ_BITS)) & ((1 << _PHASE_BITS) - 1)) / (1 << _PHASE_BITS)
-    return SignalLamps(MODES[mode], f, phase / f)
+    mode, f, phase_s = _unpack_lamp(bits, (FREQ_MIN_HZ, FREQ_MAX_HZ))
+    return SignalLamps(MODES[mode], f, phase_s)
 
 
 def signal_on(style: int, t_s: float) -> bool:
@@ -180,7 +194,8 @@ ROOF_ALL_LIT = -1
 """``roof_state`` of a lit beacon or a steady strip: every segment lit."""
 
 _ROOF_SHIFT = 26
-_ROOF_FIELDS = 2 + _FREQ_BITS + _PHASE_BITS + 1
+_ROOF_FIELDS = _LAMP_FIELD_BITS + 1
+"""A lamp field and the white bit."""
 
 
 class RoofLamps(NamedTuple):
@@ -200,23 +215,18 @@ def with_roof_lamps(style: int, mode: str, frequency_hz: float = 2.0, phase_frac
     base = int(style) & ~(((1 << _ROOF_FIELDS) - 1) << _ROOF_SHIFT)
     if not mode:
         return base
-    f_code = int(round((float(np.clip(frequency_hz, BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ)) - BEACON_FREQ_MIN_HZ)
-                       / (BEACON_FREQ_MAX_HZ - BEACON_FREQ_MIN_HZ) * _FREQ_STEPS))
-    p_code = int(phase_frac * (1 << _PHASE_BITS)) % (1 << _PHASE_BITS)
-    bits = ROOF_MODES.index(mode) | f_code << 2 | p_code << (2 + _FREQ_BITS) | int(bool(white)) << (2 + _FREQ_BITS
-                                                                                                     + _PHASE_BITS)
+    bits = (_pack_lamp(ROOF_MODES.index(mode), frequency_hz, (BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ), phase_frac)
+            | int(bool(white)) << _LAMP_FIELD_BITS)
     return base | bits << _ROOF_SHIFT
 
 
 def style_roof(style: int) -> RoofLamps | None:
     """The roof lamps encoded in ``style``; None when it has none."""
     bits = int(style) >> _ROOF_SHIFT
-    mode = bits & _MODE_MASK
-    if mode == 0:
+    if bits & _MODE_MASK == 0:
         return None
-    f = BEACON_FREQ_MIN_HZ + ((bits >> 2) & _FREQ_STEPS) / _FREQ_STEPS * (BEACON_FREQ_MAX_HZ - BEACON_FREQ_MIN_HZ)
-    phase = ((bits >> (2 + _FREQ_BITS)) & ((1 << _PHASE_BITS) - 1)) / (1 << _PHASE_BITS)
-    return RoofLamps(ROOF_MODES[mode], f, phase / f, bool(bits >> (2 + _FREQ_BITS + _PHASE_BITS) & 1))
+    mode, f, phase_s = _unpack_lamp(bits, (BEACON_FREQ_MIN_HZ, BEACON_FREQ_MAX_HZ))
+    return RoofLamps(ROOF_MODES[mode], f, phase_s, bool(bits >> _LAMP_FIELD_BITS & 1))
 
 
 def roof_state(style: int, t_s: float) -> int:
