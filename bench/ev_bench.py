@@ -67,6 +67,7 @@ import numpy as np  # noqa: E402
 from protocol.enums import AlertState  # noqa: E402
 from rsu.build import MOTION, PROJECT, PipelineConfig, build_pipeline  # noqa: E402
 from rsu.classify.confidence import expected_calibration_error  # noqa: E402
+from rsu.classify.ev import crop_share_within  # noqa: E402
 from rsu.classify.evidence_config import EvidenceConfig  # noqa: E402
 from rsu.classify.lamps import LAMP_BRIGHT  # noqa: E402
 from rsu.frames import Frame  # noqa: E402
@@ -103,12 +104,10 @@ def pipeline_config(detector: str, *, ev_body: str = "default", box_gate: bool =
 def box_inside(box: np.ndarray, labels: list, min_share: float = 0.5) -> str | None:
     """The actor of the smallest label box that holds at least ``min_share`` of ``box`` (x1, y1, x2, y2 px); None when
     none does. The smallest: a vehicle half hidden behind a nearer one has a box inside the nearer one's."""
-    area = max(1.0, float((box[2] - box[0]) * (box[3] - box[1])))
     best, best_area = None, float("inf")
     for lb in labels:
         x1, y1, x2, y2 = lb.bbox_px
-        inter = max(0.0, min(box[2], x2) - max(box[0], x1)) * max(0.0, min(box[3], y2) - max(box[1], y1))
-        if inter / area >= min_share and (x2 - x1) * (y2 - y1) < best_area:
+        if crop_share_within(tuple(box), lb.bbox_px) >= min_share and (x2 - x1) * (y2 - y1) < best_area:
             best, best_area = lb.actor_id, (x2 - x1) * (y2 - y1)
     return best
 
