@@ -98,23 +98,34 @@ def propose(clip: str, out: Path, every_s: float, per_sheet: int) -> Path:
     (dest / "proposals.json").write_text(json.dumps(dict(
         clip=path.name, folder=folder, every_s=every_s, **info,
         boxes={f"{t:.3f}": {str(k): v for k, v in b.items()} for t, b in boxes_at.items()})))
-    cells = []
-    cap = cv2.VideoCapture(str(path))
-    try:
-        for t in times:
-            cap.set(cv2.CAP_PROP_POS_MSEC, t * 1000.0)
-            ok, img = cap.read()
-            if not ok:
-                continue
-            cells.append(draw_cell(img, t, boxes_at[t]))
-    finally:
-        cap.release()
+    cells = [draw_cell(img, t, boxes_at[t]) for t, img in frames_at(path, times)]
     cols = 3 if info["width"] >= info["height"] else 4
     for k in range(0, len(cells), per_sheet):
         sheet = tile(cells[k:k + per_sheet], cols)
         cv2.imwrite(str(dest / f"sheet_{k // per_sheet:02d}.png"), sheet)
     print(f"{path.name}: {len(times)} times, {len(result.track_boxes)} tracks, sheets in {dest}")
     return dest
+
+
+def frames_at(path: Path, times: list[float]) -> list[tuple[float, np.ndarray]]:
+    """(t, image) of the frame nearest each of ``times`` on the clip's media clock (its decode timestamps), the clock
+    the scan stamps frames with (``rsu.frames.VideoSource``). Seeking by time (``CAP_PROP_POS_MSEC``) lands on frame
+    ``t * fps`` instead, another frame once a clip skips frames (the two Indian night clips jump 0.3 s at 8 s): the
+    sheet would show each later time's frame 0.3 s late beside the scan's boxes of that time."""
+    best: dict[float, tuple[float, np.ndarray]] = {}
+    cap = cv2.VideoCapture(str(path))
+    try:
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            media_s = float(cap.get(cv2.CAP_PROP_POS_MSEC) or 0.0) / 1000.0
+            for t in times:
+                if t not in best or abs(media_s - t) < best[t][0]:
+                    best[t] = (abs(media_s - t), img)
+    finally:
+        cap.release()
+    return [(t, best[t][1]) for t in times if t in best]
 
 
 def draw_cell(img: np.ndarray, t: float, boxes: dict[int, list[float]]) -> np.ndarray:

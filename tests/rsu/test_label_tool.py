@@ -44,3 +44,20 @@ def test_bad_choices_say_what_is_wrong():
         build_labels(PROPOSALS, "elevated", [ev], [], [], "")
     with pytest.raises(ValueError, match="NAME T X1"):
         build_labels(PROPOSALS, "elevated", [parse_vehicle("amb tracks=3", "ev", 2.0)], ["amb 1.0 1 2"], [], "")
+
+
+def test_sheet_frames_are_the_frames_the_scan_stamps_at_those_times():
+    """A clip that skips 0.3 s at 8 s: the sheet's frame for 9.5 s is the one the scan stamps 9.5 s, not frame
+    9.5 x fps (which the scan stamps 9.8 s)."""
+    import numpy as np
+
+    from bench.label_tool import frames_at
+    from rsu.frames import VideoSource
+    from tests.conftest import require_shared
+
+    clip = require_shared("data", "real", "ev_videos", "roadside_night_ambulance_india_redblue.mp4")
+    ((t, sheet),) = frames_at(clip, [9.5])
+    with VideoSource(clip, read_timeout_s=30.0) as source:
+        stamped = min((f for f in source if 9.3 < f.timestamp_s < 9.7), key=lambda f: abs(f.timestamp_s - 9.5))
+        assert abs(stamped.timestamp_s - 9.5) < 0.011
+    assert t == 9.5 and np.array_equal(sheet, stamped.image)
