@@ -118,6 +118,15 @@ def crop_share_within(crop: tuple[int, int, int, int], other: tuple[int, int, in
     return float(iw * ih) / area if iw > 0 and ih > 0 and area > 0 else 0.0
 
 
+def lit_beside(crop, box, reach_share: float) -> bool:
+    """Is the xyxy rectangle ``crop`` level with ``box`` (their rows overlap) and at most ``reach_share`` of ``box``'s
+    width away from it sideways (or overlapping it)?"""
+    if crop[1] >= box[3] or crop[3] <= box[1]:
+        return False
+    gap = max(crop[0] - box[2], box[0] - crop[2], 0.0)
+    return gap <= reach_share * (box[2] - box[0])
+
+
 def extrapolate_box(box: np.ndarray, centre_velocity_pxps: np.ndarray | None, dt_s: float) -> np.ndarray:
     """An xyxy box moved ``dt_s`` seconds on at its centre's constant velocity, its size kept: the size of
     a track that was just lost is the least trustworthy part of it (SORT's aspect ratio lags a vehicle that
@@ -168,6 +177,12 @@ class TrackEvClassifier:
         lamps (a second box on the EV's roof): its flashes confirm only with a confident body (``_ev_ahead``). Only a
         confirmed one: a farther EV whose flashes light a nearer car's roof makes that car flash too, and two tracks
         that each held the other's flashes back would never confirm."""
+        self.glow_reach_share = 1.0
+        """A track whose crop comes within this share of a confirmed EV's box width of that box, beside it and level with
+        it, is lit by the EV's lamps: at night a beacon's light flashes on everything around it (the car beside an
+        ambulance, its band blue in step with the ambulance's beacon: tuning clip ``roadside_night_ambulance_india_redblue``,
+        a wrong-vehicle alert 0.6 s after the ambulance's), so its flashes confirm only with a confident body
+        (``_ev_ahead``)."""
         self.config = config or EvidenceConfig()
         confident = getattr(body, "confident_threshold", None)
         if confident is not None and config is None:  # the body model's own confident operating point
@@ -310,7 +325,7 @@ class TrackEvClassifier:
             self._hand_over(now, ids, boxes)
         h, w = image.shape[:2]
         bounds = [self.crop_bounds(b, w, h) for b in boxes]  # each track's crop, once per frame
-        lost_evs = None  # confirmed EVs lost within the hand-over time (their moved-on boxes), found when needed
+        lost_evs = lost_confirmed = None  # EVs lost within the hand-over time (their moved-on boxes), found when needed
         for k, (tid, box) in enumerate(zip(ids, boxes, strict=True)):
             info = self.tracks.get(tid)
             if info is None:
@@ -334,7 +349,8 @@ class TrackEvClassifier:
                 lit = self._lit(crop, bounds[k], exclusions)
                 if lost_evs is None:
                     lost_evs = self._lost_evs(now, ids, boxes)
-                ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs)
+                    lost_confirmed = self._lost_evs(now, ids, boxes, confirmed_only=True)
+                ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs, lost_confirmed)
                 # with a flashing vehicle just ahead, this crop (grown above the box) holds part of that
                 # vehicle too, and its body score says as much about it as about this one: none taken now
                 body = None if ahead else self._body_score(info, now, lamps, bar, crop,
@@ -349,7 +365,8 @@ class TrackEvClassifier:
                                    light_states=object_column(lights), ev_states=object_column(states),
                                    evidence=object_column(records))
 
-    def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None) -> np.ndarray:
+    def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None, *,
+                  confirmed_only: bool = False) -> np.ndarray:
         """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids`` that were
         confirmed EVs or flashing themselves (``_may_own_flashes``), lost within ``handover_after_s``, or within
         ``occluded_hold_s`` while the moved-on box's bottom edge is hidden behind a nearer vehicle's box of this
@@ -357,13 +374,15 @@ class TrackEvClassifier:
         still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof lit
         by the EV's strobe, confirmed in that frame); an EV that drives on hidden behind a truck nearer the camera
         is there for longer, its light bar above the truck's roof (tuning seed 52609, ``ev_two_lanes_dense``,
-        rsu4: the truck confirmed on the EV's flashes 0.67 s after the EV's track was lost)."""
+        rsu4: the truck confirmed on the EV's flashes 0.67 s after the EV's track was lost). ``confirmed_only``: only
+        the confirmed EVs among them (whose lamps light the vehicles beside them: ``_ev_ahead``)."""
         current = set(ids)
         hold_s = max(self.handover_after_s, self.occluded_hold_s)
         out = []
         for tid, i in self.tracks.items():
             age_s = now_s - i.last_seen_s
-            if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i):
+            if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i) or (
+                    confirmed_only and i.evidence.state != EvState.CONFIRMED):
                 continue
             moved = extrapolate_box(i.box, i.centre_velocity_pxps, age_s)
             if age_s <= self.handover_after_s or (boxes is not None and hidden_behind_nearer(moved, boxes,
@@ -372,7 +391,7 @@ class TrackEvClassifier:
         return np.asarray(out, float).reshape(-1, 4)
 
     def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,
-                  lost_evs: np.ndarray | None = None) -> bool:
+                  lost_evs: np.ndarray | None = None, lost_confirmed: np.ndarray | None = None) -> bool:
         """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
         higher) whose box reaches into ``k``'s crop and that is either a confirmed EV or a track with lamp cues of
         its own (``_may_own_flashes``; or one of those lost within the hand-over time: ``lost_evs``) or too small for
@@ -384,25 +403,30 @@ class TrackEvClassifier:
         truck's band just behind it, confirmed the truck), so ``k``'s flash pattern then confirms only with a
         confident body (``TrackEvidence.update``), scored while no such vehicle was ahead: its crop, grown above
         the box, would hold part of the vehicle ahead (ev_bench seeds 16790 and 36545: a car 11-13 m behind the
-        EV, its crop scored 0.40-0.68 with the EV in it)."""
+        EV, its crop scored 0.40-0.68 with the EV in it). Also a confirmed EV beside ``k``, seen or lost within the
+        hand-over time (``lost_confirmed``), whose lamps light it (``glow_reach_share``)."""
         box, crop = boxes[k], bounds[k]
         if crop is None:
             return False
         for j, other in enumerate(boxes):
             if j == k:
                 continue
+            info = self.tracks.get(ids[j])
+            confirmed = info is not None and info.evidence.state == EvState.CONFIRMED
+            if confirmed and lit_beside(crop, other, self.glow_reach_share):
+                return True
             if other[3] > box[3]:  # a nearer confirmed EV: its lamps when this crop lies largely within its crop
-                info = self.tracks.get(ids[j])
-                if (info is not None and info.evidence.state == EvState.CONFIRMED and bounds[j] is not None
-                        and crop_share_within(crop, bounds[j]) >= self.nearer_owner_share):
+                if confirmed and bounds[j] is not None and crop_share_within(crop, bounds[j]) >= self.nearer_owner_share:
                     return True
                 continue
             if not (other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3] and other[3] > crop[1]):
                 continue
-            info = self.tracks.get(ids[j])
             if info is not None and _may_own_flashes(info):
                 return True
             if other[1] < box[1] and min(other[2] - other[0], other[3] - other[1]) < self.min_box_px:
+                return True
+        for other in () if lost_confirmed is None else lost_confirmed:
+            if lit_beside(crop, other, self.glow_reach_share):
                 return True
         for other in () if lost_evs is None else lost_evs:
             if (other[3] <= box[3] and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3]

@@ -205,3 +205,30 @@ def test_a_steady_bar_just_ahead_does_not_hold_back_the_vehicle_behind():
     assert not _may_own_flashes(clf.tracks[2]) and not clf._ev_ahead(0, [1, 2], big, big_bounds)
     clf.tracks = {2: TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=big[1].copy())}
     assert _may_own_flashes(clf.tracks[2]) and clf._ev_ahead(0, [1, 2], big, big_bounds)
+
+
+def test_a_car_beside_a_confirmed_ev_is_lit_by_it():
+    """At night a confirmed EV's beacon flashes on the car beside it (tuning clip roadside_night_ambulance_india_redblue):
+    that car's flashes confirm only with a confident body while the EV is beside it, seen or lost for a moment; a car
+    more than one EV width away, or not level with it, is judged on its own lamps."""
+    from protocol.enums import EvState
+    from rsu.classify.ev import TrackInfo, lit_beside
+    from rsu.classify.temporal import TrackEvidence
+
+    clf = TrackEvClassifier()
+    boxes = np.array([[100.0, 100.0, 180.0, 200.0],   # the EV, 80 px wide
+                      [230.0, 110.0, 290.0, 170.0],   # a car 50 px to its right, farther (bottom edge higher)
+                      [300.0, 110.0, 360.0, 170.0]])  # a car 120 px to its right
+    bounds = [clf.crop_bounds(b, 400, 300) for b in boxes]
+    ev = TrackEvidence()
+    ev.state = EvState.CONFIRMED
+    clf.tracks = {1: TrackInfo(ev, 0.0, 1.0, box=boxes[0].copy())}
+    assert clf._ev_ahead(1, [1, 2, 3], boxes, bounds)
+    assert not clf._ev_ahead(2, [1, 2, 3], boxes, bounds)
+    clf.tracks[1].evidence.state = EvState.CANDIDATE  # not confirmed: the car's flashes may be its own
+    assert not clf._ev_ahead(1, [1, 2, 3], boxes, bounds)
+    clf.tracks[1].evidence.state = EvState.CONFIRMED
+    lost = clf._lost_evs(1.2, [2, 3], boxes[1:], confirmed_only=True)  # the EV's detection missed for 0.2 s
+    assert lost.shape == (1, 4)
+    assert clf._ev_ahead(0, [2, 3], boxes[1:], bounds[1:], lost_confirmed=lost)
+    assert not lit_beside((230, 0, 290, 90), boxes[0], 1.0)  # above the EV's box, not level with it

@@ -74,7 +74,7 @@ def test_a_box_inside_a_nearer_confirmed_evs_crop_does_not_own_its_lamps():
     assert clf._ev_ahead(1, [1, 2], boxes, bounds)
     ev.evidence.state = EvState.CANDIDATE  # not confirmed: the roof box's lamps are judged as its own
     assert not clf._ev_ahead(1, [1, 2], boxes, bounds)
-    apart = np.array([boxes[0], [300.0, 80.0, 380.0, 110.0]])
+    apart = np.array([boxes[0], [300.0, 20.0, 380.0, 60.0]])  # away from its roof, and not beside it
     ev.evidence.state = EvState.CONFIRMED
     assert not clf._ev_ahead(1, [1, 2], apart, [clf.crop_bounds(b, 400, 300) for b in apart])
 
