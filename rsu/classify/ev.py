@@ -41,6 +41,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -84,6 +85,14 @@ def crop_above(box: Iterable[float], width: int, height: int, above_fraction: fl
     of a vehicle (a light bar sits on the roof, often outside a COCO "car" box)."""
     x1, y1, x2, y2 = (float(v) for v in box)
     return clip_box((x1, y1 - above_fraction * (y2 - y1), x2, y2), width, height)
+
+
+class LostEvs(NamedTuple):
+    """Tracks lost a moment ago whose lamps may still light the vehicles around them (``TrackEvClassifier._lost_evs``):
+    their boxes (N, 4), moved on at their own velocity, and which of them were confirmed EVs."""
+
+    boxes: np.ndarray
+    confirmed: np.ndarray
 
 
 @dataclass
@@ -325,7 +334,7 @@ class TrackEvClassifier:
             self._hand_over(now, ids, boxes)
         h, w = image.shape[:2]
         bounds = [self.crop_bounds(b, w, h) for b in boxes]  # each track's crop, once per frame
-        lost_evs = lost_confirmed = None  # EVs lost within the hand-over time (their moved-on boxes), found when needed
+        lost_evs = None  # EVs lost within the hand-over time (their moved-on boxes), found when needed
         for k, (tid, box) in enumerate(zip(ids, boxes, strict=True)):
             info = self.tracks.get(tid)
             if info is None:
@@ -349,8 +358,7 @@ class TrackEvClassifier:
                 lit = self._lit(crop, bounds[k], exclusions)
                 if lost_evs is None:
                     lost_evs = self._lost_evs(now, ids, boxes)
-                    lost_confirmed = self._lost_evs(now, ids, boxes, confirmed_only=True)
-                ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs, lost_confirmed)
+                ahead = self._ev_ahead(k, ids, boxes, bounds, lost_evs)
                 # with a flashing vehicle just ahead, this crop (grown above the box) holds part of that
                 # vehicle too, and its body score says as much about it as about this one: none taken now
                 body = None if ahead else self._body_score(info, now, lamps, bar, crop,
@@ -365,8 +373,7 @@ class TrackEvClassifier:
                                    light_states=object_column(lights), ev_states=object_column(states),
                                    evidence=object_column(records))
 
-    def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None, *,
-                  confirmed_only: bool = False) -> np.ndarray:
+    def _lost_evs(self, now_s: float, ids: list[int], boxes: np.ndarray | None = None) -> LostEvs:
         """The boxes (N, 4), moved on at their own velocity, of tracks not in this frame's ``ids`` that were
         confirmed EVs or flashing themselves (``_may_own_flashes``), lost within ``handover_after_s``, or within
         ``occluded_hold_s`` while the moved-on box's bottom edge is hidden behind a nearer vehicle's box of this
@@ -374,24 +381,24 @@ class TrackEvClassifier:
         still there (simulator tuning seed 44077: the EV's track lost for one frame, the bus behind it, its roof lit
         by the EV's strobe, confirmed in that frame); an EV that drives on hidden behind a truck nearer the camera
         is there for longer, its light bar above the truck's roof (tuning seed 52609, ``ev_two_lanes_dense``,
-        rsu4: the truck confirmed on the EV's flashes 0.67 s after the EV's track was lost). ``confirmed_only``: only
-        the confirmed EVs among them (whose lamps light the vehicles beside them: ``_ev_ahead``)."""
+        rsu4: the truck confirmed on the EV's flashes 0.67 s after the EV's track was lost); and which of them are
+        confirmed EVs (whose lamps light the vehicles beside them: ``_ev_ahead``)."""
         current = set(ids)
         hold_s = max(self.handover_after_s, self.occluded_hold_s)
-        out = []
+        out, confirmed = [], []
         for tid, i in self.tracks.items():
             age_s = now_s - i.last_seen_s
-            if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i) or (
-                    confirmed_only and i.evidence.state != EvState.CONFIRMED):
+            if tid in current or i.box is None or not 0.0 < age_s <= hold_s or not _may_own_flashes(i):
                 continue
             moved = extrapolate_box(i.box, i.centre_velocity_pxps, age_s)
             if age_s <= self.handover_after_s or (boxes is not None and hidden_behind_nearer(moved, boxes,
                                                                                            max_iou=self.handover_iou)):
                 out.append(moved)
-        return np.asarray(out, float).reshape(-1, 4)
+                confirmed.append(i.evidence.state == EvState.CONFIRMED)
+        return LostEvs(np.asarray(out, float).reshape(-1, 4), np.asarray(confirmed, bool))
 
     def _ev_ahead(self, k: int, ids: list[int], boxes: np.ndarray, bounds: list,
-                  lost_evs: np.ndarray | None = None, lost_confirmed: np.ndarray | None = None) -> bool:
+                  lost_evs: LostEvs | None = None) -> bool:
         """May the lamps in track ``k``'s band be those of a vehicle just ahead of it: a farther track (bottom edge
         higher) whose box reaches into ``k``'s crop and that is either a confirmed EV or a track with lamp cues of
         its own (``_may_own_flashes``; or one of those lost within the hand-over time: ``lost_evs``) or too small for
@@ -404,7 +411,7 @@ class TrackEvClassifier:
         confident body (``TrackEvidence.update``), scored while no such vehicle was ahead: its crop, grown above
         the box, would hold part of the vehicle ahead (ev_bench seeds 16790 and 36545: a car 11-13 m behind the
         EV, its crop scored 0.40-0.68 with the EV in it). Also a confirmed EV beside ``k``, seen or lost within the
-        hand-over time (``lost_confirmed``), whose lamps light it (``glow_reach_share``)."""
+        hand-over time (``lost_evs.confirmed``), whose lamps light it (``glow_reach_share``)."""
         box, crop = boxes[k], bounds[k]
         if crop is None:
             return False
@@ -425,10 +432,9 @@ class TrackEvClassifier:
                 return True
             if other[1] < box[1] and min(other[2] - other[0], other[3] - other[1]) < self.min_box_px:
                 return True
-        for other in () if lost_confirmed is None else lost_confirmed:
-            if lit_beside(crop, other, self.glow_reach_share):
+        for other, confirmed in () if lost_evs is None else zip(*lost_evs, strict=True):
+            if confirmed and lit_beside(crop, other, self.glow_reach_share):
                 return True
-        for other in () if lost_evs is None else lost_evs:
             if (other[3] <= box[3] and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3]
                     and other[3] > crop[1]):
                 return True

@@ -121,10 +121,10 @@ def test_a_flashing_ev_lost_behind_the_nearer_truck_owns_its_flashes_while_hidde
     assert clf._ev_ahead(0, [1], truck, bounds, clf._lost_evs(late_s, [1], truck))
     assert not clf._ev_ahead(0, [1], truck, bounds, clf._lost_evs(1.0 + clf.occluded_hold_s + 0.1, [1], truck))
     beside = np.array([[260.0, 120.0, 360.0, 260.0]])  # the truck in the next lane: the EV's bottom edge in sight
-    assert clf._lost_evs(late_s, [1], beside).shape == (0, 4)
-    assert clf._lost_evs(1.2, [1], beside).shape == (1, 4)  # within the hand-over time, wherever it is
+    assert clf._lost_evs(late_s, [1], beside).boxes.shape == (0, 4)
+    assert clf._lost_evs(1.2, [1], beside).boxes.shape == (1, 4)  # within the hand-over time, wherever it is
     itself = np.array([[128.0, 88.0, 178.0, 130.0]])  # a box over the lost one, lower: the EV seen again, hiding nothing
-    assert clf._lost_evs(late_s, [1], itself).shape == (0, 4)
+    assert clf._lost_evs(late_s, [1], itself).boxes.shape == (0, 4)
 
 
 def _flashing_evidence(until_s: float):
@@ -156,7 +156,7 @@ def test_a_flashing_track_just_ahead_may_own_the_flashes_before_it_is_confirmed(
     assert ev.evidence.state != EvState.CONFIRMED and ev.evidence.light_state != LightState.OFF
     clf.tracks = {2: ev}
     assert clf._ev_ahead(0, [1, 2], big, big_bounds)
-    assert clf._lost_evs(1.2, [1]).shape == (1, 4)  # lost for a frame: still just ahead
+    assert clf._lost_evs(1.2, [1]).boxes.shape == (1, 4)  # lost for a frame: still just ahead
     assert clf._ev_ahead(0, [1], big[:1], big_bounds[:1], clf._lost_evs(1.2, [1]))
     quiet = TrackInfo(_flashing_evidence(1.0), 0.0, 1.0, box=big[1].copy())
     quiet.evidence.update(4.0, LampMeasurement(0.0, 0.0))
@@ -228,7 +228,7 @@ def test_a_car_beside_a_confirmed_ev_is_lit_by_it():
     clf.tracks[1].evidence.state = EvState.CANDIDATE  # not confirmed: the car's flashes may be its own
     assert not clf._ev_ahead(1, [1, 2, 3], boxes, bounds)
     clf.tracks[1].evidence.state = EvState.CONFIRMED
-    lost = clf._lost_evs(1.2, [2, 3], boxes[1:], confirmed_only=True)  # the EV's detection missed for 0.2 s
-    assert lost.shape == (1, 4)
-    assert clf._ev_ahead(0, [2, 3], boxes[1:], bounds[1:], lost_confirmed=lost)
+    lost = clf._lost_evs(1.2, [2, 3], boxes[1:])  # the EV's detection missed for 0.2 s
+    assert lost.boxes[lost.confirmed].shape == (1, 4)
+    assert clf._ev_ahead(0, [2, 3], boxes[1:], bounds[1:], lost)
     assert not lit_beside((230, 0, 290, 90), boxes[0], 1.0)  # above the EV's box, not level with it
