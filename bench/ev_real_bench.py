@@ -123,7 +123,7 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: P
         out["score"] = score.to_json()
         out["alert_rows"] = alert_rows(r, score)
     found = "-" if score is None else " ".join(
-        f"{e.name}:{'-' if not e.scorable else ('MISS' if e.found_s is None else f'{e.delay_s:.1f}s')}"
+        f"{e.name}:{'-' if not e.scorable else (f'MISS(tracked {e.tracked_share:.0%})' if e.found_s is None else f'{e.delay_s:.1f}s')}"
         for e in score.evs) or "no EV"
     wrong = "-" if score is None else len(score.wrong_tracks)
     first = "-" if r.first_alert_s is None else f"{r.first_alert_s:.2f} s"

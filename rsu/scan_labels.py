@@ -24,7 +24,10 @@ alerted)`` per frame; ``rsu.scan.ScanResult.track_boxes``):
 - an alerted track is *on* an EV when its box overlaps one (IoU >= :data:`FOUND_IOU`) in at least half of the
   frames it is alerted in while an EV is in view; any other alerted track is a wrong-vehicle alert
   (``flasher_alerts`` counts those that sit on a labelled flasher); on a clip with no EV every alerted
-  track is a false alert.
+  track is a false alert;
+- a scorable EV's ``tracked_share`` is the share of its lit frames (from its scorable start, wide enough) in
+  which any track box overlaps it (IoU >= :data:`FOUND_IOU`): it tells a miss of the detector and tracker (the EV
+  is in no track's box) from a miss of the recogniser (it is, and raised no alert).
 
 :func:`summarize` adds the clips up: ``ev_recall``, ``alert_delay_median_s``, ``alert_delay_max_s``,
 ``wrong_vehicle_alerts``, ``traffic_false_alerts`` (clips with no EV), their rate per hour of such video,
@@ -196,6 +199,10 @@ class EvScore:
     found_s: float | None
     found_track: int | None
     max_width_px: float
+    tracked_share: float | None = None
+    """Share of the EV's frames from ``scorable_from_s`` on, lit and wide enough, in which a track box (alerted or
+    not) overlaps it at IoU >= ``FOUND_IOU``: under 1, the detector and tracker lost it for that share, whatever the
+    recogniser does (None: not scorable)."""
 
     @property
     def delay_s(self) -> float | None:
@@ -223,7 +230,8 @@ class ClipScore:
                     wrong_tracks=self.wrong_tracks, flasher_tracks=self.flasher_tracks,
                     evs=[dict(name=e.name, scorable=e.scorable, scorable_from_s=_r(e.scorable_from_s),
                               found_s=_r(e.found_s), found_track=e.found_track, delay_s=_r(e.delay_s),
-                              max_width_px=round(e.max_width_px, 1)) for e in self.evs])
+                              max_width_px=round(e.max_width_px, 1), tracked_share=_r(e.tracked_share))
+                         for e in self.evs])
 
 
 def _r(v: float | None) -> float | None:
@@ -279,6 +287,7 @@ def score_clip(labels: ClipLabels, tracks: TrackRows, *, min_width_px: float = M
             if on_flasher >= 0.5 * len(alerted):
                 out.flasher_tracks.append(int(tid))
     times = labels.frame_times()
+    by_frame = _boxes_by_frame(tracks, labels.fps)
     for ev in labels.evs:
         start, widest = scorable_from(ev, times, min_width_px)
         found_s, found_track = None, None
@@ -290,8 +299,31 @@ def score_clip(labels: ClipLabels, tracks: TrackRows, *, min_width_px: float = M
                 if at is not None and at[1] and iou((x1, y1, x2, y2), at[0]) >= FOUND_IOU:
                     found_s, found_track = float(t), int(tid)
                     break
-        out.evs.append(EvScore(ev.name, start is not None, start, found_s, found_track, widest))
+        share = None if start is None else _tracked_share(ev, by_frame, times[times >= start - 1e-9], labels.fps,
+                                                          min_width_px)
+        out.evs.append(EvScore(ev.name, start is not None, start, found_s, found_track, widest, share))
     return out
+
+
+def _boxes_by_frame(tracks: TrackRows, fps: float) -> dict[int, list[tuple[float, float, float, float]]]:
+    out: dict[int, list] = {}
+    for rows in tracks.values():
+        for t, x1, y1, x2, y2, _ in rows:
+            out.setdefault(int(round(t * fps)), []).append((x1, y1, x2, y2))
+    return out
+
+
+def _tracked_share(ev: LabelledVehicle, by_frame: dict[int, list], times: np.ndarray, fps: float,
+                   min_width_px: float) -> float | None:
+    """See :attr:`EvScore.tracked_share`."""
+    seen = tracked = 0
+    for t in times:
+        at = ev.at(float(t))
+        if at is None or not at[1] or at[0][2] - at[0][0] < min_width_px:
+            continue
+        seen += 1
+        tracked += any(iou(b, at[0]) >= FOUND_IOU for b in by_frame.get(int(round(t * fps)), ()))
+    return tracked / seen if seen else None
 
 
 def summarize(scores: Sequence[ClipScore]) -> dict:

@@ -173,3 +173,18 @@ def test_the_repository_label_files_are_valid():
         assert f.stem == Path(labels.clip).stem
         assert labels.folder in ("ev_videos", "traffic_videos")
         assert labels.has_ev == (labels.folder == "ev_videos"), f"{f.name}: EV clip without EV, or the reverse"
+
+
+def test_tracked_share_tells_a_detector_miss_from_a_recogniser_miss():
+    ev = vehicle("amb", [BOX] * 9)  # lit and in view 0-4 s
+    neighbour = (300.0, 100.0, 380.0, 160.0)
+    half = score_clip(clip(ev), {1: track(BOX, 0.0, 2.0), 2: track(neighbour, 0.0, 4.0)})
+    assert half.evs[0].found_s is None
+    assert half.evs[0].tracked_share == pytest.approx(0.5, abs=0.05)  # in a track's box for 2 of its 4 s
+    whole = score_clip(clip(ev), {1: track(BOX, 0.0, 4.5)})
+    assert whole.evs[0].tracked_share == pytest.approx(1.0)
+    never = score_clip(clip(ev), {2: track(neighbour, 0.0, 4.0)})
+    assert never.evs[0].tracked_share == 0.0
+    assert never.to_json()["evs"][0]["tracked_share"] == 0.0
+    dark = score_clip(clip(vehicle("amb", [BOX] * 9, lit=False)), {1: track(BOX, 0.0, 4.0)})
+    assert not dark.evs[0].scorable and dark.evs[0].tracked_share is None
