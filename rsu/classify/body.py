@@ -2,15 +2,17 @@
 
 ``models/ev_body.onnx`` is EfficientNet-Lite0 (ImageNet) fine-tuned on the real photos of
 ``../shared/data/real/ev_train`` (ambulances, fire engines, police vs other vehicles) by
-``models/train_ev_body.py``, weights stored as float16; card: ``models/ev_body.md``. It takes the crop the RSU
+``models/train_ev_body.py`` (int8), its top fine-tuned again with the police cars of ``lights_on_off`` by
+``models/ev_body_top.py`` (float); card: ``models/ev_body.md``. It takes the crop the RSU
 takes of a track (the box grown upwards by ``above_fraction`` of its height, where a roof light bar
 sits) and returns p(EV). It knows the vehicle's *type*, not its lamps: the per-track fusion
 (:class:`rsu.classify.temporal.TrackEvidence`) alerts only on a confident body *and* lamp activity.
 
-Two operating points are read from the ONNX metadata, both chosen on the validation split:
-``threshold`` (EV vs not for a single crop: min(precision, recall) highest) and ``confident_threshold``
+Three operating points are read from the ONNX metadata, all chosen on validation data:
+``threshold`` (EV vs not for a single crop: min(precision, recall) highest), ``confident_threshold``
 (the lowest with precision >= 0.95), which the per-track fusion requires before a steady light bar
-counts; and ``above_fraction``. The model file carries its own operating points.
+counts, and ``sure_threshold`` (the lowest at which no validation vehicle is taken for an EV; None in a model
+without it); and ``above_fraction``. The model file carries its own operating points.
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ DEFAULT_BODY_MODEL = MODELS_DIR / "ev_body.onnx"
 
 
 class EvBodyClassifier(CnnClassifier):
-    """p(EV body) per crop from ``models/ev_body.onnx``; ``threshold``, ``confident_threshold`` and
-    ``above_fraction`` from its metadata."""
+    """p(EV body) per crop from ``models/ev_body.onnx``; ``threshold``, ``confident_threshold``, ``sure_threshold``
+    and ``above_fraction`` from its metadata."""
 
     def __init__(self, path: str | Path = DEFAULT_BODY_MODEL, *, threads: int | None = 1,
                  threshold: float | None = None) -> None:
@@ -37,6 +39,7 @@ class EvBodyClassifier(CnnClassifier):
             self.threshold = float(threshold if threshold is not None else meta.get("ev_threshold", 0.5))
             self.confident_threshold = float(meta.get("confident_threshold", max(self.threshold, 0.5)))
             self.above_fraction = float(meta.get("above_fraction", 0.25))
+            self.sure_threshold = float(meta["sure_threshold"]) if "sure_threshold" in meta else None
         except ValueError as exc:
             raise ValueError(f"{path}: bad ev_threshold / above_fraction metadata: {exc}") from exc
         if not 0.0 < self.threshold < 1.0 or not 0.0 <= self.above_fraction <= 1.0:

@@ -196,6 +196,9 @@ class TrackEvClassifier:
         confident = getattr(body, "confident_threshold", None)
         if confident is not None and config is None:  # the body model's own confident operating point
             self.config = dataclasses.replace(self.config, body_threshold=float(confident))
+        sure = getattr(body, "sure_threshold", None)
+        if sure is not None and config is None:  # ... and its own sure one
+            self.config = dataclasses.replace(self.config, body_sure_threshold=float(sure))
         self.crop_score = crop_score
         self.body = body
         self.lamp_state = lamp_state

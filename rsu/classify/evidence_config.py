@@ -113,11 +113,9 @@ class EvidenceConfig:
     """... over at least this many scores (about 0.75 s at the classifier's 4 Hz): one lucky crop is not a body."""
     body_sure_threshold: float = 0.76
     """An EV body is also confident after ``body_sure_min_scores`` scores that each reach this: the lowest score at
-    which the body model (``models/ev_body.onnx``) takes no vehicle for an EV on the ``val`` split of ``ev_train``
-    (precision 1.0, recall 0.85 on its 368 crops taken as ``bench/ev_real_bench.py`` takes ``test``; at the model's
-    ``confident_threshold`` 0.48: precision 0.94, 8 vehicles taken for EVs), so one score fewer suffices.
-    On the tuning clips of ``bench/ev_real_bench.py`` the escort's police van and the first ambulance of
-    ``news_ambulances_australia_redblue`` alert 0.28 s sooner (delay median 0.56 -> 0.37 s), with no alert more."""
+    which the body model takes no vehicle for an EV on the ``val`` split of ``ev_train``, so one score fewer suffices.
+    The body model carries its own (``sure_threshold`` in its metadata, which replaces this default:
+    :class:`rsu.classify.ev.TrackEvClassifier`); a model without one gets this value."""
     body_sure_min_scores: int = 2
     """... that many scores (half a second at the classifier's 4 Hz)."""
     body_window: int = 6
