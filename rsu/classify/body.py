@@ -41,9 +41,12 @@ class EvBodyClassifier(CnnClassifier):
             self.above_fraction = float(meta.get("above_fraction", 0.25))
             self.sure_threshold = float(meta["sure_threshold"]) if "sure_threshold" in meta else None
         except ValueError as exc:
-            raise ValueError(f"{path}: bad ev_threshold / above_fraction metadata: {exc}") from exc
+            raise ValueError(f"{path}: bad ev_threshold / confident_threshold / sure_threshold / above_fraction "
+                             f"metadata: {exc}") from exc
         if not 0.0 < self.threshold < 1.0 or not 0.0 <= self.above_fraction <= 1.0:
             raise ValueError(f"{path}: threshold {self.threshold} must be in (0, 1) and above_fraction in [0, 1]")
+        if self.sure_threshold is not None and not self.sure_threshold > 0.0:
+            raise ValueError(f"{path}: sure_threshold {self.sure_threshold} must be above 0 (above 1: never sure)")
 
     def is_ev(self, crops: Sequence[np.ndarray]) -> np.ndarray:
         return self.predict(crops) >= self.threshold

@@ -62,3 +62,24 @@ def test_the_top_of_an_int8_student_is_required(tmp_path):
     onnx.save(helper.make_model(g), bad)
     with pytest.raises(SystemExit, match="not an int8 EV-body student"):
         make_top(bad)
+
+
+def test_a_body_model_with_a_bad_sure_threshold_is_refused(tmp_path):
+    if not DEFAULT_BODY_MODEL.is_file():
+        pytest.skip(f"{DEFAULT_BODY_MODEL} absent")
+    import onnx
+
+    m = onnx.load(str(DEFAULT_BODY_MODEL))
+    for p in m.metadata_props:
+        if p.key == "sure_threshold":
+            p.value = "-0.5"
+    bad = tmp_path / "body.onnx"
+    onnx.save(m, str(bad))
+    with pytest.raises(ValueError, match="sure_threshold -0.5 must be above 0"):
+        EvBodyClassifier(bad)
+    for p in m.metadata_props:
+        if p.key == "sure_threshold":
+            p.value = "often"
+    onnx.save(m, str(bad))
+    with pytest.raises(ValueError, match="sure_threshold"):
+        EvBodyClassifier(bad)
