@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 import tempfile
 import time
@@ -56,6 +55,7 @@ from models.train_ev_body import (  # noqa: E402
     set_metadata,
     usable_crops,
 )
+from models.train_lamp_state import is_validation_photo  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
 
 REAL = DEFAULT_DATA.parent
@@ -64,7 +64,6 @@ TRUNK_OUTPUT = "/net/_blocks.14/Add_output_0"
 TOP_CONVS = 4
 """Block 15's expand, depthwise and project convolutions and the head convolution: the graph's last 4 QLinearConv."""
 NEGATIVE_CLIPS = ("ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights")
-VAL_EVERY = 5
 NEAR_DUPLICATE_BITS = 10
 SIZE = 224
 
@@ -80,12 +79,6 @@ def near_duplicates(hashes: np.ndarray, others: np.ndarray, bits: int = NEAR_DUP
     if not len(hashes) or not len(others):
         return np.zeros(len(hashes), bool)
     return ((hashes[:, None, :] != others[None, :, :]).sum(-1) <= bits).any(1)
-
-
-def is_validation_photo(name: str) -> bool:
-    """``lights_on_off`` validation: the first number in the file name is a multiple of ``VAL_EVERY``."""
-    m = re.search(r"(\d+)", Path(name).stem)
-    return m is not None and int(m.group(1)) % VAL_EVERY == 0
 
 
 def police_crops(detector) -> tuple[list[np.ndarray], list[str]]:
@@ -133,16 +126,23 @@ def clip_negatives(detector, clips, every_s: float = 0.5, min_width_px: float = 
     return out
 
 
-def trunk_session(base: Path, threads: int):
-    """ONNX Runtime session of ``base`` with the block-14 activations as a second, dequantised output."""
+def with_trunk_output(base: Path):
+    """``base``'s ONNX model with its block-14 activations, dequantised, as a second output ``b14``."""
     import onnx
-    import onnxruntime as ort
     from onnx import helper
 
     m = onnx.load(str(base))
     q = TRUNK_OUTPUT + "_"
     m.graph.node.append(helper.make_node("DequantizeLinear", [q + "quantized", q + "scale", q + "zero_point"], ["b14"]))
     m.graph.output.append(helper.make_tensor_value_info("b14", onnx.TensorProto.FLOAT, None))
+    return m
+
+
+def trunk_session(base: Path, threads: int):
+    """ONNX Runtime session of ``base`` with the block-14 activations as a second, dequantised output."""
+    import onnxruntime as ort
+
+    m = with_trunk_output(base)
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     return ort.InferenceSession(m.SerializeToString(), so, providers=["CPUExecutionProvider"])
@@ -264,13 +264,10 @@ def export_merged(base: Path, top, out: Path) -> None:
     as float16 (:func:`models.train_ev_body.fp16_storage`): one graph, ``crops`` -> ``p_ev``."""
     import onnx
     import torch
-    from onnx import compose, helper
+    from onnx import compose
     from onnx.utils import Extractor
 
-    m = onnx.load(str(base))
-    q = TRUNK_OUTPUT + "_"
-    m.graph.node.append(helper.make_node("DequantizeLinear", [q + "quantized", q + "scale", q + "zero_point"], ["b14"]))
-    m.graph.output.append(helper.make_tensor_value_info("b14", onnx.TensorProto.FLOAT, None))
+    m = with_trunk_output(base)
     trunk = Extractor(m).extract_model(["crops"], ["b14"])
     opset = next(o.version for o in m.opset_import if o.domain in ("", "ai.onnx"))
     top.eval()

@@ -56,6 +56,13 @@ TARGET_PRECISION = 0.9
 SEED = 7
 
 
+def is_validation_photo(name: str) -> bool:
+    """A ``lights_on_off`` photo of the validation side: the first number in its file name is a multiple of
+    ``VAL_EVERY`` (``models.ev_body_top`` splits the same photos the same way)."""
+    m = re.search(r"(\d+)", Path(name).stem)
+    return m is not None and int(m.group(1)) % VAL_EVERY == 0
+
+
 def _detector():
     from rsu.build import PipelineConfig, build_detector
 
@@ -89,8 +96,7 @@ def photo_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[st
                 img = cv2.imread(str(f))
                 if img is None:
                     continue
-                m = re.search(r"(\d+)", f.stem)
-                is_val = m is not None and int(m.group(1)) % VAL_EVERY == 0
+                is_val = is_validation_photo(f.name)
                 if kind == "police_scenes":
                     boxes = det.detect(img).boxes
                     if not len(boxes):

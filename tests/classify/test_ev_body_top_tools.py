@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from models.ev_body_top import difference_hash, is_validation_photo, near_duplicates
+from models.ev_body_top import difference_hash, near_duplicates
+from models.train_lamp_state import is_validation_photo
 from rsu.classify.body import DEFAULT_BODY_MODEL, EvBodyClassifier
 from rsu.classify.ev import TrackEvClassifier
 
