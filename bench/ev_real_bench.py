@@ -2,7 +2,7 @@
 
     python bench/ev_real_bench.py [--json] [--quick] [--clips-only] [--split tune|held_out|all] [--clips A,B]
                                   [--scans DIR [--rescore]] [--detections DIR]
-                                  [--max-s S] [--ev-body default|none|PATH]
+                                  [--max-s S] [--ev-body default|none|PATH] [--score-threshold T]
 
 Needs ``../shared/data/real`` (skips with a message, exit 0, when it is absent). Four measurements:
 
@@ -90,11 +90,13 @@ QUICK_CLIPS = ("elevated_day_ambulance_japan_red", "ambdet_video_4")
 
 
 def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: Path | None = None,
-                 rescore: bool = False, detections: Path | None = None) -> tuple[dict, object]:
+                 rescore: bool = False, detections: Path | None = None,
+                 score_threshold: float | None = None) -> tuple[dict, object]:
     """One clip's scan and, where it has a label file, its per-vehicle score (None without one). ``scans``: a
     folder where each clip's scan is kept (``<stem>.pkl``); ``rescore``: read it from there instead of scanning
     (scores again against the labels as they are now); ``detections``: a folder where each clip's detector output is
-    kept and replayed (``rsu.scan.scan_video``'s ``detections_dir``): the recogniser runs again, the detector not."""
+    kept and replayed (``rsu.scan.scan_video``'s ``detections_dir``): the recogniser runs again, the detector not;
+    ``score_threshold``: the detector's (default: the RSU's)."""
     kept = None if scans is None else scans / f"{path.stem}.pkl"
     if rescore:
         if kept is None or not kept.is_file():
@@ -102,7 +104,7 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: P
         r = pickle.loads(kept.read_bytes())
     else:
         r = scan_video(path, detector_model=YOLOX, body=body, max_s=max_s, threads=1, record_boxes=True,
-                       detections_dir=detections)
+                       detections_dir=detections, score_threshold=score_threshold)
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
             kept.write_bytes(pickle.dumps(r))
@@ -240,9 +242,13 @@ def main(argv=None) -> int:
                          "detector code): recogniser changes re-run without the detector")
     ap.add_argument("--rescore", action="store_true",
                     help="score the scans kept in --scans against the labels as they are now, without scanning")
+    ap.add_argument("--score-threshold", type=float, default=None,
+                    help="the detector's score threshold on the clips, in (0, 1) (default: the RSU's, 0.3)")
     ap.add_argument("--crop-calls", type=int, default=300, help="single-crop calls timed for crop_ms")
     ap.add_argument("--json", action="store_true", help="last line: one JSON object of the figures")
     args = ap.parse_args(argv)
+    if args.score_threshold is not None and not 0.0 < args.score_threshold < 1.0:
+        ap.error(f"--score-threshold must lie in (0, 1), got {args.score_threshold}")
     if not REAL.is_dir() or not YOLOX.is_file():
         reason = f"{REAL} or {YOLOX} absent (../shared/data/real not beside the repository): nothing to measure"
         print(f"ev_real_bench: skipped: {reason}")
@@ -264,7 +270,7 @@ def main(argv=None) -> int:
     try:
         for kind, path in paths:
             out, score = clip_figures(path, kind, args.ev_body, args.max_s, args.scans, args.rescore,
-                                       args.detections)
+                                       args.detections, args.score_threshold)
             per_clip.append(out)
             if score is not None:
                 scores.append(score)
@@ -274,6 +280,7 @@ def main(argv=None) -> int:
     ev_clips = [c for c in per_clip if c["kind"] == "ev"]
     figures = dict(real_ev_clips_alerted=sum(c["alerts"] > 0 for c in ev_clips), real_ev_clips=len(ev_clips),
                    real_traffic_clips=len(per_clip) - len(ev_clips), ev_body=args.ev_body, max_s=args.max_s,
+                   score_threshold=args.score_threshold or PipelineConfig().score_threshold,
                    split=args.split if not (args.quick or args.clips) else None,
                    clips_scored=len(scores), clips_unlabelled=[c["clip"] for c in per_clip if "score" not in c])
     figures.update(summarize(scores))

@@ -171,6 +171,9 @@ def build_scan_parser() -> argparse.ArgumentParser:
     ap.add_argument("--ev-body", default="default",
                     help="EV-body classifier: default (models/ev_body.onnx), none (lamps only), or PATH.onnx")
     ap.add_argument("--max-s", type=float, default=None, help="scan only the first S seconds of the clip")
+    ap.add_argument("--score-threshold", type=float, default=None,
+                    help="the detector's score threshold, in (0, 1) (default: the RSU's, 0.3); lower finds more of "
+                         "a camera's vehicles, at the price of more false boxes")
     ap.add_argument("--threads", type=int, default=1, help="CPU threads for the detector and classifiers")
     ap.add_argument("--labels", metavar="LABELS.json", default=None,
                     help="score the alerts per vehicle against this clip's labels (format: rsu.scan_labels; "
@@ -187,6 +190,9 @@ def scan_main(argv: list[str]) -> int:
     args = build_scan_parser().parse_args(argv)
     if args.threads < 1:
         print(f"iea-rsu scan: --threads must be >= 1, got {args.threads}", file=sys.stderr)
+        return 2
+    if args.score_threshold is not None and not 0.0 < args.score_threshold < 1.0:
+        print(f"iea-rsu scan: --score-threshold must lie in (0, 1), got {args.score_threshold}", file=sys.stderr)
         return 2
     cv2.setNumThreads(args.threads)
 
@@ -206,7 +212,7 @@ def scan_main(argv: list[str]) -> int:
     try:
         result = scan_video(args.video, detector_model=args.model, body=args.ev_body, max_s=args.max_s,
                             annotate_path=args.annotate, threads=args.threads, progress=progress,
-                            record_boxes=labels is not None)
+                            record_boxes=labels is not None, score_threshold=args.score_threshold)
     except (FileNotFoundError, ValueError, SourceError, SourceStalled) as exc:
         hint = " (--ev-body none scans on the lamps alone)" if "ev_body" in str(exc) else ""
         print(f"iea-rsu scan: {exc}{hint}", file=sys.stderr)

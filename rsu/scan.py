@@ -27,7 +27,7 @@ import json
 import pickle
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -203,7 +203,8 @@ class DetectionsReplay:
 def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTOR, body: str | None = "default",
                max_s: float | None = None, annotate_path: str | Path | None = None, threads: int | None = 1,
                progress: Callable[[float, int, int], None] | None = None,
-               record_boxes: bool = False, detections_dir: str | Path | None = None) -> ScanResult:
+               record_boxes: bool = False, detections_dir: str | Path | None = None,
+               score_threshold: float | None = None) -> ScanResult:
     """Run ``path`` (a video file) through the RSU's EV recognition; see the module docstring.
 
     ``detector_model``: an ONNX detector or ``motion``; ``body``: ``default`` (models/ev_body.onnx),
@@ -212,13 +213,18 @@ def scan_video(path: str | Path, *, detector_model: str | Path = DEFAULT_DETECTO
     :data:`PROGRESS_EVERY_S` of video; ``record_boxes``: keep every track's box per frame
     (:attr:`ScanResult.track_boxes`); ``detections_dir``: a folder where each clip's detector output is kept under
     :func:`detections_key` and read back on the next scan (the detector is most of a scan's cost; the tracker and
-    the EV recognition always run). Raises FileNotFoundError (video or model missing), ValueError
+    the EV recognition always run); ``score_threshold``: the detector's score threshold (default: the RSU's,
+    ``PipelineConfig.score_threshold``). Raises FileNotFoundError (video or model missing), ValueError
     (no frame could be decoded, or the annotated video cannot be written) and rsu.frames.SourceError.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video {str(path)!r} not found")
     config = PipelineConfig(detector=str(detector_model), threads=threads, max_age=3, ev_body=body)
+    if score_threshold is not None:
+        if not 0.0 < score_threshold < 1.0:
+            raise ValueError(f"score_threshold must lie in (0, 1), got {score_threshold}")
+        config = replace(config, score_threshold=float(score_threshold))
     pipeline = build_pipeline(config, localizer=ImageOnlyLocalizer())
     kept = None
     if detections_dir is not None:

@@ -76,6 +76,24 @@ def test_missing_models_exit_2(tmp_path, capsys):
     assert "body.onnx" in capsys.readouterr().err
 
 
+def test_score_threshold_out_of_range_exits_2_before_scanning(tmp_path, capsys):
+    assert main(["scan", str(tmp_path / "nope.mp4"), "--score-threshold", "1.5"]) == 2
+    err = capsys.readouterr().err
+    assert "--score-threshold must lie in (0, 1), got 1.5" in err and "nope.mp4" not in err
+
+
+def test_score_threshold_reaches_the_detector_settings(tmp_path):
+    from rsu.scan import scan_video
+
+    clip, kept = tmp_path / "ev.mp4", tmp_path / "kept"
+    write_ev_clip(clip, seconds=1.0)
+    scan_video(clip, detector_model="motion", body="none", detections_dir=kept)
+    scan_video(clip, detector_model="motion", body="none", detections_dir=kept, score_threshold=0.5)
+    assert len(list(kept.glob("ev-*.pkl"))) == 2  # the kept detections are keyed by the threshold
+    with pytest.raises(ValueError, match="score_threshold"):
+        scan_video(clip, detector_model="motion", body="none", score_threshold=0.0)
+
+
 def test_synthetic_flashing_ev_is_alerted(tmp_path, capsys):
     clip, annotated = tmp_path / "ev.mp4", tmp_path / "out" / "annotated.mp4"
     write_ev_clip(clip)
