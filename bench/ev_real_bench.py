@@ -62,7 +62,7 @@ from rsu.classify.evaluation import load_scene_crops, metrics, ms_per_crop  # no
 from rsu.classify.real_data import REVIEW_CSV, crop_of, load_ev_train, split_by_group  # noqa: E402
 from rsu.detect import Detector  # noqa: E402
 from rsu.scan import scan_video  # noqa: E402
-from rsu.scan_labels import LabelError, load_labels, score_clip, summarize  # noqa: E402
+from rsu.scan_labels import TUNING_TRAFFIC_CLIPS, LabelError, load_labels, score_clip, summarize  # noqa: E402
 
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
@@ -72,7 +72,7 @@ TUNE_CLIPS = (
     "handheld_night_fire_engines", "incar_night_ambulance_ahead_blue", "india_ambulance_police_escort",
     "news_ambulances_australia_redblue", "street_ambulance_japan_red",
     "night_ambulance_india_blue", "roadside_night_ambulance_india_redblue", "elevated_day_ambulance_japan_red",
-    "ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights",
+    *TUNING_TRAFFIC_CLIPS,
 )
 """Clips a threshold of the recogniser may be set on: the escort, Japanese street, NYC and Florence clips set the
 light-bar colour test and the strong-flash rule; the Indian night scene (two clips of one scene) set how far a

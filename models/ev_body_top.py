@@ -57,13 +57,13 @@ from models.train_ev_body import (  # noqa: E402
 )
 from models.train_lamp_state import is_validation_photo  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
+from rsu.scan_labels import TUNING_TRAFFIC_CLIPS  # noqa: E402
 
 REAL = DEFAULT_DATA.parent
 TRUNK_OUTPUT = "/net/_blocks.14/Add_output_0"
 """The int8 student's block-14 output, the top's input ([N, 192, 7, 7] at 224 px)."""
 TOP_CONVS = 4
 """Block 15's expand, depthwise and project convolutions and the head convolution: the graph's last 4 QLinearConv."""
-NEGATIVE_CLIPS = ("ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights")
 NEAR_DUPLICATE_BITS = 10
 SIZE = 224
 
@@ -292,7 +292,7 @@ def main(argv=None) -> int:
     ap.add_argument("--epochs", type=int, default=3)
     ap.add_argument("--lr", type=float, default=5e-5)
     ap.add_argument("--views", type=int, default=6, help="views per training crop: itself, mirrored, and augmented")
-    ap.add_argument("--negative-clips", nargs="*", default=list(NEGATIVE_CLIPS),
+    ap.add_argument("--negative-clips", nargs="*", default=list(TUNING_TRAFFIC_CLIPS),
                     help="traffic clips (no EV) whose vehicles train as non-EVs; none: leave them out")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)

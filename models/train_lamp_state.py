@@ -11,7 +11,8 @@ Data (``../shared/data/real``), every band through :func:`rsu.classify.lamp_stat
 - both at their own size and scaled down to the widths of ``SCALES_PX`` (JPEG quality ``JPEG_Q``): a bar from 30 m to
   150 m, as a CCTV camera sees it;
 - negatives from video: every vehicle box (>= 40 px wide) every ``FRAME_STEP_S`` of the *tuning* traffic clips of
-  ``bench/ev_real_bench.py`` (``TRAFFIC_CLIPS``: dense day traffic, rows of tail lights at dusk, motorway cameras),
+  ``bench/ev_real_bench.py`` (``rsu.scan_labels.TUNING_TRAFFIC_CLIPS``: dense day traffic, rows of tail lights at dusk,
+  motorway cameras),
   the band as the RSU takes it.
 
 Split: a photo whose number is a multiple of ``VAL_EVERY`` (at every scale), and every ``VAL_EVERY``-th sampled frame
@@ -36,13 +37,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from rsu.classify.lamp_state import INPUT_HW, band_input  # noqa: E402
+from rsu.scan_labels import TUNING_TRAFFIC_CLIPS  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 CROP_BAND = 0.45
 SCALES_PX = (None, 160, 100, 64, 44)
 JPEG_Q = 60
-TRAFFIC_CLIPS = ("ambdet_video_3.mp4", "elevated_dense_day_dhaka.mp4", "haarcascades_video1.avi",
-                 "overpass_dusk_taillights.mp4")
 EV_CLIPS = ("closeup_police_lightbar_cycle.mp4", "elevated_police_nyc_redbars.mp4",
             "handheld_ambulance_florence_blue.mp4", "handheld_night_fire_engines.mp4",
             "incar_night_ambulance_ahead_blue.mp4", "india_ambulance_police_escort.mp4",
@@ -119,6 +119,14 @@ def photo_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[st
     return x, y, val, src
 
 
+def traffic_clip_path(stem: str) -> Path:
+    """The video of the traffic clip ``stem`` (any suffix)."""
+    paths = sorted((REAL / "traffic_videos").glob(f"{stem}.*"))
+    if not paths:
+        raise SystemExit(f"no traffic clip {stem} in {REAL / 'traffic_videos'}")
+    return paths[0]
+
+
 def _sampled_frames(path: Path):
     """(time s, frame, index among the sampled frames) of the video every ``FRAME_STEP_S``."""
     cap = cv2.VideoCapture(str(path))
@@ -149,8 +157,8 @@ def _add_band(out: tuple[list, list, list, list], frame: np.ndarray, box, label:
 def traffic_samples(det) -> tuple[list[np.ndarray], list[int], list[bool], list[str]]:
     """Inputs (label 0) of the vehicles of the tuning traffic clips, validation flags and clip names."""
     out: tuple[list, list, list, list] = ([], [], [], [])
-    for clip in TRAFFIC_CLIPS:
-        for _t, frame, sampled in _sampled_frames(REAL / "traffic_videos" / clip):
+    for clip in TUNING_TRAFFIC_CLIPS:
+        for _t, frame, sampled in _sampled_frames(traffic_clip_path(clip)):
             for box in det.detect(frame).boxes:
                 if box[2] - box[0] >= MIN_WIDTH_PX:
                     _add_band(out, frame, box, 0, sampled, clip)
@@ -299,9 +307,9 @@ def main(argv=None) -> int:
     m = np.isin(src[val], EV_CLIPS)
     if m.any():
         out["val_ev_clips"] = metrics(p[m], y[val][m], t)
-    for clip in TRAFFIC_CLIPS:
+    for clip in TUNING_TRAFFIC_CLIPS:
         m = src[val] == clip
-        out[f"val_false_lit_{Path(clip).stem}"] = round(float((p[m] >= t).mean()), 3) if m.any() else None
+        out[f"val_false_lit_{clip}"] = round(float((p[m] >= t).mean()), 3) if m.any() else None
     export(net, args.out, t)
     out["model"] = str(args.out)
     for k, v in out.items():

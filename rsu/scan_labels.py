@@ -55,6 +55,11 @@ FOUND_IOU = 0.3
 MIN_EV_WIDTH_PX = 40.0
 MIN_SCORABLE_S = 1.0
 
+TUNING_TRAFFIC_CLIPS = ("ambdet_video_3", "elevated_dense_day_dhaka", "haarcascades_video1", "overpass_dusk_taillights")
+"""The traffic clips (no EV; stems of ``../shared/data/real/traffic_videos``) that may tune the recogniser and train
+its models as non-EVs: dense day traffic, rows of tail lights at dusk, motorway cameras. The other traffic clips are
+held out (``bench/ev_real_bench.py``)."""
+
 TrackRows = Mapping[int, Sequence[tuple[float, float, float, float, float, bool]]]
 
 

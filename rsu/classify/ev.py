@@ -127,6 +127,11 @@ def crop_share_within(crop: tuple[int, int, int, int], other: tuple[int, int, in
     return float(iw * ih) / area if iw > 0 and ih > 0 and area > 0 else 0.0
 
 
+def reaches_into(box, crop) -> bool:
+    """Do the box and the crop (both x1, y1, x2, y2) overlap?"""
+    return box[0] < crop[2] and box[2] > crop[0] and box[1] < crop[3] and box[3] > crop[1]
+
+
 def lit_beside(crop, box, reach_share: float) -> bool:
     """Is the xyxy rectangle ``crop`` level with ``box`` (their rows overlap) and at most ``reach_share`` of ``box``'s
     width away from it sideways (or overlapping it)?"""
@@ -429,7 +434,7 @@ class TrackEvClassifier:
                 if confirmed and bounds[j] is not None and crop_share_within(crop, bounds[j]) >= self.nearer_owner_share:
                     return True
                 continue
-            if not (other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3] and other[3] > crop[1]):
+            if not reaches_into(other, crop):
                 continue
             if info is not None and _may_own_flashes(info):
                 return True
@@ -438,8 +443,7 @@ class TrackEvClassifier:
         for other, confirmed in () if lost_evs is None else zip(*lost_evs, strict=True):
             if confirmed and lit_beside(crop, other, self.glow_reach_share):
                 return True
-            if (other[3] <= box[3] and other[0] < crop[2] and other[2] > crop[0] and other[1] < crop[3]
-                    and other[3] > crop[1]):
+            if other[3] <= box[3] and reaches_into(other, crop):
                 return True
         return False
 
