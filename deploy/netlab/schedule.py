@@ -173,7 +173,7 @@ def message_figures(seen: RowSeen) -> dict[str, Any]:
     out: dict[str, Any] = {
         "commands_issued": len(issued), "commands_acked": len([c for c in issued if c in acked]),
         "commands_unacked": len(unacked), "commands_expired_at_ddm": seen.cmd_expired,
-        "commands_lost": max(0, len(unacked) - seen.cmd_expired),
+        "commands_lost": unanswered_commands({c: seen.commands[c][0] for c in issued}, acked, seen.cmd_expired),
         "ack_latency_p50_s": None if not ack_lat else round(statistics.median(ack_lat), 3),
         "ack_latency_max_s": None if not ack_lat else round(max(ack_lat), 3),
     }
