@@ -84,12 +84,12 @@ from sim.world import World  # noqa: E402
 cv2.setNumThreads(1)
 SCENARIOS = ("rellis_ev_yield", "ev_two_lanes_dense", "night_ev", "ev_lights_never_on")
 YOLOX = REAL / "yolox_nano" / "yolox_nano.onnx"
-HELD_OUT_SEEDS = (86979, 42103)
+HELD_OUT_SEEDS = (57328, 13492)
 """Drawn at random once and not looked at while tuning (module docstring)."""
 TUNING_SEEDS = (1, 2, 3, 4, 8, 101, 102, 301, 302, 1142, 1527, 5441, 6538, 31372, 91468, 50857, 21674, 80442, 44077,
                 90289, 76285, 30023, 41751, 30788, 36737, 65805, 97823, 51100, 68157, 36545, 16790, 57097, 72786, 21376,
                 45884, 93492, 82788, 52609, 82241, 47390, 38696, 90535, 51550, 29407, 89771, 38605, 32666, 17702, 99765,
-                38238, 72567, 41598, 97409, 57211, 87512, 97327, 43102, 58402, 87726, 72197, 47795)
+                38238, 72567, 41598, 97409, 57211, 87512, 97327, 43102, 58402, 87726, 72197, 47795, 86979, 42103)
 """Seeds the EV path has been tuned or traced on (module docstring)."""
 DEBUG = bool(os.environ.get("EV_BENCH_DEBUG"))
 
@@ -260,7 +260,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(HELD_OUT_SEEDS),
-                    help="seeds (default: HELD_OUT_SEEDS, 86979 42103; TUNING_SEEDS lists those tuned on)")
+                    help="seeds (default: HELD_OUT_SEEDS, 57328 13492; TUNING_SEEDS lists those tuned on)")
     ap.add_argument("--detector", choices=["project", "motion", "onnx"], default="project",
                     help="project: the RSUs' default (models/iea_det_tiny.onnx); motion: MOG2; onnx: COCO YOLOX-nano")
     ap.add_argument("--duration-s", type=float, default=20.0, help="simulated seconds per run (scenario cap)")
