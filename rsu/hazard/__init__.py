@@ -7,7 +7,10 @@ is static; every rate and duration is in seconds, so the behaviour does not depe
 - long-term background ``B_L``: the per-pixel median of ``init_frames`` frames spread over the first
   seconds (moving traffic drops out of a median), then a running average with the slow time constant
   ``long_tau_s`` (rate 1 - exp(-dt / tau) for an update dt after the last), learnt only where the pixel matches
-  it (and frozen under static candidates, so a hazard is never absorbed);
+  it (and frozen under static candidates, so a hazard is never absorbed). Where no frame has shown the
+  median's value (not one of its own looks, nor any since: a blend of the cars of a platoon far from the camera,
+  that cover the same pixels in most of its looks), the road standing still there, no track over it, replaces
+  it before any evidence counts, whenever that comes; a primed empty road is shown;
 - short-term background ``B_S``: a running average with the fast time constant ``short_tau_s``.
 
 A pixel is *static foreground* when the frame differs from ``B_L`` (``> diff_threshold``, largest

@@ -61,6 +61,9 @@ class StaticForeground:
         """Time since the last frame taken into the initial median."""
         self.last_static: np.ndarray | None = None
         self.last_frame: np.ndarray | None = None
+        self.confirmed: np.ndarray | None = None
+        """bool mask: pixels whose long-term background a frame has shown (one of the median's looks or a later
+        frame; all, when primed). Static foreground elsewhere is the median's guess giving way to the road."""
 
     @property
     def ready(self) -> bool:
@@ -75,6 +78,7 @@ class StaticForeground:
         f = small.astype(np.float32)
         self.long_bg, self.short_bg = f.copy(), f.copy()
         self.evidence = np.zeros(f.shape[:2], np.float32)
+        self.confirmed = np.ones(f.shape[:2], bool)
         self._init = []
 
     def update(self, small: np.ndarray, hold: np.ndarray | None = None, dt_s: float = 1 / 15) -> bool:
@@ -96,6 +100,10 @@ class StaticForeground:
             if len(self._init) >= cfg.init_frames:
                 self.long_bg = median_of_frames(self._init).astype(np.float32)
                 self.evidence = np.zeros(f.shape[:2], np.float32)
+                self.confirmed = np.zeros(f.shape[:2], bool)
+                for g in self._init:  # a look that showed the median's value there
+                    d = cv2.absdiff(g.astype(np.float32), self.long_bg)
+                    self.confirmed |= (_channel_max(d) if d.ndim == 3 else d) <= cfg.diff_threshold
                 self._init = []
             return False
         d_long = cv2.absdiff(f, self.long_bg)
@@ -112,6 +120,11 @@ class StaticForeground:
         free = np.ones_like(static) if hold is None else ~hold
         if self.roi is not None:
             static &= self.roi
+        self.confirmed |= ~fg_long
+        unconfirmed = static & free & ~self.confirmed
+        if unconfirmed.any():  # the median's guess, never seen: the road standing still there replaces it
+            self.long_bg[unconfirmed] = f[unconfirmed]
+            static &= ~unconfirmed
         e = self.evidence
         e[static & free] += dt_s
         e[~fg_long & free] -= cfg.decay * dt_s

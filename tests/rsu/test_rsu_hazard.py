@@ -365,3 +365,44 @@ def test_warm_up_leaves_no_ghost_of_a_vehicle_the_initial_median_kept(scene):
     # opened away are left (the median alone leaves all of them)
     events = run(det, [frame_with(base, [], noise=rng) for _ in range(60)], t0=6.0)
     assert not events
+
+
+def test_a_live_start_leaves_no_ghost_of_a_platoon_its_median_kept_and_still_sees_new_debris(scene):
+    """Started on a live road (no warm-up, no primed empty road): red and blue cars take turns over a patch of lane 0
+    in two of every three looks while the initial median is made, so the median holds a blend of them that no frame
+    shows (a far platoon); the road that stands still there once they have gone replaces the median's guess and is no
+    hazard (its soft outline passes no ghost test). Debris dropped afterwards on road already seen is reported."""
+    corridor, rsu, base, loc = scene
+    det = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(), camera=rsu.camera)
+    y0 = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(0))[1])
+    y1 = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    x1, ya, x2, yb = (int(round(v)) for v in patch_box(rsu, 150.0, y0, length=4.5, width=1.8, height=1.5))
+    shape = np.zeros(base.shape[:2], np.float32)
+    shape[ya:yb, x1:x2] = 1.0
+    shape = cv2.GaussianBlur(shape, (0, 0), 4.0)[..., None]  # a soft outline
+
+    def car(colour):
+        return (base * (1.0 - shape) + np.float32(colour) * shape).astype(np.uint8)
+
+    red, blue = car((20, 20, 200)), car((200, 20, 20))
+    rng = np.random.default_rng(6)
+    turns = [red, blue, base] * 4  # 8 frames each: one look of the detector's two a second
+    frames = [frame_with(turns[k // 8], [], noise=rng) for k in range(8 * len(turns))]  # 6.4 s
+    frames += [frame_with(base, [], noise=rng) for _ in range(60)]  # they have gone: the road for 4 s
+    assert run(det, frames) == []
+    assert det.fg.ready and det.stats.ghosts == 0  # not the ghost test's doing
+    events = run(det, [frame_with(base, [patch_box(rsu, 125.0, y1)], noise=rng) for _ in range(45)], t0=11.0)
+    assert [e.state for _, e in events][:1] == [HazardState.APPEAR] and events[0][1].lane == 1
+
+
+def test_a_live_start_reports_debris_that_fell_while_its_median_was_made(scene):
+    """Debris that falls on road the median's first looks showed (2.5 s in, before the median is made) is reported:
+    the road there is no guess."""
+    corridor, rsu, base, loc = scene
+    det = HazardDetector(corridor.road, loc.mapper.to_ground, HazardConfig(), camera=rsu.camera)
+    y1 = float(corridor.road.pose_at(225.0, corridor.road.lane_centre_offset_m(1))[1])
+    debris = patch_box(rsu, 125.0, y1)
+    rng = np.random.default_rng(7)
+    frames = [frame_with(base, [debris] if k >= 38 else [], noise=rng) for k in range(135)]  # 9 s
+    events = run(det, frames)
+    assert [e.state for _, e in events][:1] == [HazardState.APPEAR] and events[0][1].lane == 1
