@@ -55,7 +55,7 @@ from models.train_ev_body import (  # noqa: E402
     set_metadata,
     usable_crops,
 )
-from models.train_lamp_state import is_validation_photo  # noqa: E402
+from models.train_lamp_state import is_validation_photo, traffic_clip_path  # noqa: E402
 from rsu.classify.evaluation import metrics  # noqa: E402
 from rsu.scan_labels import TUNING_TRAFFIC_CLIPS  # noqa: E402
 
@@ -106,10 +106,7 @@ def clip_negatives(detector, clips, every_s: float = 0.5, min_width_px: float = 
 
     out = []
     for name in clips:
-        paths = sorted((REAL / "traffic_videos").glob(f"{name}.*"))
-        if not paths:
-            raise SystemExit(f"no traffic clip {name} in {REAL / 'traffic_videos'}")
-        cap = cv2.VideoCapture(str(paths[0]))
+        cap = cv2.VideoCapture(str(traffic_clip_path(name)))
         step = max(1, int(round((cap.get(cv2.CAP_PROP_FPS) or 25.0) * every_s)))
         i = 0
         while True:

@@ -102,14 +102,11 @@ class StaticForeground:
                 self.evidence = np.zeros(f.shape[:2], np.float32)
                 self.confirmed = np.zeros(f.shape[:2], bool)
                 for g in self._init:  # a look that showed the median's value there
-                    d = cv2.absdiff(g.astype(np.float32), self.long_bg)
-                    self.confirmed |= (_channel_max(d) if d.ndim == 3 else d) <= cfg.diff_threshold
+                    self.confirmed |= _difference(g.astype(np.float32), self.long_bg) <= cfg.diff_threshold
                 self._init = []
             return False
-        d_long = cv2.absdiff(f, self.long_bg)
-        d_short = cv2.absdiff(f, self.short_bg)
-        if d_long.ndim == 3:
-            d_long, d_short = _channel_max(d_long), _channel_max(d_short)
+        d_long = _difference(f, self.long_bg)
+        d_short = _difference(f, self.short_bg)
         fg_long = d_long > cfg.diff_threshold
         cv2.accumulateWeighted(f, self.short_bg, short_alpha)
         if np.count_nonzero(fg_long) > cfg.max_foreground_fraction * fg_long.size:
@@ -194,6 +191,12 @@ def median_of_frames(frames: list[np.ndarray]) -> np.ndarray:
     for i, j in MEDIAN9_EXCHANGES:
         p[i], p[j] = cv2.min(p[i], p[j]), cv2.max(p[i], p[j])
     return p[4]
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per pixel, the largest channel difference of two same-shaped images (the difference itself for grey)."""
+    d = cv2.absdiff(a, b)
+    return _channel_max(d) if d.ndim == 3 else d
 
 
 def _channel_max(img: np.ndarray) -> np.ndarray:
