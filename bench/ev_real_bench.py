@@ -93,11 +93,12 @@ def clip_figures(path: Path, kind: str, body: str, max_s: float | None, scans: P
                  rescore: bool = False, detections: Path | None = None,
                  score_threshold: float | None = None) -> tuple[dict, object]:
     """One clip's scan and, where it has a label file, its per-vehicle score (None without one). ``scans``: a
-    folder where each clip's scan is kept (``<stem>.pkl``); ``rescore``: read it from there instead of scanning
-    (scores again against the labels as they are now); ``detections``: a folder where each clip's detector output is
+    folder where each clip's scan is kept (``<stem>.pkl``; ``<stem>-score<T>.pkl`` at another detector threshold);
+    ``rescore``: read it from there instead of scanning (scores again against the labels as they are now); ``detections``: a folder where each clip's detector output is
     kept and replayed (``rsu.scan.scan_video``'s ``detections_dir``): the recogniser runs again, the detector not;
     ``score_threshold``: the detector's (default: the RSU's)."""
-    kept = None if scans is None else scans / f"{path.stem}.pkl"
+    tag = "" if score_threshold is None else f"-score{score_threshold:g}"
+    kept = None if scans is None else scans / f"{path.stem}{tag}.pkl"
     if rescore:
         if kept is None or not kept.is_file():
             raise FileNotFoundError(f"--rescore: no kept scan {kept} (run once with --scans {scans} first)")
